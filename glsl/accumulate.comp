@@ -1,0 +1,60 @@
+#version 460
+// Adds each pixel's path sample to the running sums and totals the pass stats.
+
+#include "shared.h"
+
+layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+layout(std430, set = 0, binding = B_SAMPLES) readonly buffer Samples { PathSample samples[]; };
+layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
+layout(std430, set = 0, binding = B_STATS) buffer Stats { PassStats stats; };
+
+// One global atomic per counter per workgroup instead of one per pixel.
+shared uint s_paths;
+shared uint s_zero;
+shared uint s_length;
+shared uint s_rays;
+shared uint s_nan;
+
+void main() {
+    if (gl_LocalInvocationIndex == 0u) {
+        s_paths = 0u;
+        s_zero = 0u;
+        s_length = 0u;
+        s_rays = 0u;
+        s_nan = 0u;
+    }
+    barrier();
+
+    uvec2 pixel = gl_GlobalInvocationID.xy;
+    if (pixel.x < params.width && pixel.y < params.height) {
+        uint index = pixel.y * params.width + pixel.x;
+        PathSample s = samples[index];
+        bool bad = any(isnan(s.radiance)) || any(isinf(s.radiance));
+        if (bad) {
+            // Counted and left out rather than poisoning the pixel.
+            atomicAdd(s_nan, 1u);
+        } else {
+            Accum a = accum[index];
+            a.sum += vec4(s.radiance, 1.0);
+            a.sum_sq += vec4(s.radiance * s.radiance, 0.0);
+            accum[index] = a;
+            if ((s.radiance.r + s.radiance.g + s.radiance.b) / 3.0 < 1e-4) {
+                atomicAdd(s_zero, 1u);
+            }
+        }
+        atomicAdd(s_paths, 1u);
+        atomicAdd(s_length, s.path_length);
+        atomicAdd(s_rays, s.rays);
+    }
+    barrier();
+
+    if (gl_LocalInvocationIndex == 0u) {
+        atomicAdd(stats.paths, s_paths);
+        atomicAdd(stats.zero_paths, s_zero);
+        atomicAdd(stats.length_sum, s_length);
+        atomicAdd(stats.rays, s_rays);
+        atomicAdd(stats.nan_paths, s_nan);
+    }
+}

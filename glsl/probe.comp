@@ -1,0 +1,34 @@
+#version 460
+// Runs the GLSL building blocks on host-given inputs so tests can compare them
+// with CPU references: BVH traversal and the hemisphere map.
+
+#include "shared.h"
+#include "sampling.glsl"
+#include "scene.glsl"
+
+layout(local_size_x = LINEAR_GROUP) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+layout(std430, set = 0, binding = B_PROBE_IN) readonly buffer ProbeIn { vec4 probe_in[]; };
+layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= params.item_count) {
+        return;
+    }
+    if (params.probe_mode == PROBE_TRACE) {
+        // in[2i] = origin, in[2i+1] = direction; out = (t, triangle bits, any-hit flag, 0)
+        vec3 o = probe_in[2u * i].xyz;
+        vec3 d = probe_in[2u * i + 1u].xyz;
+        Hit h = trace_ray(o, d, FAR, false);
+        Hit occl = trace_ray(o, d, FAR, true);
+        probe_out[i] = vec4(h.t, uintBitsToFloat(h.triangle), occl.triangle == NO_HIT ? 0.0 : 1.0, 0.0);
+    } else {
+        // in = (u, v, grid a, grid b); out = (direction, sector of that direction)
+        vec4 q = probe_in[i];
+        vec3 w = square_to_hemisphere(q.xy);
+        uint sector = hemisphere_sector(w, uint(q.z), uint(q.w));
+        probe_out[i] = vec4(w, float(sector));
+    }
+}

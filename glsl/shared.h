@@ -1,0 +1,127 @@
+// Shared between GLSL and Rust (src/shaders.rs mirrors the structs; build.rs
+// turns every `#define NAME <integer>` below into a Rust constant).
+#ifndef QTRACE_SHARED_H
+#define QTRACE_SHARED_H
+
+// Workgroup sizes.
+#define TILE_X 8
+#define TILE_Y 8
+#define LINEAR_GROUP 64
+
+// Bindings (set 0; every one a storage buffer).
+#define B_NODES 0
+#define B_TRIANGLES 1
+#define B_MATERIALS 2
+#define B_LIGHTS 3
+#define B_SAMPLES 4
+#define B_ACCUM 5
+#define B_STATS 6
+#define B_PROBE_IN 7
+#define B_PROBE_OUT 8
+
+// PassParams.flags bits.
+#define FLAG_NEE 1
+#define FLAG_UNIFORM 2
+
+// Probe kernel modes (tests of the GLSL building blocks).
+#define PROBE_TRACE 0
+#define PROBE_HEMISPHERE 1
+
+// Bounces before Russian roulette may end a path.
+#define RR_START_DEPTH 3
+// Longest BVH traversal stack the builder may produce.
+#define BVH_STACK_SIZE 64
+
+// Bytes of each struct, checked on the Rust side too.
+#define SIZEOF_BVH_NODE 32
+#define SIZEOF_TRIANGLE 64
+#define SIZEOF_MATERIAL 32
+#define SIZEOF_LIGHT 16
+#define SIZEOF_PATH_SAMPLE 32
+#define SIZEOF_ACCUM 32
+#define SIZEOF_PASS_STATS 32
+#define SIZEOF_PASS_PARAMS 128
+
+// Flattened BVH node. Interior: children at `first` and `first + 1`.
+// Leaf (count > 0): triangles first .. first + count.
+struct BvhNode {
+    vec3 bmin;
+    uint first;
+    vec3 bmax;
+    uint count;
+};
+
+// A triangle as v0 and two edges; the geometric normal is cross(e1, e2).
+struct Triangle {
+    vec3 v0;
+    uint material;
+    vec3 e1;
+    float light_pdf;   // P(choose this light) / area; 0 for non-emitters
+    vec3 e2;
+    float area;
+    vec4 pad;
+};
+
+struct Material {
+    vec4 albedo;       // rgb diffuse reflectance
+    vec4 emission;     // rgb radiance, emitted on the front side only
+};
+
+// Emissive triangle for next-event estimation; chosen by `cdf` (inclusive).
+struct Light {
+    uint triangle;
+    float cdf;
+    float pdf;         // P(choose this light)
+    float pad;
+};
+
+// One path's result, written by the trace pass, read by accumulate.
+struct PathSample {
+    vec3 radiance;
+    uint path_length;  // surface hits along the path
+    uint rays;         // rays cast, shadow rays included
+    uint pad0;
+    uint pad1;
+    uint pad2;
+};
+
+// Running sums per pixel.
+struct Accum {
+    vec4 sum;          // rgb sum of path estimates, w = sample count
+    vec4 sum_sq;       // rgb sum of squares
+};
+
+// Totals of one sample pass (reset before each pass).
+struct PassStats {
+    uint paths;
+    uint zero_paths;
+    uint length_sum;
+    uint rays;
+    uint nan_paths;
+    uint pad0;
+    uint pad1;
+    uint pad2;
+};
+
+// Push constants shared by every pass of a render.
+struct PassParams {
+    vec4 cam_pos;      // xyz, w = ray offset epsilon
+    vec4 cam_right;    // r * tan(fov/2) * aspect
+    vec4 cam_up;       // u * tan(fov/2)
+    vec4 cam_forward;  // f
+    vec4 environment;  // rgb radiance of misses
+    uint width;
+    uint height;
+    uint pass_index;
+    uint seed;
+    uint max_depth;
+    uint flags;
+    uint light_count;
+    uint probe_mode;   // probe kernel only
+    uint item_count;   // probe kernel only
+    uint pad0;
+    uint pad1;
+    uint pad2;
+};
+
+#endif

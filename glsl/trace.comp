@@ -1,0 +1,158 @@
+#version 460
+// The trace kernel: one path per pixel per pass. Method variants are compiled
+// from this one source by build.rs (METHOD_PT, ...).
+
+#include "shared.h"
+#include "rng.glsl"
+#include "sampling.glsl"
+#include "scene.glsl"
+
+layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+layout(std430, set = 0, binding = B_LIGHTS) readonly buffer Lights { Light lights[]; };
+layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
+
+float luminance(vec3 c) {
+    return dot(c, vec3(0.2126, 0.7152, 0.0722));
+}
+
+float power_heuristic(float a, float b) {
+    float a2 = a * a;
+    float b2 = b * b;
+    return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0;
+}
+
+// Index of the light whose inclusive CDF first exceeds u.
+uint pick_light(float u) {
+    uint lo = 0u;
+    uint hi = params.light_count - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (lights[mid].cdf > u) {
+            hi = mid;
+        } else {
+            lo = mid + 1u;
+        }
+    }
+    return lo;
+}
+
+// Solid-angle pdf of choosing direction `local` (z = cos theta) by BSDF sampling.
+float bsdf_pdf(float cos_theta) {
+    if (cos_theta <= 0.0) {
+        return 0.0;
+    }
+    return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : cos_theta * INV_PI;
+}
+
+void main() {
+    uvec2 pixel = gl_GlobalInvocationID.xy;
+    if (pixel.x >= params.width || pixel.y >= params.height) {
+        return;
+    }
+    uint index = pixel.y * params.width + pixel.x;
+    uint rng = rng_init(index, params.pass_index, params.seed);
+    bool nee = (params.flags & FLAG_NEE) != 0u && params.light_count > 0u;
+    float eps = params.cam_pos.w;
+
+    // Camera ray through a uniformly jittered point of the pixel (box filter).
+    vec2 jitter = rng_next2(rng);
+    vec2 ndc = vec2(
+        2.0 * (float(pixel.x) + jitter.x) / float(params.width) - 1.0,
+        1.0 - 2.0 * (float(pixel.y) + jitter.y) / float(params.height));
+    vec3 origin = params.cam_pos.xyz;
+    vec3 dir = normalize(params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz);
+
+    vec3 radiance = vec3(0.0);
+    vec3 throughput = vec3(1.0);
+    uint path_length = 0u;
+    uint rays = 0u;
+    float prev_bsdf_pdf = 0.0; // 0 marks the camera ray: no MIS for what it hits
+
+    for (uint depth = 0u;; ++depth) {
+        Hit hit = trace_ray(origin, dir, FAR, false);
+        rays += 1u;
+        if (hit.triangle == NO_HIT) {
+            radiance += throughput * params.environment.rgb;
+            break;
+        }
+        path_length += 1u;
+        Triangle tri = triangles[hit.triangle];
+        Material mat = materials[tri.material];
+        vec3 n = normalize(cross(tri.e1, tri.e2));
+        float cos_out = -dot(n, dir);
+
+        if (tri.light_pdf > 0.0) {
+            // Emitters end the path; they emit on their front side only.
+            if (cos_out > 0.0) {
+                float weight = 1.0;
+                if (nee && prev_bsdf_pdf > 0.0) {
+                    float light_pdf = tri.light_pdf * hit.t * hit.t / cos_out;
+                    weight = power_heuristic(prev_bsdf_pdf, light_pdf);
+                }
+                radiance += throughput * mat.emission.rgb * weight;
+            }
+            break;
+        }
+        if (depth >= params.max_depth) {
+            break;
+        }
+
+        // Diffuse surfaces scatter on both sides: shade with the normal facing the ray.
+        vec3 ns = cos_out > 0.0 ? n : -n;
+        vec3 position = origin + hit.t * dir + ns * eps;
+        vec3 albedo = mat.albedo.rgb;
+
+        if (nee) {
+            Light light = lights[pick_light(rng_next(rng))];
+            Triangle lt = triangles[light.triangle];
+            vec2 u = rng_next2(rng);
+            if (u.x + u.y > 1.0) {
+                u = 1.0 - u;
+            }
+            vec3 target = lt.v0 + u.x * lt.e1 + u.y * lt.e2;
+            vec3 to_light = target - position;
+            float dist2 = dot(to_light, to_light);
+            float dist = sqrt(dist2);
+            vec3 wi = to_light / dist;
+            float cos_x = dot(ns, wi);
+            float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
+            if (cos_x > 0.0 && cos_y > 0.0) {
+                rays += 1u;
+                Hit shadow = trace_ray(position, wi, dist * (1.0 - 1e-4) - eps, true);
+                if (shadow.triangle == NO_HIT) {
+                    float light_pdf = lt.light_pdf * dist2 / cos_y;
+                    float weight = power_heuristic(light_pdf, bsdf_pdf(cos_x));
+                    vec3 le = materials[lt.material].emission.rgb;
+                    radiance += throughput * albedo * INV_PI * cos_x * le * weight / light_pdf;
+                }
+            }
+        }
+
+        // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
+        vec3 t;
+        vec3 b;
+        make_frame(ns, t, b);
+        vec2 u = rng_next2(rng);
+        vec3 local = (params.flags & FLAG_UNIFORM) != 0u ? square_to_hemisphere(u) : sample_cosine(u);
+        float pdf = bsdf_pdf(local.z);
+        if (pdf <= 0.0) {
+            break;
+        }
+        throughput *= albedo * INV_PI * local.z / pdf;
+        prev_bsdf_pdf = pdf;
+        dir = normalize(local.x * t + local.y * b + local.z * ns);
+        origin = position;
+
+        if (depth + 1u >= RR_START_DEPTH) {
+            float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
+            if (rng_next(rng) >= q) {
+                break;
+            }
+            throughput /= q;
+        }
+    }
+
+    samples[index] = PathSample(radiance, path_length, rays, 0u, 0u, 0u);
+}

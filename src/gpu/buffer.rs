@@ -1,0 +1,183 @@
+//! Storage buffers allocated through gpu-allocator, freed on `Drop`.
+
+use super::{Error, GpuContext, Result};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+use std::sync::Arc;
+
+/// A named storage buffer. The constructor says where its memory lives.
+pub struct Buffer {
+    ctx: Arc<GpuContext>,
+    pub(super) raw: vk::Buffer,
+    allocation: Option<Allocation>,
+    size: u64,
+    name: String,
+}
+
+impl Buffer {
+    fn new(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        size: u64,
+        location: MemoryLocation,
+        usage: vk::BufferUsageFlags,
+    ) -> Result<Self> {
+        let limit = ctx.info().max_storage_buffer_range;
+        if size > limit {
+            return Err(Error::BufferTooLarge {
+                name: name.into(),
+                size,
+                limit,
+                device: ctx.info().name.clone(),
+            });
+        }
+        // Vulkan forbids empty buffers; an empty list still needs a binding.
+        let size = size.max(16);
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        let device = &ctx.device;
+        let raw = unsafe { device.create_buffer(&info, None)? };
+        let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
+        let allocation = ctx
+            .allocator
+            .lock()
+            .unwrap()
+            .allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            });
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { device.destroy_buffer(raw, None) };
+                return Err(e.into());
+            }
+        };
+        if let Err(e) =
+            unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }
+        {
+            let _ = ctx.allocator.lock().unwrap().free(allocation);
+            unsafe { device.destroy_buffer(raw, None) };
+            return Err(e.into());
+        }
+        ctx.set_name(raw, name);
+        Ok(Self {
+            ctx: ctx.clone(),
+            raw,
+            allocation: Some(allocation),
+            size,
+            name: name.into(),
+        })
+    }
+
+    /// Device-local memory, filled and read through transfers.
+    pub fn gpu_only(ctx: &Arc<GpuContext>, name: &str, size: u64) -> Result<Self> {
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_SRC
+            | vk::BufferUsageFlags::TRANSFER_DST;
+        Self::new(ctx, name, size, MemoryLocation::GpuOnly, usage)
+    }
+
+    /// Host-visible memory the host writes and shaders read.
+    pub fn upload(ctx: &Arc<GpuContext>, name: &str, size: u64) -> Result<Self> {
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC;
+        Self::new(ctx, name, size, MemoryLocation::CpuToGpu, usage)
+    }
+
+    /// Host-visible memory shaders or transfers write and the host reads.
+    pub fn readback(ctx: &Arc<GpuContext>, name: &str, size: u64) -> Result<Self> {
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
+        Self::new(ctx, name, size, MemoryLocation::GpuToCpu, usage)
+    }
+
+    /// A device-local buffer holding `data`, copied through a staging buffer.
+    pub fn gpu_only_with<T: bytemuck::Pod>(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        data: &[T],
+    ) -> Result<Self> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let buffer = Self::gpu_only(ctx, name, bytes.len() as u64)?;
+        if !bytes.is_empty() {
+            let staging = Self::upload(ctx, &format!("{name} (staging)"), bytes.len() as u64)?;
+            staging.write(data);
+            ctx.submit(None, |rec| rec.copy(&staging, &buffer))?;
+        }
+        Ok(buffer)
+    }
+
+    /// The whole contents of a device-local buffer, copied through a readback buffer.
+    pub fn download<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        if self.mapped().is_some() {
+            return Ok(self.read());
+        }
+        let staging = Self::readback(&self.ctx, &format!("{} (readback)", self.name), self.size)?;
+        self.ctx.submit(None, |rec| rec.copy(self, &staging))?;
+        Ok(staging.read())
+    }
+
+    fn mapped(&self) -> Option<std::ptr::NonNull<std::ffi::c_void>> {
+        self.allocation.as_ref().and_then(|a| a.mapped_ptr())
+    }
+
+    /// Writes `data` at the start of a host-visible buffer.
+    ///
+    /// Panics if the buffer is not host-visible or too small: both are programming errors.
+    pub fn write<T: bytemuck::Pod>(&self, data: &[T]) {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        assert!(
+            bytes.len() as u64 <= self.size,
+            "write past the end of '{}'",
+            self.name
+        );
+        let ptr = self
+            .mapped()
+            .expect("write to a buffer that is not host-visible");
+        // SAFETY: the mapping covers `size` bytes and no GPU work uses the buffer
+        // while the host writes (every submit waits for its fence).
+        unsafe {
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), ptr.as_ptr() as *mut u8, bytes.len())
+        };
+    }
+
+    /// The contents of a host-visible buffer as `T`s (trailing bytes ignored).
+    pub fn read<T: bytemuck::Pod>(&self) -> Vec<T> {
+        let ptr = self
+            .mapped()
+            .expect("read from a buffer that is not host-visible");
+        let count = self.size as usize / std::mem::size_of::<T>();
+        let mut out = vec![T::zeroed(); count];
+        // SAFETY: as in `write`; `out` holds exactly `count * size_of::<T>()` bytes.
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                ptr.as_ptr() as *const u8,
+                out.as_mut_ptr() as *mut u8,
+                count * std::mem::size_of::<T>(),
+            )
+        };
+        out
+    }
+
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        if let Some(allocation) = self.allocation.take() {
+            let _ = self.ctx.allocator.lock().unwrap().free(allocation);
+        }
+        unsafe { self.ctx.device.destroy_buffer(self.raw, None) };
+    }
+}

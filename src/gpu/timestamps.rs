@@ -1,0 +1,161 @@
+//! Named GPU timings from timestamp query pools.
+
+use super::{GpuContext, Result};
+use ash::vk;
+use std::sync::Arc;
+
+/// Most passes one submit may time; later ones in the same submit go untimed.
+const MAX_TIMED_PASSES: u32 = 64;
+
+/// Totals for one pass name.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct PassTiming {
+    pub name: String,
+    pub count: u64,
+    pub total_ms: f64,
+    pub min_ms: f64,
+    pub max_ms: f64,
+}
+
+impl PassTiming {
+    pub fn mean_ms(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.total_ms / self.count as f64
+        }
+    }
+}
+
+/// Collects per-pass GPU time across submits. Does nothing on devices without
+/// timestamp support.
+pub struct Profiler {
+    ctx: Arc<GpuContext>,
+    pool: Option<vk::QueryPool>,
+    pending: Vec<String>,
+    timings: Vec<PassTiming>,
+    valid_mask: u64,
+}
+
+impl Profiler {
+    pub fn new(ctx: &Arc<GpuContext>) -> Result<Self> {
+        let pool = if ctx.info().timestamps {
+            let info = vk::QueryPoolCreateInfo::default()
+                .query_type(vk::QueryType::TIMESTAMP)
+                .query_count(2 * MAX_TIMED_PASSES);
+            let pool = unsafe { ctx.device.create_query_pool(&info, None)? };
+            ctx.set_name(pool, "pass timestamps");
+            Some(pool)
+        } else {
+            None
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            pool,
+            pending: Vec::new(),
+            timings: Vec::new(),
+            valid_mask: u64::MAX,
+        })
+    }
+
+    /// Whether this device can time passes at all.
+    pub fn enabled(&self) -> bool {
+        self.pool.is_some()
+    }
+
+    pub(super) fn reset(&mut self, cmd: vk::CommandBuffer) {
+        self.pending.clear();
+        if let Some(pool) = self.pool {
+            unsafe {
+                self.ctx
+                    .device
+                    .cmd_reset_query_pool(cmd, pool, 0, 2 * MAX_TIMED_PASSES)
+            };
+        }
+    }
+
+    pub(super) fn begin(&mut self, cmd: vk::CommandBuffer, name: &str) -> Option<u32> {
+        let pool = self.pool?;
+        let index = self.pending.len() as u32;
+        if index >= MAX_TIMED_PASSES {
+            return None;
+        }
+        self.pending.push(name.to_string());
+        unsafe {
+            self.ctx.device.cmd_write_timestamp(
+                cmd,
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                pool,
+                2 * index,
+            )
+        };
+        Some(index)
+    }
+
+    pub(super) fn end(&mut self, cmd: vk::CommandBuffer, index: u32) {
+        if let Some(pool) = self.pool {
+            unsafe {
+                self.ctx.device.cmd_write_timestamp(
+                    cmd,
+                    vk::PipelineStageFlags::COMPUTE_SHADER,
+                    pool,
+                    2 * index + 1,
+                )
+            };
+        }
+    }
+
+    /// Reads the finished submit's timestamps into the totals.
+    pub(super) fn collect(&mut self) -> Result<()> {
+        let Some(pool) = self.pool else {
+            return Ok(());
+        };
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let mut ticks = vec![0u64; 2 * self.pending.len()];
+        unsafe {
+            self.ctx.device.get_query_pool_results(
+                pool,
+                0,
+                &mut ticks,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )?
+        };
+        let period_ms = self.ctx.info().timestamp_period_ns as f64 * 1e-6;
+        for (i, name) in std::mem::take(&mut self.pending).into_iter().enumerate() {
+            let start = ticks[2 * i] & self.valid_mask;
+            let end = ticks[2 * i + 1] & self.valid_mask;
+            let ms = end.saturating_sub(start) as f64 * period_ms;
+            let t = match self.timings.iter_mut().find(|t| t.name == name) {
+                Some(t) => t,
+                None => {
+                    self.timings.push(PassTiming {
+                        name,
+                        min_ms: f64::INFINITY,
+                        ..Default::default()
+                    });
+                    self.timings.last_mut().unwrap()
+                }
+            };
+            t.count += 1;
+            t.total_ms += ms;
+            t.min_ms = t.min_ms.min(ms);
+            t.max_ms = t.max_ms.max(ms);
+        }
+        Ok(())
+    }
+
+    /// Totals per pass name, in first-seen order.
+    pub fn timings(&self) -> &[PassTiming] {
+        &self.timings
+    }
+}
+
+impl Drop for Profiler {
+    fn drop(&mut self) {
+        if let Some(pool) = self.pool {
+            unsafe { self.ctx.device.destroy_query_pool(pool, None) };
+        }
+    }
+}

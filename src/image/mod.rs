@@ -1,0 +1,225 @@
+//! Images: linear float RGB, EXR and PNG files written atomically, error metrics.
+
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    #[error("{path}: cannot write image: {message}")]
+    Write { path: PathBuf, message: String },
+    #[error("{path}: cannot read image: {message}")]
+    Read { path: PathBuf, message: String },
+    #[error("images differ in size: {a_path} is {a_w}x{a_h}, {b_path} is {b_w}x{b_h}")]
+    SizeMismatch {
+        a_path: String,
+        a_w: usize,
+        a_h: usize,
+        b_path: String,
+        b_w: usize,
+        b_h: usize,
+    },
+}
+
+/// Linear RGB, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<[f32; 3]>,
+}
+
+/// Writes through a temporary file in the same directory, then renames it into
+/// place, so an interrupted or failed write never leaves a half-written file.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), String>,
+) -> Result<(), ImageError> {
+    let err = |message: String| ImageError::Write {
+        path: path.to_path_buf(),
+        message,
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| err("not a file name".into()))?
+        .to_string_lossy();
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if !dir.is_dir() {
+        return Err(err(format!("directory {} does not exist", dir.display())));
+    }
+    // Keep the extension last: the encoders pick the format from it.
+    let tmp = dir.join(format!(".{}.{}.tmp.{name}", name, std::process::id()));
+    let result = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(|e| e.to_string()));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.map_err(err)
+}
+
+impl Image {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            pixels: vec![[0.0; 3]; width * height],
+        }
+    }
+
+    /// Linear float RGB OpenEXR.
+    pub fn write_exr(&self, path: &Path) -> Result<(), ImageError> {
+        write_atomically(path, |tmp| {
+            exr::prelude::write_rgb_file(tmp, self.width, self.height, |x, y| {
+                let p = self.pixels[y * self.width + x];
+                (p[0], p[1], p[2])
+            })
+            .map_err(|e| e.to_string())
+        })
+    }
+
+    /// 8-bit sRGB PNG; values are clamped to [0, 1] before the sRGB curve.
+    pub fn write_png(&self, path: &Path) -> Result<(), ImageError> {
+        let bytes: Vec<u8> = self
+            .pixels
+            .iter()
+            .flat_map(|p| p.map(|v| (linear_to_srgb(v) * 255.0 + 0.5) as u8))
+            .collect();
+        write_atomically(path, |tmp| {
+            image::save_buffer_with_format(
+                tmp,
+                &bytes,
+                self.width as u32,
+                self.height as u32,
+                image::ExtendedColorType::Rgb8,
+                image::ImageFormat::Png,
+            )
+            .map_err(|e| e.to_string())
+        })
+    }
+
+    /// Reads the first RGB(A) layer of an OpenEXR file.
+    pub fn read_exr(path: &Path) -> Result<Self, ImageError> {
+        let image = exr::prelude::read_first_rgba_layer_from_file(
+            path,
+            |size, _| Image::new(size.width(), size.height()),
+            |img: &mut Image, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                let w = img.width;
+                img.pixels[pos.y() * w + pos.x()] = [r, g, b];
+            },
+        )
+        .map_err(|e| ImageError::Read {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        Ok(image.layer_data.channel_data.pixels)
+    }
+
+    /// Mean over pixels and channels.
+    pub fn mean(&self) -> f64 {
+        let sum: f64 = self.pixels.iter().flatten().map(|&v| v as f64).sum();
+        sum / (3 * self.pixels.len()).max(1) as f64
+    }
+}
+
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Error of an image against a reference (SPEC §6).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct ErrorMetrics {
+    pub mse: f64,
+    /// Mean of (a − b)² / (b² + 0.01).
+    pub rel_mse: f64,
+    /// Mean of |a − b| / (|b| + 0.01).
+    pub mape: f64,
+}
+
+pub fn compare(image: &Image, reference: &Image) -> Result<ErrorMetrics, ImageError> {
+    compare_named(image, "image", reference, "reference")
+}
+
+pub fn compare_named(
+    a: &Image,
+    a_name: &str,
+    b: &Image,
+    b_name: &str,
+) -> Result<ErrorMetrics, ImageError> {
+    if (a.width, a.height) != (b.width, b.height) {
+        return Err(ImageError::SizeMismatch {
+            a_path: a_name.into(),
+            a_w: a.width,
+            a_h: a.height,
+            b_path: b_name.into(),
+            b_w: b.width,
+            b_h: b.height,
+        });
+    }
+    let (mut mse, mut rel, mut mape) = (0.0f64, 0.0f64, 0.0f64);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        for c in 0..3 {
+            let (x, y) = (p[c] as f64, q[c] as f64);
+            let d = x - y;
+            mse += d * d;
+            rel += d * d / (y * y + 0.01);
+            mape += d.abs() / (y.abs() + 0.01);
+        }
+    }
+    let n = (3 * a.pixels.len()).max(1) as f64;
+    Ok(ErrorMetrics {
+        mse: mse / n,
+        rel_mse: rel / n,
+        mape: mape / n,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exr_round_trips_and_metrics_are_zero_on_equal_images() {
+        let dir = std::env::temp_dir().join(format!("qtrace-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut img = Image::new(5, 3);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = [i as f32, 0.5, 1e-3 * i as f32];
+        }
+        let path = dir.join("a.exr");
+        img.write_exr(&path).unwrap();
+        let back = Image::read_exr(&path).unwrap();
+        assert_eq!(back, img);
+        let m = compare(&img, &back).unwrap();
+        assert_eq!((m.mse, m.rel_mse, m.mape), (0.0, 0.0, 0.0));
+        // Only the final file remains: no temporary left behind.
+        let names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn metrics_match_hand_computation() {
+        let a = Image {
+            width: 1,
+            height: 1,
+            pixels: vec![[1.0, 0.0, 0.0]],
+        };
+        let b = Image {
+            width: 1,
+            height: 1,
+            pixels: vec![[0.0, 0.0, 0.0]],
+        };
+        let m = compare(&a, &b).unwrap();
+        assert!((m.mse - 1.0 / 3.0).abs() < 1e-12);
+        assert!((m.rel_mse - 100.0 / 3.0).abs() < 1e-9);
+        assert!((m.mape - 100.0 / 3.0).abs() < 1e-9);
+    }
+}

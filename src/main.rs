@@ -1,0 +1,445 @@
+//! The `qtrace` command line.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use qtrace::gpu::{self, ContextOptions, GpuContext};
+use qtrace::image::{self, Image};
+use qtrace::render::{self, Method, Overrides, Progress, RenderSettings, Sampling};
+use qtrace::Scene;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(Parser)]
+#[command(
+    name = "qtrace",
+    version,
+    about = "Vulkan path tracer with learned path guiding"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Args, Clone)]
+struct DeviceArgs {
+    /// Vulkan device by index or name substring (also QTRACE_DEVICE); default:
+    /// discrete GPU, then integrated, then CPU.
+    #[arg(long, env = "QTRACE_DEVICE")]
+    device: Option<String>,
+    /// Enable the Khronos validation layer (also QTRACE_VALIDATION=1).
+    #[arg(long)]
+    validation: bool,
+}
+
+#[derive(clap::Args, Clone)]
+struct RenderArgs {
+    /// Path-tracing method.
+    #[arg(long, value_enum)]
+    method: Option<Method>,
+    /// Samples per pixel (default: the scene's, else 64).
+    #[arg(long, conflicts_with = "time")]
+    spp: Option<u32>,
+    /// Render for this many seconds instead of a fixed sample count.
+    #[arg(long)]
+    time: Option<f64>,
+    #[arg(long)]
+    width: Option<u32>,
+    #[arg(long)]
+    height: Option<u32>,
+    /// Most bounces a path may take.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Next-event estimation with multiple importance sampling.
+    #[arg(long)]
+    nee: bool,
+    /// Random seed; the same seed gives the same image.
+    #[arg(long)]
+    seed: Option<u32>,
+    /// BSDF direction sampling.
+    #[arg(long, value_enum)]
+    sampling: Option<Sampling>,
+}
+
+impl RenderArgs {
+    fn overrides(&self) -> Overrides {
+        Overrides {
+            method: self.method,
+            spp: self.spp,
+            time: self.time,
+            width: self.width,
+            height: self.height,
+            max_depth: self.max_depth,
+            nee: self.nee,
+            seed: self.seed,
+            sampling: self.sampling,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene to OpenEXR (and optionally PNG and stats JSON).
+    Render {
+        scene: PathBuf,
+        #[command(flatten)]
+        args: RenderArgs,
+        /// Linear float RGB OpenEXR output.
+        #[arg(short, long, default_value = "out.exr")]
+        output: PathBuf,
+        /// Tonemapped sRGB PNG output.
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Statistics JSON output.
+        #[arg(long)]
+        stats: Option<PathBuf>,
+        /// Print GPU time per pass.
+        #[arg(long)]
+        profile: bool,
+        #[command(flatten)]
+        device: DeviceArgs,
+    },
+    /// Error metrics of an image against a reference (MSE, relMSE, MAPE).
+    Compare { image: PathBuf, reference: PathBuf },
+    /// List Vulkan devices and the features qtrace uses.
+    Devices,
+    /// Triangles, lights, BVH statistics of a scene.
+    Inspect { scene: PathBuf },
+    /// Measure samples/s and rays/s (Cornell box, pt with and without NEE by default).
+    Bench {
+        /// Scenes to measure.
+        #[arg(default_values = ["scenes/cornell-box.toml"])]
+        scenes: Vec<PathBuf>,
+        #[arg(long, default_value_t = 256)]
+        width: u32,
+        #[arg(long, default_value_t = 256)]
+        height: u32,
+        #[arg(long, default_value_t = 32)]
+        spp: u32,
+        /// Write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        #[command(flatten)]
+        device: DeviceArgs,
+    },
+}
+
+fn open_device(args: &DeviceArgs) -> Result<Arc<GpuContext>> {
+    let validation = args.validation || std::env::var("QTRACE_VALIDATION").is_ok_and(|v| v == "1");
+    Ok(GpuContext::new(&ContextOptions {
+        device: args.device.clone(),
+        validation,
+    })?)
+}
+
+/// A progress bar on a terminal; nothing otherwise.
+fn progress_bar(total: Option<u32>) -> Option<ProgressBar> {
+    if !std::io::stderr().is_terminal() {
+        return None;
+    }
+    let bar = match total {
+        Some(n) => ProgressBar::new(n as u64).with_style(
+            ProgressStyle::with_template(
+                "{bar:40.cyan/blue} {pos}/{len} spp  {msg}  elapsed {elapsed}  eta {eta}",
+            )
+            .unwrap(),
+        ),
+        None => ProgressBar::new(1000).with_style(
+            ProgressStyle::with_template("{bar:40.cyan/blue} {msg}  elapsed {elapsed}").unwrap(),
+        ),
+    };
+    Some(bar)
+}
+
+fn update_bar(bar: &Option<ProgressBar>, p: &Progress) {
+    let Some(bar) = bar else { return };
+    let rate = format!("{:.2} Mrays/s", p.rays_per_second / 1e6);
+    match p.budget_seconds {
+        Some(t) => {
+            bar.set_position(((p.elapsed / t).min(1.0) * 1000.0) as u64);
+            bar.set_message(format!("{} spp  {rate}", p.passes_done));
+        }
+        None => {
+            bar.set_position(p.passes_done as u64);
+            bar.set_message(rate);
+        }
+    }
+}
+
+fn check_output(path: &Path, ext: &str) -> Result<()> {
+    let ok = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if !ok {
+        bail!("{}: output file must end in .{ext}", path.display());
+    }
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() && !d.is_dir() => {
+            bail!(
+                "{}: directory {} does not exist",
+                path.display(),
+                d.display()
+            )
+        }
+        _ => Ok(()),
+    }
+}
+
+fn cmd_render(
+    scene_path: &Path,
+    args: &RenderArgs,
+    output: &Path,
+    png: Option<&Path>,
+    stats_path: Option<&Path>,
+    profile: bool,
+    device: &DeviceArgs,
+) -> Result<()> {
+    // Check everything the user gave before any GPU work.
+    check_output(output, "exr")?;
+    if let Some(p) = png {
+        check_output(p, "png")?;
+    }
+    if let Some(p) = stats_path {
+        check_output(p, "json")?;
+    }
+    let scene = Scene::load(scene_path)?;
+    let settings = RenderSettings::resolve(&scene, &args.overrides())
+        .with_context(|| format!("{}: bad render settings", scene_path.display()))?;
+    let ctx = open_device(device)?;
+    let total = match settings.budget {
+        render::Budget::Samples(n) => Some(n),
+        render::Budget::Seconds(_) => None,
+    };
+    let bar = progress_bar(total);
+    let out = render::render(&ctx, &scene, settings, &mut |p| update_bar(&bar, p))?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    out.image.write_exr(output)?;
+    if let Some(p) = png {
+        out.image.write_png(p)?;
+    }
+    if let Some(p) = stats_path {
+        let json = serde_json::to_string_pretty(&out.stats)?;
+        image::write_atomically(p, |tmp| {
+            std::fs::write(tmp, &json).map_err(|e| e.to_string())
+        })?;
+    }
+    let s = &out.stats;
+    eprintln!(
+        "{}: {} spp {}x{} in {:.2} s on {} | {:.2} Mrays/s | zero-contribution {:.1}% | mean path length {:.2}",
+        s.method,
+        s.spp,
+        s.width,
+        s.height,
+        s.wall_seconds,
+        s.device,
+        s.rays_per_second / 1e6,
+        100.0 * s.zero_contribution_fraction,
+        s.mean_path_length
+    );
+    if s.invalid_paths > 0 {
+        eprintln!(
+            "warning: {} paths gave NaN or infinite radiance and were left out",
+            s.invalid_paths
+        );
+    }
+    if profile {
+        eprint!("{}", s.profile_table());
+    }
+    if ctx.validation_errors() > 0 {
+        bail!(
+            "the Vulkan validation layer reported {} errors",
+            ctx.validation_errors()
+        );
+    }
+    Ok(())
+}
+
+fn cmd_compare(image_path: &Path, reference_path: &Path) -> Result<()> {
+    let a = Image::read_exr(image_path)?;
+    let b = Image::read_exr(reference_path)?;
+    let m = image::compare_named(
+        &a,
+        &image_path.display().to_string(),
+        &b,
+        &reference_path.display().to_string(),
+    )?;
+    println!("MSE     {:.6e}", m.mse);
+    println!("relMSE  {:.6e}", m.rel_mse);
+    println!("MAPE    {:.6e}", m.mape);
+    Ok(())
+}
+
+fn cmd_devices() -> Result<()> {
+    let devices = gpu::list_devices()?;
+    if devices.is_empty() {
+        bail!("no Vulkan device found; install a Vulkan driver (mesa-vulkan-drivers provides lavapipe)");
+    }
+    for d in devices {
+        println!(
+            "[{}] {} ({}, Vulkan {}, {})",
+            d.index, d.name, d.kind, d.api_version, d.driver
+        );
+        println!(
+            "    float atomics: {}  int64 atomics: {}  timestamps: {}  subgroup: {}  max storage buffer: {} MiB",
+            yes(d.float_atomics),
+            yes(d.int64_atomics),
+            yes(d.timestamps),
+            d.subgroup_size,
+            d.max_storage_buffer_range >> 20
+        );
+    }
+    Ok(())
+}
+
+fn yes(b: bool) -> &'static str {
+    if b {
+        "yes"
+    } else {
+        "no"
+    }
+}
+
+fn cmd_inspect(path: &Path) -> Result<()> {
+    let scene = Scene::load(path)?;
+    let area: f32 = scene.triangles.iter().map(|t| t.area).sum();
+    let light_area: f32 = scene
+        .lights
+        .iter()
+        .map(|l| scene.triangles[l.triangle as usize].area)
+        .sum();
+    println!("scene        {}", path.display());
+    println!("triangles    {}", scene.triangles.len());
+    println!("materials    {}", scene.materials.len());
+    println!(
+        "emitters     {} triangles, {:.4} units² of {:.4} total",
+        scene.lights.len(),
+        light_area,
+        area
+    );
+    println!("environment  {:?}", scene.environment.to_array());
+    println!(
+        "bvh          {} nodes, {} leaves, depth {}, {:.2} triangles/leaf",
+        scene.nodes.len(),
+        scene.bvh_leaves,
+        scene.bvh_depth,
+        scene.triangles.len() as f32 / scene.bvh_leaves.max(1) as f32
+    );
+    let c = &scene.camera;
+    println!(
+        "camera       at {:?} looking {:?}, fov_y {}°",
+        c.position.to_array(),
+        c.forward.to_array(),
+        c.fov_y_degrees
+    );
+    println!("scene extent {:.3} (bounding-box diagonal)", scene.extent);
+    Ok(())
+}
+
+fn cmd_bench(
+    scenes: &[PathBuf],
+    width: u32,
+    height: u32,
+    spp: u32,
+    json: Option<&Path>,
+    device: &DeviceArgs,
+) -> Result<()> {
+    if let Some(p) = json {
+        check_output(p, "json")?;
+    }
+    let ctx = open_device(device)?;
+    println!("device: {} ({})", ctx.info().name, ctx.info().driver);
+    println!(
+        "{:<28} {:<8} {:>6} {:>10} {:>12} {:>12} {:>12} {:>10}",
+        "scene", "method", "spp", "wall s", "samples/s", "Mrays/s", "trace ms", "zero %"
+    );
+    let mut rows = Vec::new();
+    for path in scenes {
+        let scene = Scene::load(path)?;
+        for nee in [false, true] {
+            let o = Overrides {
+                spp: Some(spp),
+                width: Some(width),
+                height: Some(height),
+                nee,
+                ..Default::default()
+            };
+            let settings = RenderSettings::resolve(&scene, &o)?;
+            let out = render::render(&ctx, &scene, settings, &mut |_| {})?;
+            let s = out.stats;
+            let trace_ms = s
+                .gpu_passes
+                .iter()
+                .find(|t| t.name == "trace")
+                .map_or(0.0, |t| t.mean_ms());
+            let name = if nee { "pt+nee" } else { "pt" };
+            println!(
+                "{:<28} {:<8} {:>6} {:>10.3} {:>12.0} {:>12.3} {:>12.3} {:>10.2}",
+                path.display().to_string(),
+                name,
+                s.spp,
+                s.wall_seconds,
+                s.samples_per_second,
+                s.rays_per_second / 1e6,
+                trace_ms,
+                100.0 * s.zero_contribution_fraction
+            );
+            rows.push(s);
+        }
+    }
+    if let Some(p) = json {
+        let text = serde_json::to_string_pretty(&rows)?;
+        image::write_atomically(p, |tmp| {
+            std::fs::write(tmp, &text).map_err(|e| e.to_string())
+        })?;
+    }
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match &cli.command {
+        Command::Render {
+            scene,
+            args,
+            output,
+            png,
+            stats,
+            profile,
+            device,
+        } => cmd_render(
+            scene,
+            args,
+            output,
+            png.as_deref(),
+            stats.as_deref(),
+            *profile,
+            device,
+        ),
+        Command::Compare { image, reference } => cmd_compare(image, reference),
+        Command::Devices => cmd_devices(),
+        Command::Inspect { scene } => cmd_inspect(scene),
+        Command::Bench {
+            scenes,
+            width,
+            height,
+            spp,
+            json,
+            device,
+        } => cmd_bench(scenes, *width, *height, *spp, json.as_deref(), device),
+    }
+}
+
+fn main() {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn"))
+        .format_timestamp(None)
+        .init();
+    let cli = Cli::parse();
+    if let Err(e) = run(cli) {
+        // One line: the outermost context, then its causes.
+        let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+        eprintln!("error: {}", chain.join(": "));
+        std::process::exit(1);
+    }
+}

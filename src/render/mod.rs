@@ -1,0 +1,326 @@
+//! The renderer: uploads a scene, runs sample passes (trace → accumulate),
+//! reads back the image and the statistics.
+
+pub mod probe;
+pub mod settings;
+pub mod stats;
+
+pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, SettingsError};
+pub use stats::{PassRecord, RenderStats};
+
+use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
+use crate::image::Image;
+use crate::scene::Scene;
+use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error(transparent)]
+    Gpu(#[from] gpu::Error),
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+}
+
+/// The scene's buffers on the device.
+pub struct GpuScene {
+    pub nodes: Buffer,
+    pub triangles: Buffer,
+    pub materials: Buffer,
+    pub lights: Buffer,
+    pub light_count: u32,
+}
+
+impl GpuScene {
+    pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> gpu::Result<Self> {
+        let materials: Vec<shaders::Material> = scene
+            .materials
+            .iter()
+            .map(|m| shaders::Material {
+                albedo: m.albedo.extend(0.0).into(),
+                emission: m.emission.extend(0.0).into(),
+            })
+            .collect();
+        Ok(Self {
+            nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
+            triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
+            materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
+            lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
+            light_count: scene.lights.len() as u32,
+        })
+    }
+
+    /// Bindings every kernel that traces rays uses.
+    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
+        [
+            (shaders::B_NODES, &self.nodes),
+            (shaders::B_TRIANGLES, &self.triangles),
+            (shaders::B_MATERIALS, &self.materials),
+            (shaders::B_LIGHTS, &self.lights),
+        ]
+    }
+}
+
+/// Push constants describing the camera and scene for every pass of a render.
+pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
+    let c = &scene.camera;
+    let t = (c.fov_y_degrees.to_radians() * 0.5).tan();
+    let aspect = s.width as f32 / s.height as f32;
+    let mut flags = 0;
+    if s.nee {
+        flags |= shaders::FLAG_NEE;
+    }
+    if s.sampling == Sampling::Uniform {
+        flags |= shaders::FLAG_UNIFORM;
+    }
+    PassParams {
+        // Ray offset: small against the scene, large against float error.
+        cam_pos: c.position.extend(scene.extent * 1e-5).into(),
+        cam_right: (c.right * t * aspect).extend(0.0).into(),
+        cam_up: (c.up * t).extend(0.0).into(),
+        cam_forward: c.forward.extend(0.0).into(),
+        environment: scene.environment.extend(0.0).into(),
+        width: s.width,
+        height: s.height,
+        pass_index: 0,
+        seed: s.seed,
+        max_depth: s.max_depth,
+        flags,
+        light_count: scene.lights.len() as u32,
+        ..Default::default()
+    }
+}
+
+/// Where a render stands, for progress bars.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub passes_done: u32,
+    /// Known for a sample budget; `None` for a time budget.
+    pub passes_total: Option<u32>,
+    pub elapsed: f64,
+    pub budget_seconds: Option<f64>,
+    pub rays_per_second: f64,
+}
+
+/// The finished render.
+pub struct RenderOutput {
+    /// Mean of the path estimates per pixel.
+    pub image: Image,
+    /// Per-pixel, per-channel sample variance of one path's estimate.
+    pub variance: Image,
+    pub stats: RenderStats,
+}
+
+/// A render in progress: pipelines, buffers and descriptor sets for one scene
+/// and one set of settings.
+pub struct Renderer {
+    ctx: Arc<GpuContext>,
+    settings: RenderSettings,
+    params: PassParams,
+    scene_name: String,
+    _scene: GpuScene,
+    trace: ComputePipeline,
+    accumulate: ComputePipeline,
+    trace_set: DescriptorSet,
+    accumulate_set: DescriptorSet,
+    accum: Buffer,
+    stats: Buffer,
+    _samples: Buffer,
+    profiler: Profiler,
+}
+
+fn groups(width: u32, height: u32) -> [u32; 3] {
+    [
+        width.div_ceil(shaders::TILE_X),
+        height.div_ceil(shaders::TILE_Y),
+        1,
+    ]
+}
+
+impl Renderer {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        settings: RenderSettings,
+    ) -> Result<Self, RenderError> {
+        let max_groups = ctx.info().max_workgroup_count;
+        let [gx, gy, _] = groups(settings.width, settings.height);
+        if gx > max_groups[0] || gy > max_groups[1] {
+            return Err(SettingsError(format!(
+                "image size {}x{} exceeds what device '{}' can dispatch",
+                settings.width,
+                settings.height,
+                ctx.info().name
+            ))
+            .into());
+        }
+        let gpu_scene = GpuScene::upload(ctx, scene)?;
+        let pixels = settings.width as u64 * settings.height as u64;
+        let samples =
+            Buffer::gpu_only(ctx, "path samples", pixels * size_of::<PathSample>() as u64)?;
+        let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
+        let stats = Buffer::readback(ctx, "pass stats", size_of::<PassStats>() as u64)?;
+        let push = size_of::<PassParams>() as u32;
+        let trace_spirv = match settings.method {
+            Method::Pt => spirv::TRACE_PT,
+        };
+        let trace = ComputePipeline::new(ctx, "trace", trace_spirv, push)?;
+        let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
+        let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
+        bindings.extend([
+            (shaders::B_SAMPLES, &samples),
+            (shaders::B_ACCUM, &accum),
+            (shaders::B_STATS, &stats),
+        ]);
+        let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
+        let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
+        ctx.submit(None, |rec| rec.fill(&accum, 0))?;
+        Ok(Self {
+            ctx: ctx.clone(),
+            params: pass_params(scene, &settings),
+            settings,
+            scene_name: scene.path.display().to_string(),
+            _scene: gpu_scene,
+            trace,
+            accumulate,
+            trace_set,
+            accumulate_set,
+            accum,
+            stats,
+            _samples: samples,
+            profiler: Profiler::new(ctx)?,
+        })
+    }
+
+    /// Runs one sample pass and returns its totals.
+    fn pass(&mut self, index: u32) -> Result<PassStats, RenderError> {
+        self.stats.write(&[PassStats::default()]);
+        let mut params = self.params;
+        params.pass_index = index;
+        let push = bytemuck::bytes_of(&params);
+        let g = groups(self.settings.width, self.settings.height);
+        let (trace, trace_set) = (&self.trace, &self.trace_set);
+        let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
+        self.ctx.submit(Some(&mut self.profiler), |rec| {
+            rec.dispatch(Pass {
+                name: "trace",
+                pipeline: trace,
+                set: trace_set,
+                push,
+                groups: g,
+            });
+            rec.dispatch(Pass {
+                name: "accumulate",
+                pipeline: accumulate,
+                set: accumulate_set,
+                push,
+                groups: g,
+            });
+        })?;
+        Ok(self.stats.read::<PassStats>()[0])
+    }
+
+    /// Renders until the budget is spent, reporting progress after each pass.
+    pub fn run(mut self, progress: &mut dyn FnMut(&Progress)) -> Result<RenderOutput, RenderError> {
+        let start = Instant::now();
+        let (passes_total, budget_seconds) = match self.settings.budget {
+            Budget::Samples(n) => (Some(n), None),
+            Budget::Seconds(t) => (None, Some(t)),
+        };
+        let mut records = Vec::new();
+        let (mut paths, mut rays, mut zero, mut length, mut invalid) =
+            (0u64, 0u64, 0u64, 0u64, 0u64);
+        let mut done = 0u32;
+        loop {
+            let s = self.pass(done)?;
+            done += 1;
+            paths += s.paths as u64;
+            rays += s.rays as u64;
+            zero += s.zero_paths as u64;
+            length += s.length_sum as u64;
+            invalid += s.nan_paths as u64;
+            let n = s.paths.max(1) as f64;
+            records.push(PassRecord {
+                pass: done - 1,
+                zero_contribution_fraction: s.zero_paths as f64 / n,
+                mean_path_length: s.length_sum as f64 / n,
+                rays: s.rays as u64,
+            });
+            let elapsed = start.elapsed().as_secs_f64();
+            progress(&Progress {
+                passes_done: done,
+                passes_total,
+                elapsed,
+                budget_seconds,
+                rays_per_second: rays as f64 / elapsed.max(1e-9),
+            });
+            let finished = match self.settings.budget {
+                Budget::Samples(n) => done >= n,
+                Budget::Seconds(t) => elapsed >= t || done >= settings::MAX_SPP,
+            };
+            if finished {
+                break;
+            }
+        }
+        let accum: Vec<Accum> = self.accum.download()?;
+        let wall = start.elapsed().as_secs_f64();
+        let (w, h) = (self.settings.width as usize, self.settings.height as usize);
+        let mut image = Image::new(w, h);
+        let mut variance = Image::new(w, h);
+        for (i, a) in accum.iter().take(w * h).enumerate() {
+            let n = a.sum[3].max(1.0);
+            for c in 0..3 {
+                let mean = a.sum[c] / n;
+                image.pixels[i][c] = mean;
+                variance.pixels[i][c] = if n > 1.0 {
+                    ((a.sum_sq[c] - n * mean * mean) / (n - 1.0)).max(0.0)
+                } else {
+                    0.0
+                };
+            }
+        }
+        let timings = self.profiler.timings().to_vec();
+        let nz = paths.max(1) as f64;
+        let stats = RenderStats {
+            method: self.settings.method.name().into(),
+            nee: self.settings.nee,
+            device: self.ctx.info().name.clone(),
+            scene: self.scene_name.clone(),
+            width: self.settings.width,
+            height: self.settings.height,
+            seed: self.settings.seed,
+            spp: done,
+            wall_seconds: wall,
+            samples_per_second: paths as f64 / wall.max(1e-9),
+            rays_per_second: rays as f64 / wall.max(1e-9),
+            paths,
+            rays,
+            zero_contribution_fraction: zero as f64 / nz,
+            mean_path_length: length as f64 / nz,
+            invalid_paths: invalid,
+            gpu_ms: timings
+                .iter()
+                .map(|t| (t.name.clone(), t.total_ms))
+                .collect(),
+            gpu_passes: timings,
+            guide_bytes: 0,
+            passes: records,
+        };
+        Ok(RenderOutput {
+            image,
+            variance,
+            stats,
+        })
+    }
+}
+
+/// Loads nothing, checks everything, renders: the library entry point the CLI uses.
+pub fn render(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    settings: RenderSettings,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RenderOutput, RenderError> {
+    Renderer::new(ctx, scene, settings)?.run(progress)
+}

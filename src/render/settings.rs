@@ -1,0 +1,121 @@
+//! Render settings: the scene's defaults overridden by the command line, validated.
+
+use crate::scene::Scene;
+use serde::{Deserialize, Serialize};
+
+/// Path-tracing method. Learned guides add variants here.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Forward path tracing with BSDF sampling.
+    Pt,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Pt => "pt",
+        }
+    }
+}
+
+/// How the BSDF picks bounce directions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampling {
+    #[default]
+    Cosine,
+    Uniform,
+}
+
+/// What the user asked for; `None` means "the scene's default, else ours".
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    pub method: Option<Method>,
+    pub spp: Option<u32>,
+    pub time: Option<f64>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub max_depth: Option<u32>,
+    pub nee: bool,
+    pub seed: Option<u32>,
+    pub sampling: Option<Sampling>,
+}
+
+/// When a render stops.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Budget {
+    Samples(u32),
+    Seconds(f64),
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderSettings {
+    pub method: Method,
+    pub budget: Budget,
+    pub width: u32,
+    pub height: u32,
+    pub max_depth: u32,
+    pub nee: bool,
+    pub seed: u32,
+    pub sampling: Sampling,
+}
+
+pub const MAX_RESOLUTION: u32 = 16384;
+pub const MAX_SPP: u32 = 1 << 20;
+pub const MAX_DEPTH: u32 = 1024;
+pub const MAX_SECONDS: f64 = 7.0 * 24.0 * 3600.0;
+
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SettingsError(pub String);
+
+impl RenderSettings {
+    pub fn resolve(scene: &Scene, o: &Overrides) -> Result<Self, SettingsError> {
+        let d = &scene.defaults;
+        let width = o.width.or(d.width).unwrap_or(256);
+        let height = o.height.or(d.height).unwrap_or(256);
+        let max_depth = o.max_depth.or(d.max_depth).unwrap_or(64);
+        let bad = |m: String| Err(SettingsError(m));
+        if width == 0 || height == 0 {
+            return bad(format!("image size {width}x{height} must be at least 1x1"));
+        }
+        if width > MAX_RESOLUTION || height > MAX_RESOLUTION {
+            return bad(format!(
+                "image size {width}x{height} exceeds the {MAX_RESOLUTION}x{MAX_RESOLUTION} limit"
+            ));
+        }
+        if max_depth > MAX_DEPTH {
+            return bad(format!(
+                "max depth {max_depth} exceeds the limit of {MAX_DEPTH}"
+            ));
+        }
+        let budget = match (o.spp, o.time) {
+            (Some(_), Some(_)) => return bad("give either --spp or --time, not both".into()),
+            (_, Some(t)) if !(t.is_finite() && t > 0.0 && t <= MAX_SECONDS) => {
+                return bad(format!(
+                    "time {t} s must be positive and at most {MAX_SECONDS} s"
+                ))
+            }
+            (_, Some(t)) => Budget::Seconds(t),
+            (spp, None) => {
+                let spp = spp.or(d.spp).unwrap_or(64);
+                if spp == 0 || spp > MAX_SPP {
+                    return bad(format!("spp {spp} must lie in 1..={MAX_SPP}"));
+                }
+                Budget::Samples(spp)
+            }
+        };
+        Ok(Self {
+            method: o.method.unwrap_or(Method::Pt),
+            budget,
+            width,
+            height,
+            max_depth,
+            nee: o.nee,
+            seed: o.seed.unwrap_or(0),
+            sampling: o.sampling.unwrap_or_default(),
+        })
+    }
+}

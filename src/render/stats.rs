@@ -1,0 +1,75 @@
+//! What a render reports (SPEC §6). The top-level keys are fixed.
+
+use crate::gpu::PassTiming;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// One sample pass.
+#[derive(Clone, Debug, Serialize)]
+pub struct PassRecord {
+    pub pass: u32,
+    pub zero_contribution_fraction: f64,
+    pub mean_path_length: f64,
+    pub rays: u64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderStats {
+    pub method: String,
+    pub nee: bool,
+    pub device: String,
+    pub scene: String,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u32,
+    pub spp: u32,
+    pub wall_seconds: f64,
+    pub samples_per_second: f64,
+    pub rays_per_second: f64,
+    pub paths: u64,
+    pub rays: u64,
+    /// Paths whose estimate has mean RGB below 1e-4.
+    pub zero_contribution_fraction: f64,
+    /// Surface hits per path.
+    pub mean_path_length: f64,
+    /// Paths whose estimate was NaN or infinite (left out of the image).
+    pub invalid_paths: u64,
+    /// GPU milliseconds per pass name.
+    pub gpu_ms: BTreeMap<String, f64>,
+    /// Count, total, min and max per pass name.
+    pub gpu_passes: Vec<PassTiming>,
+    /// Device memory held by a learned guide (0 for `pt`).
+    pub guide_bytes: u64,
+    pub passes: Vec<PassRecord>,
+}
+
+impl RenderStats {
+    /// The `--profile` table: one line per pass name.
+    pub fn profile_table(&self) -> String {
+        let total: f64 = self.gpu_passes.iter().map(|t| t.total_ms).sum();
+        let mut s = format!(
+            "{:<16} {:>7} {:>11} {:>7} {:>10} {:>10} {:>10}\n",
+            "pass", "count", "total ms", "share", "mean ms", "min ms", "max ms"
+        );
+        for t in &self.gpu_passes {
+            s += &format!(
+                "{:<16} {:>7} {:>11.3} {:>6.1}% {:>10.4} {:>10.4} {:>10.4}\n",
+                t.name,
+                t.count,
+                t.total_ms,
+                if total > 0.0 {
+                    100.0 * t.total_ms / total
+                } else {
+                    0.0
+                },
+                t.mean_ms(),
+                t.min_ms,
+                t.max_ms
+            );
+        }
+        if self.gpu_passes.is_empty() {
+            s += "(this device has no timestamp queries)\n";
+        }
+        s
+    }
+}
