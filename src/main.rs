@@ -266,6 +266,7 @@ fn cmd_compare(image_path: &Path, reference_path: &Path) -> Result<()> {
         &b,
         &reference_path.display().to_string(),
     )?;
+    println!("mean    {:.6e} (reference {:.6e})", a.mean(), b.mean());
     println!("MSE     {:.6e}", m.mse);
     println!("relMSE  {:.6e}", m.rel_mse);
     println!("MAPE    {:.6e}", m.mape);
@@ -435,7 +436,17 @@ fn main() {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn"))
         .format_timestamp(None)
         .init();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if e.use_stderr() => {
+            // Usage errors in one line, like every other error.
+            let text = e.to_string();
+            let first = text.lines().next().unwrap_or("invalid arguments");
+            eprintln!("{first} (see qtrace --help)");
+            std::process::exit(2);
+        }
+        Err(e) => e.exit(),
+    };
     if let Err(e) = run(cli) {
         // One line: the outermost context, then its causes.
         let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();

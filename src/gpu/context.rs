@@ -91,7 +91,13 @@ fn create_instance(entry: &ash::Entry, validation: bool) -> Result<(ash::Instanc
         .application_info(&app)
         .enabled_layer_names(&layer_ptrs)
         .enabled_extension_names(&ext_ptrs);
-    let instance = unsafe { entry.create_instance(&info, None)? };
+    let instance = unsafe { entry.create_instance(&info, None) }.map_err(|e| match e {
+        // The loader says this when it finds no driver at all.
+        vk::Result::ERROR_INCOMPATIBLE_DRIVER | vk::Result::ERROR_INITIALIZATION_FAILED => {
+            Error::NoDevice
+        }
+        other => Error::Vk(other),
+    })?;
     Ok((instance, has_validation, has_debug_utils))
 }
 
@@ -256,7 +262,7 @@ impl GpuContext {
         let entry = load_entry()?;
         let (instance, validation, has_debug_utils) = create_instance(&entry, options.validation)?;
         match Self::open(
-            entry,
+            &entry,
             instance.clone(),
             validation,
             has_debug_utils,
@@ -264,6 +270,7 @@ impl GpuContext {
         ) {
             Ok(ctx) => Ok(Arc::new(ctx)),
             Err(e) => {
+                // `entry` (the loaded library) must outlive this call.
                 unsafe { instance.destroy_instance(None) };
                 Err(e)
             }
@@ -271,7 +278,7 @@ impl GpuContext {
     }
 
     fn open(
-        entry: ash::Entry,
+        entry: &ash::Entry,
         instance: ash::Instance,
         validation: bool,
         has_debug_utils: bool,
@@ -282,7 +289,7 @@ impl GpuContext {
 
         let validation_errors = Box::new(AtomicU32::new(0));
         let messenger = if validation && has_debug_utils {
-            let loader = ext::debug_utils::Instance::new(&entry, &instance);
+            let loader = ext::debug_utils::Instance::new(entry, &instance);
             let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
                 .message_severity(
                     vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
@@ -358,7 +365,7 @@ impl GpuContext {
             info.driver
         );
         Ok(Self {
-            _entry: entry,
+            _entry: entry.clone(),
             instance,
             device,
             queue,

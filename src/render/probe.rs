@@ -44,12 +44,16 @@ fn run(
     Ok(out)
 }
 
-/// GPU closest hit (t, triangle) and any-hit flag for each ray.
+/// What the GPU found along one ray: the closest hit (t, triangle), if any,
+/// and whether the any-hit query saw something.
+pub type RayResult = (Option<(f32, u32)>, bool);
+
+/// GPU closest hit and any-hit flag for each (origin, direction).
 pub fn trace_rays(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     rays: &[(Vec3, Vec3)],
-) -> Result<Vec<(Option<(f32, u32)>, bool)>, RenderError> {
+) -> Result<Vec<RayResult>, RenderError> {
     let input: Vec<Vec4> = rays
         .iter()
         .flat_map(|(o, d)| [o.extend(0.0), d.extend(0.0)])

@@ -1,0 +1,298 @@
+//! Every bad input of SPEC §2 through the real binary: a one-line error that
+//! names the file and the problem, a non-zero exit, no panic, no output file.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn qtrace() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_qtrace"));
+    c.env_remove("QTRACE_DEVICE").env("RUST_BACKTRACE", "1");
+    c
+}
+
+/// A scratch directory holding copies of the Cornell box files.
+fn scratch(name: &str) -> PathBuf {
+    let dir = common::repo(&format!("target/test-scratch/{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for f in ["cornell-box.toml", "cornell-box.obj", "cornell-box.mtl"] {
+        std::fs::copy(common::repo(&format!("scenes/{f}")), dir.join(f)).unwrap();
+    }
+    dir
+}
+
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{} lacks '{from}'", path.display());
+    std::fs::write(path, text.replacen(from, to, 1)).unwrap();
+}
+
+/// Runs `qtrace render <scene> args…` writing into `dir`, expects failure with
+/// one line on stderr containing every `needles` item, and no output left behind.
+fn expect_error(dir: &Path, scene: &Path, args: &[&str], env: &[(&str, &str)], needles: &[&str]) {
+    let out_exr = dir.join("out.exr");
+    let out_png = dir.join("out.png");
+    let out_json = dir.join("out.json");
+    let mut cmd = qtrace();
+    cmd.arg("render")
+        .arg(scene)
+        .args(args)
+        .arg("-o")
+        .arg(&out_exr);
+    cmd.arg("--png").arg(&out_png).arg("--stats").arg(&out_json);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let output = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success(),
+        "expected failure for {args:?}, got success; stderr: {stderr}"
+    );
+    assert_ne!(output.status.code(), Some(101), "panicked: {stderr}");
+    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "expected one line, got: {stderr}");
+    assert!(lines[0].starts_with("error: "), "{stderr}");
+    for n in needles {
+        assert!(
+            lines[0].contains(n),
+            "'{}' does not mention '{n}'",
+            lines[0]
+        );
+    }
+    for f in [&out_exr, &out_png, &out_json] {
+        assert!(!f.exists(), "{} was written despite the error", f.display());
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+}
+
+#[test]
+fn missing_scene() {
+    let dir = scratch("missing");
+    expect_error(
+        &dir,
+        &dir.join("nope.toml"),
+        &[],
+        &[],
+        &["nope.toml", "cannot read"],
+    );
+}
+
+#[test]
+fn malformed_toml_names_the_line() {
+    let dir = scratch("malformed-toml");
+    let scene = dir.join("cornell-box.toml");
+    edit(&scene, "fov_y    = 39.3", "fov_y    = = 39.3");
+    expect_error(&dir, &scene, &[], &[], &["cornell-box.toml:6"]);
+}
+
+#[test]
+fn unknown_key_is_an_error() {
+    let dir = scratch("unknown-key");
+    let scene = dir.join("cornell-box.toml");
+    edit(&scene, "[render]", "[render]\nsamples = 4");
+    expect_error(&dir, &scene, &[], &[], &["cornell-box.toml", "samples"]);
+}
+
+#[test]
+fn missing_mesh() {
+    let dir = scratch("missing-mesh");
+    std::fs::remove_file(dir.join("cornell-box.obj")).unwrap();
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.obj", "not found"],
+    );
+}
+
+#[test]
+fn malformed_obj() {
+    let dir = scratch("malformed-obj");
+    let obj = dir.join("cornell-box.obj");
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let first_v = text
+        .lines()
+        .find(|l| l.starts_with("v "))
+        .unwrap()
+        .to_string();
+    edit(&obj, &first_v, "v 1.0 abc 2.0");
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.obj", "malformed OBJ"],
+    );
+}
+
+#[test]
+fn missing_mtl() {
+    let dir = scratch("missing-mtl");
+    std::fs::remove_file(dir.join("cornell-box.mtl")).unwrap();
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.obj", "MTL"],
+    );
+}
+
+#[test]
+fn scene_without_emitter() {
+    let dir = scratch("no-emitter");
+    let mtl = dir.join("cornell-box.mtl");
+    let text = std::fs::read_to_string(&mtl).unwrap();
+    let cleaned: String = text
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("Ke"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&mtl, cleaned).unwrap();
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.toml", "no emitter"],
+    );
+}
+
+fn append_obj(dir: &Path, extra: &str) {
+    let obj = dir.join("cornell-box.obj");
+    let mut text = std::fs::read_to_string(&obj).unwrap();
+    let base = text.lines().filter(|l| l.starts_with("v ")).count();
+    text.push_str(
+        &extra
+            .replace("{n}", &(base + 1).to_string())
+            .replace("{n1}", &(base + 2).to_string())
+            .replace("{n2}", &(base + 3).to_string()),
+    );
+    std::fs::write(&obj, text).unwrap();
+}
+
+#[test]
+fn zero_area_triangle() {
+    let dir = scratch("zero-area");
+    append_obj(&dir, "\nv 1 1 1\nv 2 2 2\nv 3 3 3\nf {n} {n1} {n2}\n");
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.obj", "zero area"],
+    );
+}
+
+#[test]
+fn nan_vertex() {
+    let dir = scratch("nan-vertex");
+    append_obj(&dir, "\nv 1 1 1\nv NaN 2 2\nv 3 1 3\nf {n} {n1} {n2}\n");
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &["cornell-box.obj", "NaN"],
+    );
+}
+
+#[test]
+fn absurd_options() {
+    let dir = scratch("absurd");
+    let scene = dir.join("cornell-box.toml");
+    expect_error(
+        &dir,
+        &scene,
+        &["--width", "0", "--height", "0"],
+        &[],
+        &["0x0"],
+    );
+    expect_error(&dir, &scene, &["--spp", "0"], &[], &["spp 0"]);
+    expect_error(&dir, &scene, &["--width", "100000"], &[], &["exceeds"]);
+    expect_error(&dir, &scene, &["--time=-3"], &[], &["time"]);
+    expect_error(
+        &dir,
+        &scene,
+        &["--max-depth", "100000"],
+        &[],
+        &["max depth"],
+    );
+}
+
+#[test]
+fn bad_camera_in_scene() {
+    let dir = scratch("bad-camera");
+    let scene = dir.join("cornell-box.toml");
+    edit(&scene, "fov_y    = 39.3", "fov_y    = 0.0");
+    expect_error(&dir, &scene, &[], &[], &["cornell-box.toml", "fov_y"]);
+}
+
+#[test]
+fn output_directory_missing() {
+    let dir = scratch("no-outdir");
+    let output = qtrace()
+        .args(["render"])
+        .arg(dir.join("cornell-box.toml"))
+        .arg("-o")
+        .arg(dir.join("nowhere/out.exr"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("nowhere") && stderr.contains("does not exist"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn no_vulkan_device() {
+    let dir = scratch("no-device");
+    let scene = dir.join("cornell-box.toml");
+    // A loader that finds no driver at all.
+    let icd = dir.join("none.json");
+    expect_error(
+        &dir,
+        &scene,
+        &[],
+        &[
+            ("VK_ICD_FILENAMES", icd.to_str().unwrap()),
+            ("VK_DRIVER_FILES", icd.to_str().unwrap()),
+        ],
+        &["no Vulkan device"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &["--device", "no-such-gpu"],
+        &[],
+        &["no-such-gpu"],
+    );
+}
+
+#[test]
+fn compare_reports_missing_and_mismatched_images() {
+    let dir = scratch("compare");
+    let output = qtrace()
+        .arg("compare")
+        .arg(dir.join("a.exr"))
+        .arg(dir.join("b.exr"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("a.exr"), "{stderr}");
+}
