@@ -5,8 +5,15 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// Method variants built from the one trace kernel (name suffix, defines).
-const TRACE_VARIANTS: &[(&str, &[&str])] = &[("pt", &["METHOD_PT"])];
+/// Shaders built more than once with different macros: (source stem, output
+/// name, defines). Sources not listed build once under their own name.
+const VARIANTS: &[(&str, &str, &[&str])] = &[
+    ("trace", "trace_pt", &["METHOD_PT"]),
+    ("trace", "trace_sarsa", &["METHOD_SARSA", "FLOAT_ATOMICS"]),
+    ("trace", "trace_sarsa_cas", &["METHOD_SARSA"]),
+    ("probe", "probe", &["FLOAT_ATOMICS"]),
+    ("probe", "probe_cas", &[]),
+];
 
 fn main() {
     let glsl = PathBuf::from("glsl");
@@ -26,14 +33,14 @@ fn main() {
     for path in &entries {
         println!("cargo:rerun-if-changed={}", path.display());
         let stem = path.file_stem().unwrap().to_str().unwrap().to_string();
-        let variants: Vec<(String, Vec<&str>)> = if stem == "trace" {
-            TRACE_VARIANTS
-                .iter()
-                .map(|(suffix, defs)| (format!("trace_{suffix}"), defs.to_vec()))
-                .collect()
-        } else {
-            vec![(stem.clone(), vec![])]
-        };
+        let mut variants: Vec<(String, Vec<&str>)> = VARIANTS
+            .iter()
+            .filter(|(source, _, _)| *source == stem)
+            .map(|(_, name, defs)| (name.to_string(), defs.to_vec()))
+            .collect();
+        if variants.is_empty() {
+            variants.push((stem.clone(), vec![]));
+        }
         for (name, defines) in variants {
             let spv = compile(&compiler, path, &defines);
             let file = out.join(format!("{name}.spv"));

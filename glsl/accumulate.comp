@@ -16,6 +16,9 @@ shared uint s_zero;
 shared uint s_length;
 shared uint s_rays;
 shared uint s_nan;
+shared uint s_td_count;
+// Float sums reduce through an array: shared float atomics are optional.
+shared float s_td[TILE_X * TILE_Y];
 
 void main() {
     if (gl_LocalInvocationIndex == 0u) {
@@ -24,7 +27,9 @@ void main() {
         s_length = 0u;
         s_rays = 0u;
         s_nan = 0u;
+        s_td_count = 0u;
     }
+    s_td[gl_LocalInvocationIndex] = 0.0;
     barrier();
 
     uvec2 pixel = gl_GlobalInvocationID.xy;
@@ -47,8 +52,16 @@ void main() {
         atomicAdd(s_paths, 1u);
         atomicAdd(s_length, s.path_length);
         atomicAdd(s_rays, s.rays);
+        atomicAdd(s_td_count, s.td_count);
+        s_td[gl_LocalInvocationIndex] = s.td_sq_sum;
     }
     barrier();
+    for (uint width = (TILE_X * TILE_Y) / 2u; width > 0u; width /= 2u) {
+        if (gl_LocalInvocationIndex < width) {
+            s_td[gl_LocalInvocationIndex] += s_td[gl_LocalInvocationIndex + width];
+        }
+        barrier();
+    }
 
     if (gl_LocalInvocationIndex == 0u) {
         atomicAdd(stats.paths, s_paths);
@@ -56,5 +69,17 @@ void main() {
         atomicAdd(stats.length_sum, s_length);
         atomicAdd(stats.rays, s_rays);
         atomicAdd(stats.nan_paths, s_nan);
+        atomicAdd(stats.td_count, s_td_count);
+        if (s_td[0] != 0.0) {
+            // One float add per workgroup, by compare-and-swap on its bits.
+            uint seen = stats.td_sq_bits;
+            while (true) {
+                uint found = atomicCompSwap(stats.td_sq_bits, seen, floatBitsToUint(uintBitsToFloat(seen) + s_td[0]));
+                if (found == seen) {
+                    break;
+                }
+                seen = found;
+            }
+        }
     }
 }

@@ -1,6 +1,7 @@
 #version 460
 // Runs the GLSL building blocks on host-given inputs so tests can compare them
-// with CPU references: BVH traversal and the hemisphere map.
+// with CPU references: BVH traversal, the hemisphere map, the nearest radiance
+// volume, guided sampling and the Sarsa update.
 
 #include "shared.h"
 #include "sampling.glsl"
@@ -9,6 +10,9 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
+
+#include "guide.glsl"
+
 layout(std430, set = 0, binding = B_PROBE_IN) readonly buffer ProbeIn { vec4 probe_in[]; };
 layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
 
@@ -24,11 +28,31 @@ void main() {
         Hit h = trace_ray(o, d, FAR, false);
         Hit occl = trace_ray(o, d, FAR, true);
         probe_out[i] = vec4(h.t, uintBitsToFloat(h.triangle), occl.triangle == NO_HIT ? 0.0 : 1.0, 0.0);
-    } else {
+    } else if (params.probe_mode == PROBE_HEMISPHERE) {
         // in = (u, v, grid a, grid b); out = (direction, sector of that direction)
         vec4 q = probe_in[i];
         vec3 w = square_to_hemisphere(q.xy);
         uint sector = hemisphere_sector(w, uint(q.z), uint(q.w));
         probe_out[i] = vec4(w, float(sector));
+    } else if (params.probe_mode == PROBE_NEAREST_VOLUME) {
+        // in[2i] = point, in[2i+1] = normal; out.x = volume index bits
+        uint v = nearest_volume(probe_in[2u * i].xyz, probe_in[2u * i + 1u].xyz);
+        probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
+    } else if (params.probe_mode == PROBE_GUIDE_SAMPLE) {
+        // in = (volume bits, u1, u2, u3); out = (local direction, pdf)
+        vec4 q = probe_in[i];
+        uint v = floatBitsToUint(q.x);
+        vec3 w = guide_sample(v, q.yzw);
+        probe_out[i] = vec4(w, guide_pdf(v, w));
+    } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
+        // in = (volume bits, sector bits, next volume bits, albedo or -emitted);
+        // out.x = the target recorded
+        vec4 q = probe_in[i];
+        uint v = floatBitsToUint(q.x);
+        uint k = floatBitsToUint(q.y);
+        uint vy = floatBitsToUint(q.z);
+        float target = q.w < 0.0 ? -q.w : sarsa_surface_target(vy, q.w);
+        sarsa_record(v, k, target);
+        probe_out[i] = vec4(target, 0.0, 0.0, 0.0);
     }
 }

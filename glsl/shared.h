@@ -18,14 +18,34 @@
 #define B_STATS 6
 #define B_PROBE_IN 7
 #define B_PROBE_OUT 8
+#define B_VOLUMES 9
+#define B_Q 10
+#define B_CDF 11
+#define B_SUM 12
+#define B_VISITS 13
+#define B_VISITS_TOTAL 14
+#define B_IRRADIANCE 15
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
 #define FLAG_UNIFORM 2
+// Guides: record updates this pass (off once learning is frozen).
+#define FLAG_LEARN 4
+// Guides: sample sectors in proportion to Q * cos(theta) instead of Q.
+#define FLAG_COS_DISTRIBUTION 8
 
 // Probe kernel modes (tests of the GLSL building blocks).
 #define PROBE_TRACE 0
 #define PROBE_HEMISPHERE 1
+#define PROBE_NEAREST_VOLUME 2
+#define PROBE_GUIDE_SAMPLE 3
+#define PROBE_SARSA_UPDATE 4
+
+// Volume.axis of a k-d tree node without children; also "no volume".
+#define KD_LEAF 3
+#define NO_VOLUME 0xffffffffu
+// Deepest k-d tree the lookup stack holds (2^40 volumes).
+#define KD_STACK_SIZE 40
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
@@ -41,6 +61,7 @@
 #define SIZEOF_ACCUM 32
 #define SIZEOF_PASS_STATS 32
 #define SIZEOF_PASS_PARAMS 128
+#define SIZEOF_VOLUME 32
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -80,9 +101,9 @@ struct PathSample {
     vec3 radiance;
     uint path_length;  // surface hits along the path
     uint rays;         // rays cast, shadow rays included
+    uint td_count;     // guide updates made along the path
+    float td_sq_sum;   // their summed squared temporal-difference error
     uint pad0;
-    uint pad1;
-    uint pad2;
 };
 
 // Running sums per pixel.
@@ -98,9 +119,9 @@ struct PassStats {
     uint length_sum;
     uint rays;
     uint nan_paths;
+    uint td_count;     // guide updates this pass
+    uint td_sq_bits;   // float bits: their summed squared TD error (the pass's loss)
     uint pad0;
-    uint pad1;
-    uint pad2;
 };
 
 // Push constants shared by every pass of a render.
@@ -119,9 +140,18 @@ struct PassParams {
     uint light_count;
     uint probe_mode;   // probe kernel only
     uint item_count;   // probe kernel only
-    uint pad0;
-    uint pad1;
-    uint pad2;
+    uint volume_count; // guides: radiance volumes
+    uint sector_grid;  // guides: a | (b << 16), n = a * b sectors
+    float guide_epsilon; // guides: weight of cosine sampling in the mixture
+};
+
+// A radiance volume, stored as a node of an implicit k-d tree (see
+// src/guide/volumes.rs): the node of range [lo, hi) sits at (lo + hi) / 2.
+struct Volume {
+    vec3 position;
+    uint axis;         // splitting coordinate, or KD_LEAF
+    vec3 normal;
+    float pad;
 };
 
 #endif

@@ -10,6 +10,10 @@
 layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 
 layout(push_constant) uniform Push { PassParams params; };
+
+#ifdef METHOD_SARSA
+#include "guide.glsl"
+#endif
 layout(std430, set = 0, binding = B_LIGHTS) readonly buffer Lights { Light lights[]; };
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 
@@ -69,12 +73,26 @@ void main() {
     uint path_length = 0u;
     uint rays = 0u;
     float prev_bsdf_pdf = 0.0; // 0 marks the camera ray: no MIS for what it hits
+#ifdef METHOD_SARSA
+    // The previous bounce's (volume, sector), to update once its ray lands.
+    uint prev_volume = NO_VOLUME;
+    uint prev_sector = 0u;
+    bool learn = (params.flags & FLAG_LEARN) != 0u;
+#endif
+    uint td_count = 0u;
+    float td_sq_sum = 0.0;
 
     for (uint depth = 0u;; ++depth) {
         Hit hit = trace_ray(origin, dir, FAR, false);
         rays += 1u;
         if (hit.triangle == NO_HIT) {
             radiance += throughput * params.environment.rgb;
+#ifdef METHOD_SARSA
+            if (learn && prev_volume != NO_VOLUME) {
+                td_sq_sum += sarsa_record(prev_volume, prev_sector, luminance(params.environment.rgb));
+                td_count += 1u;
+            }
+#endif
             break;
         }
         path_length += 1u;
@@ -93,9 +111,13 @@ void main() {
                 }
                 radiance += throughput * mat.emission.rgb * weight;
             }
-            break;
-        }
-        if (depth >= params.max_depth) {
+#ifdef METHOD_SARSA
+            if (learn && prev_volume != NO_VOLUME) {
+                float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
+                td_sq_sum += sarsa_record(prev_volume, prev_sector, le);
+                td_count += 1u;
+            }
+#endif
             break;
         }
 
@@ -103,6 +125,19 @@ void main() {
         vec3 ns = cos_out > 0.0 ? n : -n;
         vec3 position = origin + hit.t * dir + ns * eps;
         vec3 albedo = mat.albedo.rgb;
+#ifdef METHOD_SARSA
+        uint volume = nearest_volume(position, ns);
+        if (learn && prev_volume != NO_VOLUME) {
+            td_sq_sum += sarsa_record(prev_volume, prev_sector, sarsa_surface_target(volume, luminance(albedo)));
+            td_count += 1u;
+        }
+#endif
+        if (depth >= params.max_depth) {
+            break;
+        }
+        vec3 t;
+        vec3 b;
+        make_frame(ns, t, b);
 
         if (nee) {
             Light light = lights[pick_light(rng_next(rng))];
@@ -123,20 +158,30 @@ void main() {
                 Hit shadow = trace_ray(position, wi, dist * (1.0 - 1e-4) - eps, true);
                 if (shadow.triangle == NO_HIT) {
                     float light_pdf = lt.light_pdf * dist2 / cos_y;
-                    float weight = power_heuristic(light_pdf, bsdf_pdf(cos_x));
+#ifdef METHOD_SARSA
+                    float scatter_pdf = guide_pdf(volume, vec3(dot(wi, t), dot(wi, b), cos_x));
+#else
+                    float scatter_pdf = bsdf_pdf(cos_x);
+#endif
+                    float weight = power_heuristic(light_pdf, scatter_pdf);
                     vec3 le = materials[lt.material].emission.rgb;
                     radiance += throughput * albedo * INV_PI * cos_x * le * weight / light_pdf;
                 }
             }
         }
 
+#ifdef METHOD_SARSA
+        // Guided sampling: the mixture of cosine and the volume's sector distribution.
+        vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)));
+        float pdf = guide_pdf(volume, local);
+        prev_volume = volume;
+        prev_sector = hemisphere_sector(local, grid_a(), grid_b());
+#else
         // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
-        vec3 t;
-        vec3 b;
-        make_frame(ns, t, b);
         vec2 u = rng_next2(rng);
         vec3 local = (params.flags & FLAG_UNIFORM) != 0u ? square_to_hemisphere(u) : sample_cosine(u);
         float pdf = bsdf_pdf(local.z);
+#endif
         if (pdf <= 0.0) {
             break;
         }
@@ -154,5 +199,5 @@ void main() {
         }
     }
 
-    samples[index] = PathSample(radiance, path_length, rays, 0u, 0u, 0u);
+    samples[index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
 }

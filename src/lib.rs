@@ -6,6 +6,7 @@
 
 #[allow(unsafe_code)]
 pub mod gpu;
+pub mod guide;
 pub mod image;
 pub mod render;
 pub mod sampling;

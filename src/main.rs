@@ -4,6 +4,8 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
+use qtrace::guide::sarsa::{Atomics, Distribution};
+use qtrace::guide::SarsaSettings;
 use qtrace::image::{self, Image};
 use qtrace::render::{self, Method, Overrides, Progress, RenderSettings, Sampling};
 use qtrace::Scene;
@@ -57,9 +59,65 @@ struct RenderArgs {
     /// Random seed; the same seed gives the same image.
     #[arg(long)]
     seed: Option<u32>,
-    /// BSDF direction sampling.
+    /// BSDF direction sampling (`pt`).
     #[arg(long, value_enum)]
     sampling: Option<Sampling>,
+    #[command(flatten)]
+    sarsa: SarsaArgs,
+}
+
+/// Options of `--method sarsa`.
+#[derive(clap::Args, Clone)]
+#[command(next_help_heading = "Sarsa guide (--method sarsa)")]
+struct SarsaArgs {
+    /// Radiance volumes placed over the surfaces (uniformly by area).
+    #[arg(long, default_value_t = SarsaSettings::default().volumes)]
+    sarsa_volumes: u32,
+    /// Device-memory budget for the guide in MiB (caps the volume count).
+    #[arg(long)]
+    sarsa_memory_mib: Option<f64>,
+    /// Sector grid AxB per hemisphere (n = A·B sectors of equal solid angle).
+    #[arg(long, default_value = "12x12", value_parser = parse_grid)]
+    sarsa_sectors: [u32; 2],
+    /// Share of cosine sampling in the mixture, in (0, 1].
+    #[arg(long, default_value_t = SarsaSettings::default().epsilon)]
+    sarsa_epsilon: f32,
+    /// Sample sectors in proportion to Q or to Q·cos θ.
+    #[arg(long, value_enum, default_value_t = Distribution::Q)]
+    sarsa_distribution: Distribution,
+    /// Stop learning after this many sample passes.
+    #[arg(long)]
+    sarsa_freeze_after: Option<u32>,
+    /// How targets are added on the GPU.
+    #[arg(long, value_enum, default_value_t = Atomics::Auto)]
+    sarsa_atomics: Atomics,
+}
+
+fn parse_grid(s: &str) -> Result<[u32; 2], String> {
+    let (a, b) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}' is not AxB, e.g. 12x12"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{s}' is not AxB, e.g. 12x12"))
+    };
+    Ok([parse(a)?, parse(b)?])
+}
+
+impl SarsaArgs {
+    fn settings(&self) -> SarsaSettings {
+        SarsaSettings {
+            volumes: self.sarsa_volumes,
+            memory_mib: self.sarsa_memory_mib,
+            grid: self.sarsa_sectors,
+            epsilon: self.sarsa_epsilon,
+            distribution: self.sarsa_distribution,
+            freeze_after: self.sarsa_freeze_after,
+            atomics: self.sarsa_atomics,
+            ..Default::default()
+        }
+    }
 }
 
 impl RenderArgs {
@@ -74,6 +132,7 @@ impl RenderArgs {
             nee: self.nee,
             seed: self.seed,
             sampling: self.sampling,
+            sarsa: self.sarsa.settings(),
         }
     }
 }

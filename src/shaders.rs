@@ -57,7 +57,9 @@ pub struct PathSample {
     pub radiance: [f32; 3],
     pub path_length: u32,
     pub rays: u32,
-    pub pad: [u32; 3],
+    pub td_count: u32,
+    pub td_sq_sum: f32,
+    pub pad: u32,
 }
 
 #[repr(C)]
@@ -75,7 +77,10 @@ pub struct PassStats {
     pub length_sum: u32,
     pub rays: u32,
     pub nan_paths: u32,
-    pub pad: [u32; 3],
+    pub td_count: u32,
+    /// Bits of an f32 (the shader adds to it by compare-and-swap).
+    pub td_sq_bits: u32,
+    pub pad: u32,
 }
 
 #[repr(C)]
@@ -95,7 +100,18 @@ pub struct PassParams {
     pub light_count: u32,
     pub probe_mode: u32,
     pub item_count: u32,
-    pub pad: [u32; 3],
+    pub volume_count: u32,
+    pub sector_grid: u32,
+    pub guide_epsilon: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct Volume {
+    pub position: [f32; 3],
+    pub axis: u32,
+    pub normal: [f32; 3],
+    pub pad: f32,
 }
 
 const _: () = assert!(size_of::<BvhNode>() == SIZEOF_BVH_NODE as usize);
@@ -106,5 +122,8 @@ const _: () = assert!(size_of::<PathSample>() == SIZEOF_PATH_SAMPLE as usize);
 const _: () = assert!(size_of::<Accum>() == SIZEOF_ACCUM as usize);
 const _: () = assert!(size_of::<PassStats>() == SIZEOF_PASS_STATS as usize);
 const _: () = assert!(size_of::<PassParams>() == SIZEOF_PASS_PARAMS as usize);
+const _: () = assert!(size_of::<Volume>() == SIZEOF_VOLUME as usize);
+const _: () = assert!(std::mem::offset_of!(PassParams, width) == 80);
+const _: () = assert!(std::mem::offset_of!(Triangle, e2) == 32);
 // Push constants must fit the 128 bytes every device guarantees.
 const _: () = assert!(size_of::<PassParams>() <= 128);

@@ -9,6 +9,8 @@ pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, Settings
 pub use stats::{PassRecord, RenderStats};
 
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
+use crate::guide::sarsa::Atomics;
+use crate::guide::SarsaGuide;
 use crate::image::Image;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
@@ -128,6 +130,28 @@ pub struct Renderer {
     stats: Buffer,
     _samples: Buffer,
     profiler: Profiler,
+    guide: Option<SarsaGuide>,
+}
+
+/// The trace kernel for a method on this device.
+fn trace_variant(
+    ctx: &GpuContext,
+    settings: &RenderSettings,
+) -> Result<(&'static str, &'static [u8]), RenderError> {
+    Ok(match settings.method {
+        Method::Pt => ("trace", spirv::TRACE_PT),
+        Method::Sarsa => match (settings.sarsa.atomics, ctx.info().float_atomics) {
+            (Atomics::Float, false) => return Err(gpu::Error::MissingFeature {
+                device: ctx.info().name.clone(),
+                feature:
+                    "float atomics (VK_EXT_shader_atomic_float), needed by --sarsa-atomics float"
+                        .into(),
+            }
+            .into()),
+            (Atomics::Cas, _) | (Atomics::Auto, false) => ("trace", spirv::TRACE_SARSA_CAS),
+            _ => ("trace", spirv::TRACE_SARSA),
+        },
+    })
 }
 
 fn groups(width: u32, height: u32) -> [u32; 3] {
@@ -162,10 +186,12 @@ impl Renderer {
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
         let stats = Buffer::readback(ctx, "pass stats", size_of::<PassStats>() as u64)?;
         let push = size_of::<PassParams>() as u32;
-        let trace_spirv = match settings.method {
-            Method::Pt => spirv::TRACE_PT,
+        let (trace_name, trace_spirv) = trace_variant(ctx, &settings)?;
+        let trace = ComputePipeline::new(ctx, trace_name, trace_spirv, push)?;
+        let guide = match settings.method {
+            Method::Pt => None,
+            Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
         };
-        let trace = ComputePipeline::new(ctx, "trace", trace_spirv, push)?;
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([
@@ -173,6 +199,9 @@ impl Renderer {
             (shaders::B_ACCUM, &accum),
             (shaders::B_STATS, &stats),
         ]);
+        if let Some(g) = &guide {
+            bindings.extend(g.bindings());
+        }
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
@@ -190,6 +219,7 @@ impl Renderer {
             stats,
             _samples: samples,
             profiler: Profiler::new(ctx)?,
+            guide,
         })
     }
 
@@ -198,10 +228,15 @@ impl Renderer {
         self.stats.write(&[PassStats::default()]);
         let mut params = self.params;
         params.pass_index = index;
+        let learn = self.settings.sarsa.learns_in_pass(index);
+        if let Some(guide) = &self.guide {
+            guide.set_params(&mut params, learn);
+        }
         let push = bytemuck::bytes_of(&params);
         let g = groups(self.settings.width, self.settings.height);
         let (trace, trace_set) = (&self.trace, &self.trace_set);
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
+        let guide = self.guide.as_ref();
         self.ctx.submit(Some(&mut self.profiler), |rec| {
             rec.dispatch(Pass {
                 name: "trace",
@@ -217,6 +252,10 @@ impl Renderer {
                 push,
                 groups: g,
             });
+            // The next pass samples from what this one learned.
+            if let (Some(guide), true) = (guide, learn) {
+                guide.record_update(rec, &params);
+            }
         })?;
         Ok(self.stats.read::<PassStats>()[0])
     }
@@ -246,6 +285,10 @@ impl Renderer {
                 zero_contribution_fraction: s.zero_paths as f64 / n,
                 mean_path_length: s.length_sum as f64 / n,
                 rays: s.rays as u64,
+                loss: self
+                    .guide
+                    .as_ref()
+                    .map(|_| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
             });
             let elapsed = start.elapsed().as_secs_f64();
             progress(&Progress {
@@ -304,7 +347,8 @@ impl Renderer {
                 .map(|t| (t.name.clone(), t.total_ms))
                 .collect(),
             gpu_passes: timings,
-            guide_bytes: 0,
+            guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes()),
+            guide_volumes: self.guide.as_ref().map_or(0, |g| g.volumes.len() as u64),
             passes: records,
         };
         Ok(RenderOutput {

@@ -3,6 +3,8 @@
 
 use super::{pass_params, GpuScene, RenderError, RenderSettings};
 use crate::gpu::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass};
+use crate::guide::sarsa::Atomics;
+use crate::guide::SarsaGuide;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
 use glam::{Vec2, Vec3, Vec4};
@@ -11,6 +13,7 @@ use std::sync::Arc;
 fn run(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
+    guide: Option<&SarsaGuide>,
     mode: u32,
     input: &[Vec4],
     count: usize,
@@ -18,16 +21,28 @@ fn run(
     let gpu_scene = GpuScene::upload(ctx, scene)?;
     let input_buf = Buffer::gpu_only_with(ctx, "probe input", input)?;
     let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
-    let pipeline =
-        ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
+    // The probe reads guide buffers in some modes; an empty guide fills the bindings.
+    let empty;
+    let guide = match guide {
+        Some(g) => g,
+        None => {
+            empty = SarsaGuide::from_volumes(ctx, Vec::new(), &Default::default())?;
+            &empty
+        }
+    };
+    let cas = guide.settings.atomics == Atomics::Cas || !ctx.info().float_atomics;
+    let spirv = if cas { spirv::PROBE_CAS } else { spirv::PROBE };
+    let pipeline = ComputePipeline::new(ctx, "probe", spirv, size_of::<PassParams>() as u32)?;
     let mut bindings = gpu_scene.bindings().to_vec();
     bindings.extend([
         (shaders::B_PROBE_IN, &input_buf),
         (shaders::B_PROBE_OUT, &output),
     ]);
+    bindings.extend(guide.bindings());
     let set = DescriptorSet::new(ctx, &pipeline, &bindings)?;
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
+    guide.set_params(&mut params, true);
     params.probe_mode = mode;
     params.item_count = count as u32;
     ctx.submit(None, |rec| {
@@ -58,7 +73,7 @@ pub fn trace_rays(
         .iter()
         .flat_map(|(o, d)| [o.extend(0.0), d.extend(0.0)])
         .collect();
-    let out = run(ctx, scene, shaders::PROBE_TRACE, &input, rays.len())?;
+    let out = run(ctx, scene, None, shaders::PROBE_TRACE, &input, rays.len())?;
     Ok(out
         .iter()
         .map(|v| {
@@ -81,6 +96,105 @@ pub fn hemisphere(
         .iter()
         .map(|p| Vec4::new(p.x, p.y, a as f32, b as f32))
         .collect();
-    let out = run(ctx, scene, shaders::PROBE_HEMISPHERE, &input, points.len())?;
+    let out = run(
+        ctx,
+        scene,
+        None,
+        shaders::PROBE_HEMISPHERE,
+        &input,
+        points.len(),
+    )?;
     Ok(out.iter().map(|v| (v.truncate(), v.w as u32)).collect())
+}
+
+/// GPU nearest volume (facing the same way) for each (point, normal).
+pub fn nearest_volumes(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    queries: &[(Vec3, Vec3)],
+) -> Result<Vec<Option<u32>>, RenderError> {
+    let input: Vec<Vec4> = queries
+        .iter()
+        .flat_map(|(p, n)| [p.extend(0.0), n.extend(0.0)])
+        .collect();
+    let out = run(
+        ctx,
+        scene,
+        Some(guide),
+        shaders::PROBE_NEAREST_VOLUME,
+        &input,
+        queries.len(),
+    )?;
+    Ok(out
+        .iter()
+        .map(|v| Some(v.x.to_bits()).filter(|&i| i != shaders::NO_VOLUME))
+        .collect())
+}
+
+/// Directions the GPU guide sampler draws for volume `volume` from the given
+/// uniform triples, with the pdf it reports for each.
+pub fn guide_samples(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    volume: u32,
+    uniforms: &[Vec3],
+) -> Result<Vec<(Vec3, f32)>, RenderError> {
+    let input: Vec<Vec4> = uniforms
+        .iter()
+        .map(|u| Vec4::new(f32::from_bits(volume), u.x, u.y, u.z))
+        .collect();
+    let out = run(
+        ctx,
+        scene,
+        Some(guide),
+        shaders::PROBE_GUIDE_SAMPLE,
+        &input,
+        uniforms.len(),
+    )?;
+    Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
+}
+
+/// One transition for [`sarsa_updates`]: the bounce left volume `volume` through
+/// `sector` and landed on a surface of albedo `albedo` served by `next_volume`,
+/// or on an emitter (`emitted` = its radiance towards the bounce).
+#[derive(Clone, Copy, Debug)]
+pub struct Transition {
+    pub volume: u32,
+    pub sector: u32,
+    pub next_volume: u32,
+    pub albedo: f32,
+    pub emitted: Option<f32>,
+}
+
+/// Records `transitions` with the GPU update code, then folds them into Q.
+/// Returns the target the GPU computed for each.
+pub fn sarsa_updates(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    transitions: &[Transition],
+) -> Result<Vec<f32>, RenderError> {
+    let input: Vec<Vec4> = transitions
+        .iter()
+        .map(|t| {
+            Vec4::new(
+                f32::from_bits(t.volume),
+                f32::from_bits(t.sector),
+                f32::from_bits(t.next_volume),
+                t.emitted.map_or(t.albedo, |e| -e),
+            )
+        })
+        .collect();
+    let out = run(
+        ctx,
+        scene,
+        Some(guide),
+        shaders::PROBE_SARSA_UPDATE,
+        &input,
+        transitions.len(),
+    )?;
+    guide.fold(ctx)?;
+    Ok(out.iter().map(|v| v.x).collect())
 }

@@ -1,5 +1,6 @@
 //! Render settings: the scene's defaults overridden by the command line, validated.
 
+use crate::guide::SarsaSettings;
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 
@@ -9,12 +10,15 @@ use serde::{Deserialize, Serialize};
 pub enum Method {
     /// Forward path tracing with BSDF sampling.
     Pt,
+    /// Expected Sarsa guiding: Q-values in radiance volumes.
+    Sarsa,
 }
 
 impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::Pt => "pt",
+            Method::Sarsa => "sarsa",
         }
     }
 }
@@ -40,6 +44,7 @@ pub struct Overrides {
     pub nee: bool,
     pub seed: Option<u32>,
     pub sampling: Option<Sampling>,
+    pub sarsa: SarsaSettings,
 }
 
 /// When a render stops.
@@ -60,6 +65,8 @@ pub struct RenderSettings {
     pub nee: bool,
     pub seed: u32,
     pub sampling: Sampling,
+    /// Used by `--method sarsa` only.
+    pub sarsa: SarsaSettings,
 }
 
 pub const MAX_RESOLUTION: u32 = 16384;
@@ -107,8 +114,12 @@ impl RenderSettings {
                 Budget::Samples(spp)
             }
         };
+        let method = o.method.unwrap_or(Method::Pt);
+        if method == Method::Sarsa {
+            o.sarsa.validate().map_err(SettingsError)?;
+        }
         Ok(Self {
-            method: o.method.unwrap_or(Method::Pt),
+            method,
             budget,
             width,
             height,
@@ -116,6 +127,7 @@ impl RenderSettings {
             nee: o.nee,
             seed: o.seed.unwrap_or(0),
             sampling: o.sampling.unwrap_or_default(),
+            sarsa: o.sarsa.clone(),
         })
     }
 }

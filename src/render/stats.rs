@@ -11,6 +11,9 @@ pub struct PassRecord {
     pub zero_contribution_fraction: f64,
     pub mean_path_length: f64,
     pub rays: u64,
+    /// Learned methods: mean squared temporal-difference error of this pass's updates.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub loss: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -40,6 +43,8 @@ pub struct RenderStats {
     pub gpu_passes: Vec<PassTiming>,
     /// Device memory held by a learned guide (0 for `pt`).
     pub guide_bytes: u64,
+    /// Radiance volumes of the Sarsa guide (0 otherwise).
+    pub guide_volumes: u64,
     pub passes: Vec<PassRecord>,
 }
 

@@ -1,0 +1,30 @@
+#version 460
+// Folds the targets a sample pass accumulated into Q: with alpha = 1 / (1 + visits)
+// Q is the running mean of its targets, so Q <- (Q N + sum) / (N + count).
+
+#include "shared.h"
+
+layout(local_size_x = LINEAR_GROUP) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
+// Written as float by atomicAdd or as float bits by the CAS fallback: same bits.
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
+layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
+layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
+
+void main() {
+    // Grid-stride loop: volumes x sectors may exceed one dispatch dimension.
+    uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    for (uint i = gl_GlobalInvocationID.x; i < params.item_count; i += stride) {
+        uint count = visits[i];
+        if (count == 0u) {
+            continue;
+        }
+        uint seen = visits_total[i];
+        q_values[i] = (q_values[i] * float(seen) + target_sum[i]) / float(seen + count);
+        visits_total[i] = seen + count;
+        target_sum[i] = 0.0;
+        visits[i] = 0u;
+    }
+}

@@ -1,0 +1,7 @@
+//! Learned guides: where light comes from, learned while rendering, used to
+//! importance-sample bounce directions.
+
+pub mod sarsa;
+pub mod volumes;
+
+pub use sarsa::{SarsaGuide, SarsaSettings};

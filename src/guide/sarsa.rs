@@ -1,0 +1,319 @@
+//! Expected Sarsa guiding (SPEC §4.2): Q-values in radiance volumes, updated
+//! by atomic accumulation during a sample pass and folded between passes.
+
+use super::volumes;
+use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
+use crate::scene::Scene;
+use crate::shaders::{self, spirv, PassParams, Volume};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// What the sampler draws sectors in proportion to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Distribution {
+    /// P(k) ∝ Q(k).
+    #[default]
+    Q,
+    /// P(k) ∝ Q(k) cos θ_k.
+    Qcos,
+}
+
+/// How the GPU adds targets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Atomics {
+    /// Float atomics where the device has them, else compare-and-swap.
+    #[default]
+    Auto,
+    /// `VK_EXT_shader_atomic_float` (an error where missing).
+    Float,
+    /// Compare-and-swap loops (works everywhere).
+    Cas,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SarsaSettings {
+    /// Radiance volumes to place (fewer if the memory budget says so).
+    pub volumes: u32,
+    /// Upper bound on the guide's device memory, MiB.
+    pub memory_mib: Option<f64>,
+    /// Sector grid a × b over the unit square; n = a·b sectors.
+    pub grid: [u32; 2],
+    /// Weight of cosine sampling in the one-sample mixture (keeps every pdf > 0).
+    pub epsilon: f32,
+    pub distribution: Distribution,
+    /// Stop learning after this many passes (None: learn throughout).
+    pub freeze_after: Option<u32>,
+    pub atomics: Atomics,
+    /// Q of every sector before any update.
+    pub initial_q: f32,
+}
+
+impl Default for SarsaSettings {
+    fn default() -> Self {
+        Self {
+            volumes: 4096,
+            memory_mib: None,
+            grid: [12, 12],
+            epsilon: 0.2,
+            distribution: Distribution::Q,
+            freeze_after: None,
+            atomics: Atomics::Auto,
+            initial_q: 1e-2,
+        }
+    }
+}
+
+/// Device bytes per volume for an n-sector grid: the volume itself, Q, CDF,
+/// target sums, new and total visit counts per sector, and one irradiance value.
+pub fn bytes_per_volume(sectors: u32) -> u64 {
+    size_of::<Volume>() as u64 + 5 * 4 * sectors as u64 + 4
+}
+
+impl SarsaSettings {
+    pub fn sectors(&self) -> u32 {
+        self.grid[0] * self.grid[1]
+    }
+
+    /// Checks ranges; the message names the option.
+    pub fn validate(&self) -> Result<(), String> {
+        let [a, b] = self.grid;
+        if !(1..=64).contains(&a) || !(1..=64).contains(&b) {
+            return Err(format!(
+                "sarsa sector grid {a}x{b} must lie within 1x1..64x64"
+            ));
+        }
+        if self.volumes == 0 || self.volumes > 1 << 22 {
+            return Err(format!(
+                "sarsa volumes {} must lie in 1..=4194304",
+                self.volumes
+            ));
+        }
+        if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
+            return Err(format!(
+                "sarsa epsilon {} must lie in (0, 1]: the cosine share keeps the estimator unbiased",
+                self.epsilon
+            ));
+        }
+        if let Some(m) = self.memory_mib {
+            if !(m.is_finite() && m > 0.0) {
+                return Err(format!("sarsa memory budget {m} MiB must be positive"));
+            }
+            if self.volume_count() == 0 {
+                return Err(format!("sarsa memory budget {m} MiB holds no volume"));
+            }
+        }
+        if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
+            return Err(format!(
+                "sarsa initial Q {} must be positive",
+                self.initial_q
+            ));
+        }
+        Ok(())
+    }
+
+    /// Volumes actually placed: the requested count within the memory budget.
+    pub fn volume_count(&self) -> u32 {
+        let per = bytes_per_volume(self.sectors());
+        match self.memory_mib {
+            Some(m) => self
+                .volumes
+                .min(((m * 1024.0 * 1024.0) as u64 / per) as u32),
+            None => self.volumes,
+        }
+    }
+
+    /// Whether pass `index` records updates.
+    pub fn learns_in_pass(&self, index: u32) -> bool {
+        self.freeze_after.is_none_or(|k| index < k)
+    }
+}
+
+/// The guide's device state and its between-pass passes.
+pub struct SarsaGuide {
+    pub volumes: Vec<Volume>,
+    pub settings: SarsaSettings,
+    volume_buf: Buffer,
+    q: Buffer,
+    cdf: Buffer,
+    sum: Buffer,
+    visits: Buffer,
+    visits_total: Buffer,
+    irradiance: Buffer,
+    fold: ComputePipeline,
+    build: ComputePipeline,
+    fold_set: DescriptorSet,
+    build_set: DescriptorSet,
+}
+
+impl SarsaGuide {
+    /// Places volumes over `scene` and uploads the initial guide.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        settings: &SarsaSettings,
+        seed: u32,
+    ) -> gpu::Result<Self> {
+        let mut vols = volumes::place(scene, settings.volume_count() as usize, seed as u64);
+        volumes::build_kd_tree(&mut vols);
+        Self::from_volumes(ctx, vols, settings)
+    }
+
+    /// A guide over given volumes (already in k-d tree order).
+    pub fn from_volumes(
+        ctx: &Arc<GpuContext>,
+        vols: Vec<Volume>,
+        settings: &SarsaSettings,
+    ) -> gpu::Result<Self> {
+        let n = settings.sectors() as u64;
+        let cells = vols.len() as u64 * n;
+        let initial = vec![settings.initial_q; cells as usize];
+        let push = size_of::<PassParams>() as u32;
+        let volume_buf = Buffer::gpu_only_with(ctx, "radiance volumes", &vols)?;
+        let q = Buffer::gpu_only_with(ctx, "sarsa Q", &initial)?;
+        let cdf = Buffer::gpu_only(ctx, "sarsa CDF", cells * 4)?;
+        let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
+        let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
+        let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
+        let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
+        let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
+        let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
+        let bindings = [
+            (shaders::B_VOLUMES, &volume_buf),
+            (shaders::B_Q, &q),
+            (shaders::B_CDF, &cdf),
+            (shaders::B_SUM, &sum),
+            (shaders::B_VISITS, &visits),
+            (shaders::B_VISITS_TOTAL, &visits_total),
+            (shaders::B_IRRADIANCE, &irradiance),
+        ];
+        let fold_set = DescriptorSet::new(ctx, &fold, &bindings)?;
+        let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
+        let guide = Self {
+            volumes: vols,
+            settings: settings.clone(),
+            volume_buf,
+            q,
+            cdf,
+            sum,
+            visits,
+            visits_total,
+            irradiance,
+            fold,
+            build,
+            fold_set,
+            build_set,
+        };
+        let mut params = PassParams::default();
+        guide.set_params(&mut params, false);
+        ctx.submit(None, |rec| {
+            for b in [&guide.sum, &guide.visits, &guide.visits_total] {
+                rec.fill(b, 0);
+            }
+            guide.record_build(rec, bytemuck::bytes_of(&params));
+        })?;
+        Ok(guide)
+    }
+
+    /// Buffers every kernel that reads or updates the guide binds.
+    pub fn bindings(&self) -> [(u32, &Buffer); 7] {
+        [
+            (shaders::B_VOLUMES, &self.volume_buf),
+            (shaders::B_Q, &self.q),
+            (shaders::B_CDF, &self.cdf),
+            (shaders::B_SUM, &self.sum),
+            (shaders::B_VISITS, &self.visits),
+            (shaders::B_VISITS_TOTAL, &self.visits_total),
+            (shaders::B_IRRADIANCE, &self.irradiance),
+        ]
+    }
+
+    /// Fills the guide's part of the push constants; `learn` turns updates on.
+    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
+        let [a, b] = self.settings.grid;
+        p.volume_count = self.volumes.len() as u32;
+        p.sector_grid = a | (b << 16);
+        p.guide_epsilon = self.settings.epsilon;
+        p.flags &= !(shaders::FLAG_LEARN | shaders::FLAG_COS_DISTRIBUTION);
+        if learn {
+            p.flags |= shaders::FLAG_LEARN;
+        }
+        if self.settings.distribution == Distribution::Qcos {
+            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
+        }
+    }
+
+    fn record_build(&self, rec: &mut Recorder<'_>, push: &[u8]) {
+        rec.dispatch(Pass {
+            name: "distribution build",
+            pipeline: &self.build,
+            set: &self.build_set,
+            push,
+            groups: [
+                (self.volumes.len() as u32)
+                    .div_ceil(shaders::LINEAR_GROUP)
+                    .max(1),
+                1,
+                1,
+            ],
+        });
+    }
+
+    /// Folds this pass's targets into Q, then rebuilds every distribution.
+    /// `push` must carry `item_count` = volumes × sectors.
+    pub fn record_update(&self, rec: &mut Recorder<'_>, params: &PassParams) {
+        let mut p = *params;
+        p.item_count = self.volumes.len() as u32 * self.settings.sectors();
+        let push = bytemuck::bytes_of(&p);
+        // The fold loops over its range, so a bounded grid covers any size.
+        let groups = p.item_count.div_ceil(shaders::LINEAR_GROUP).clamp(1, 65535);
+        rec.dispatch(Pass {
+            name: "guide fold",
+            pipeline: &self.fold,
+            set: &self.fold_set,
+            push,
+            groups: [groups, 1, 1],
+        });
+        self.record_build(rec, push);
+    }
+
+    /// Folds pending targets and rebuilds the distributions now.
+    pub fn fold(&self, ctx: &Arc<GpuContext>) -> gpu::Result<()> {
+        let mut params = PassParams::default();
+        self.set_params(&mut params, true);
+        ctx.submit(None, |rec| self.record_update(rec, &params))
+    }
+
+    /// Device memory the guide holds.
+    pub fn bytes(&self) -> u64 {
+        self.volumes.len() as u64 * bytes_per_volume(self.settings.sectors())
+    }
+
+    /// Current Q-values, volume-major.
+    pub fn download_q(&self) -> gpu::Result<Vec<f32>> {
+        let mut q: Vec<f32> = self.q.download()?;
+        q.truncate(self.volumes.len() * self.settings.sectors() as usize);
+        Ok(q)
+    }
+
+    /// Current inclusive CDFs, volume-major.
+    pub fn download_cdf(&self) -> gpu::Result<Vec<f32>> {
+        let mut c: Vec<f32> = self.cdf.download()?;
+        c.truncate(self.volumes.len() * self.settings.sectors() as usize);
+        Ok(c)
+    }
+
+    /// Overwrites Q (tests and tools), then rebuilds the distributions.
+    pub fn upload_q(&self, ctx: &Arc<GpuContext>, q: &[f32]) -> gpu::Result<()> {
+        let staging = Buffer::upload(ctx, "sarsa Q (staging)", std::mem::size_of_val(q) as u64)?;
+        staging.write(q);
+        let mut params = PassParams::default();
+        self.set_params(&mut params, false);
+        ctx.submit(None, |rec| {
+            rec.copy(&staging, &self.q);
+            self.record_build(rec, bytemuck::bytes_of(&params));
+        })
+    }
+}

@@ -1,0 +1,135 @@
+//! Radiance volumes: points spread over the scene's surfaces in proportion to
+//! area, each with its surface normal, organised as a k-d tree for exact
+//! nearest-neighbour lookup restricted to volumes facing the same way.
+
+use crate::scene::Scene;
+use crate::shaders::{Volume, KD_LEAF};
+use glam::Vec3;
+
+/// Deterministic generator for placement (SplitMix64).
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// `count` volumes on the scene's non-emitting triangles, uniform by area.
+pub fn place(scene: &Scene, count: usize, seed: u64) -> Vec<Volume> {
+    let candidates: Vec<usize> = (0..scene.triangles.len())
+        .filter(|&i| scene.triangles[i].light_pdf == 0.0)
+        .collect();
+    let mut cdf = Vec::with_capacity(candidates.len());
+    let mut total = 0.0f64;
+    for &i in &candidates {
+        total += scene.triangles[i].area as f64;
+        cdf.push(total);
+    }
+    let mut rng = SplitMix(seed ^ 0x5157_5241_4345);
+    let mut volumes = Vec::with_capacity(count);
+    if candidates.is_empty() || total <= 0.0 {
+        return volumes;
+    }
+    for _ in 0..count {
+        let r = rng.next_f32() as f64 * total;
+        let k = cdf.partition_point(|&c| c <= r).min(candidates.len() - 1);
+        let t = &scene.triangles[candidates[k]];
+        let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        let (e1, e2) = (Vec3::from(t.e1), Vec3::from(t.e2));
+        let p = Vec3::from(t.v0) + u * e1 + v * e2;
+        volumes.push(Volume {
+            position: p.into(),
+            axis: KD_LEAF,
+            normal: e1.cross(e2).normalize().into(),
+            pad: 0.0,
+        });
+    }
+    volumes
+}
+
+/// Reorders `volumes` into an implicit k-d tree: the node of range [lo, hi) is
+/// its median m = (lo + hi) / 2, with subtrees [lo, m) and [m + 1, hi); each
+/// node's `axis` says which coordinate splits it.
+pub fn build_kd_tree(volumes: &mut [Volume]) {
+    fn build(v: &mut [Volume]) {
+        if v.len() <= 1 {
+            if let Some(only) = v.first_mut() {
+                only.axis = KD_LEAF;
+            }
+            return;
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for p in v.iter() {
+            lo = lo.min(Vec3::from(p.position));
+            hi = hi.max(Vec3::from(p.position));
+        }
+        let axis = (hi - lo).max_position();
+        let m = v.len() / 2;
+        v.select_nth_unstable_by(m, |a, b| a.position[axis].total_cmp(&b.position[axis]));
+        v[m].axis = axis as u32;
+        let (left, rest) = v.split_at_mut(m);
+        build(left);
+        build(&mut rest[1..]);
+    }
+    build(volumes);
+}
+
+/// Whether a volume may serve a point with normal `n`: it must face the same way.
+pub fn faces_same_way(volume: &Volume, n: Vec3) -> bool {
+    Vec3::from(volume.normal).dot(n) > 0.0
+}
+
+/// Nearest volume facing the same way as `n`, by brute force (test reference).
+pub fn nearest_brute(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
+    volumes
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| faces_same_way(v, n))
+        .min_by(|a, b| {
+            let da = Vec3::from(a.1.position).distance_squared(p);
+            let db = Vec3::from(b.1.position).distance_squared(p);
+            da.total_cmp(&db)
+        })
+        .map(|(i, _)| i as u32)
+}
+
+/// The same search through the k-d tree (what the shader does).
+pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
+    let mut best: Option<(f32, u32)> = None;
+    let mut stack = vec![(0usize, volumes.len(), 0.0f32)];
+    while let Some((lo, hi, plane_d2)) = stack.pop() {
+        if lo >= hi || best.is_some_and(|(d, _)| plane_d2 >= d) {
+            continue;
+        }
+        let m = (lo + hi) / 2;
+        let v = &volumes[m];
+        let d2 = Vec3::from(v.position).distance_squared(p);
+        if faces_same_way(v, n) && best.is_none_or(|(d, _)| d2 < d) {
+            best = Some((d2, m as u32));
+        }
+        if v.axis == KD_LEAF {
+            continue;
+        }
+        let a = v.axis as usize;
+        let diff = p[a] - v.position[a];
+        let (near, far) = if diff < 0.0 {
+            ((lo, m), (m + 1, hi))
+        } else {
+            ((m + 1, hi), (lo, m))
+        };
+        stack.push((far.0, far.1, diff * diff));
+        stack.push((near.0, near.1, 0.0));
+    }
+    best.map(|(_, i)| i)
+}
