@@ -124,7 +124,11 @@ vec3 guide_sample(uint v, vec3 u) {
     uint a = grid_a();
     uint i = k % a;
     uint j = k / a;
-    vec2 cell = vec2((float(i) + u.x) / float(a), (float(j) + u.y) / float(grid_b()));
+    // Keep clear of the cell's edges: rounding in the map and its inverse must
+    // not move the direction into a neighbouring sector, whose P(k) guide_pdf
+    // would then report. (The strip left out is 2e-5 of the cell.)
+    vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
+    vec2 cell = vec2((float(i) + inner.x) / float(a), (float(j) + inner.y) / float(grid_b()));
     return square_to_hemisphere(cell);
 }
 

@@ -133,3 +133,63 @@ pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
     }
     best.map(|(_, i)| i)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(count: usize, seed: u64) -> Vec<Volume> {
+        let mut rng = SplitMix(seed);
+        (0..count)
+            .map(|_| {
+                let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 10.0;
+                let n =
+                    (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5).normalize();
+                Volume {
+                    position: p.into(),
+                    axis: KD_LEAF,
+                    normal: n.into(),
+                    pad: 0.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn kd_tree_search_equals_brute_force() {
+        let mut vols = cloud(3000, 1);
+        build_kd_tree(&mut vols);
+        let queries = cloud(2000, 2);
+        for q in &queries {
+            let (p, n) = (Vec3::from(q.position), Vec3::from(q.normal));
+            let a = nearest_kd(&vols, p, n).unwrap();
+            let b = nearest_brute(&vols, p, n).unwrap();
+            let da = Vec3::from(vols[a as usize].position).distance(p);
+            let db = Vec3::from(vols[b as usize].position).distance(p);
+            assert_eq!(da, db, "query {p} {n}");
+            assert!(faces_same_way(&vols[a as usize], n));
+        }
+    }
+
+    #[test]
+    fn never_uses_a_volume_behind_a_thin_wall() {
+        // Two sides of a wall 0.01 thick: the nearer volume faces the other way.
+        let mut vols = vec![
+            Volume {
+                position: [0.0, 0.005, 0.0],
+                axis: KD_LEAF,
+                normal: [0.0, 1.0, 0.0],
+                pad: 0.0,
+            },
+            Volume {
+                position: [3.0, -0.005, 0.0],
+                axis: KD_LEAF,
+                normal: [0.0, -1.0, 0.0],
+                pad: 0.0,
+            },
+        ];
+        build_kd_tree(&mut vols);
+        let i = nearest_kd(&vols, Vec3::new(0.0, -0.005, 0.0), Vec3::NEG_Y).unwrap();
+        assert_eq!(vols[i as usize].normal, [0.0, -1.0, 0.0]);
+    }
+}

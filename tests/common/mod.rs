@@ -61,3 +61,73 @@ pub fn save_failure_images(name: &str, images: &[(&str, &Image)]) {
         eprintln!("wrote {}", path.display());
     }
 }
+
+/// Two-sample z statistics of two independent renders, per pixel of the image
+/// binned `bin` × `bin` (binning makes the rare, bright light hits of plain path
+/// tracing add up to a near-normal mean). `bin` = full size gives the image mean.
+pub fn z_scores(a: &RenderOutput, b: &RenderOutput, bin: usize) -> Vec<f64> {
+    let (w, h) = (a.image.width, a.image.height);
+    let (na, nb) = (a.stats.spp as f64, b.stats.spp as f64);
+    let mut z = Vec::new();
+    for by in (0..h).step_by(bin) {
+        for bx in (0..w).step_by(bin) {
+            for c in 0..3 {
+                let (mut d, mut se2) = (0.0f64, 0.0f64);
+                for y in by..(by + bin).min(h) {
+                    for x in bx..(bx + bin).min(w) {
+                        let i = y * w + x;
+                        d += a.image.pixels[i][c] as f64 - b.image.pixels[i][c] as f64;
+                        se2 += a.variance.pixels[i][c] as f64 / na
+                            + b.variance.pixels[i][c] as f64 / nb;
+                    }
+                }
+                if se2 > 0.0 {
+                    z.push(d / se2.sqrt());
+                } else {
+                    assert!(
+                        d.abs() < 1e-5,
+                        "block ({bx}, {by}): noiseless but different"
+                    );
+                }
+            }
+        }
+    }
+    z
+}
+
+/// Two renders estimate the same image: per pixel binned 4 x 4, few z-scores
+/// beyond 4 sigma and a spread close to N(0, 1); over the whole image, |z| < 4.
+/// On failure, writes both images and their difference to target/test-output.
+pub fn assert_same_expectation(name: &str, a: &RenderOutput, b: &RenderOutput) {
+    let z = z_scores(a, b, 4);
+    let n = z.len() as f64;
+    let outliers = z.iter().filter(|v| v.abs() > 4.0).count();
+    let rms_z = (z.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
+    let whole = a.image.width.max(a.image.height);
+    let image_z = z_scores(a, b, whole)
+        .iter()
+        .map(|v| v.abs())
+        .fold(0.0, f64::max);
+    let ok = outliers as f64 <= 0.02 * n && rms_z < 1.5 && image_z < 4.0;
+    if !ok {
+        let diff = Image {
+            width: a.image.width,
+            height: a.image.height,
+            pixels: a
+                .image
+                .pixels
+                .iter()
+                .zip(&b.image.pixels)
+                .map(|(p, q)| [p[0] - q[0], p[1] - q[1], p[2] - q[2]])
+                .collect(),
+        };
+        save_failure_images(
+            name,
+            &[("a", &a.image), ("b", &b.image), ("difference", &diff)],
+        );
+    }
+    assert!(
+        ok,
+        "{name}: {outliers} of {n} binned pixel channels beyond 4 sigma, rms z {rms_z:.3}, whole-image z {image_z:.3}"
+    );
+}

@@ -1,0 +1,433 @@
+//! The Expected Sarsa guide on the GPU: lookup, sampler, update, and the
+//! unbiasedness of guided renders.
+
+mod common;
+
+use glam::{Vec2, Vec3};
+use qtrace::guide::sarsa::{Atomics, SarsaSettings};
+use qtrace::guide::{volumes, SarsaGuide};
+use qtrace::render::probe::{self, Transition};
+use qtrace::render::{Method, Overrides};
+use qtrace::sampling;
+use std::f64::consts::PI;
+
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+    fn below(&mut self, n: u32) -> u32 {
+        ((self.next() * n as f32) as u32).min(n - 1)
+    }
+}
+
+fn settings(atomics: Atomics) -> SarsaSettings {
+    SarsaSettings {
+        volumes: 1500,
+        atomics,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn gpu_nearest_volume_equals_brute_force() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let guide = SarsaGuide::new(&ctx, &scene, &settings(Atomics::Auto), 3).unwrap();
+    let mut rng = Lcg(5);
+    let queries: Vec<(Vec3, Vec3)> = (0..4000)
+        .map(|_| {
+            let p = Vec3::new(
+                rng.next() * 600.0 - 20.0,
+                rng.next() * 600.0 - 20.0,
+                rng.next() * 600.0 - 20.0,
+            );
+            let n = (Vec3::new(rng.next(), rng.next(), rng.next()) - 0.5).normalize();
+            (p, n)
+        })
+        .collect();
+    let gpu = probe::nearest_volumes(&ctx, &scene, &guide, &queries).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    for ((p, n), g) in queries.iter().zip(&gpu) {
+        let b = volumes::nearest_brute(&guide.volumes, *p, *n)
+            .expect("some volume faces every way here");
+        let g = g.expect("GPU found no volume");
+        let dg = Vec3::from(guide.volumes[g as usize].position).distance(*p);
+        let db = Vec3::from(guide.volumes[b as usize].position).distance(*p);
+        assert!(
+            (dg - db).abs() <= 1e-3 * db.max(1.0),
+            "query {p} {n}: GPU {dg} vs brute force {db}"
+        );
+        assert!(
+            volumes::faces_same_way(&guide.volumes[g as usize], *n),
+            "GPU used a volume facing away"
+        );
+    }
+}
+
+/// Sector probabilities of volume `v` from its inclusive CDF.
+fn probabilities(cdf: &[f32], v: usize, n: usize) -> Vec<f64> {
+    let c = &cdf[v * n..(v + 1) * n];
+    (0..n)
+        .map(|k| c[k] as f64 - if k > 0 { c[k - 1] as f64 } else { 0.0 })
+        .collect()
+}
+
+/// Regularised upper incomplete gamma Q(a, x) by series/continued fraction
+/// (Numerical Recipes), for the chi-square p-value.
+fn chi2_survival(chi2: f64, dof: f64) -> f64 {
+    let (a, x) = (dof / 2.0, chi2 / 2.0);
+    let ln_gamma = |z: f64| {
+        // Lanczos approximation.
+        let g = [
+            76.18009172947146,
+            -86.50532032941677,
+            24.01409824083091,
+            -1.231739572450155,
+            0.1208650973866179e-2,
+            -0.5395239384953e-5,
+        ];
+        let mut y = z;
+        let tmp = z + 5.5 - (z + 0.5) * (z + 5.5).ln();
+        let mut ser = 1.000000000190015;
+        for c in g {
+            y += 1.0;
+            ser += c / y;
+        }
+        -tmp + (2.5066282746310005 * ser / z).ln()
+    };
+    if x < a + 1.0 {
+        let (mut sum, mut del, mut ap) = (1.0 / a, 1.0 / a, a);
+        for _ in 0..1000 {
+            ap += 1.0;
+            del *= x / ap;
+            sum += del;
+        }
+        1.0 - sum * (-x + a * x.ln() - ln_gamma(a)).exp()
+    } else {
+        let (mut b, mut c, mut d) = (x + 1.0 - a, 1.0 / 1e-300, 1.0 / (x + 1.0 - a));
+        let mut h = d;
+        for i in 1..1000 {
+            let an = -(i as f64) * (i as f64 - a);
+            b += 2.0;
+            d = an * d + b;
+            d = 1.0 / if d.abs() < 1e-300 { 1e-300 } else { d };
+            c = b + an / c;
+            let del = d * c;
+            h *= del;
+            if (del - 1.0).abs() < 1e-12 {
+                break;
+            }
+        }
+        (-x + a * x.ln() - ln_gamma(a)).exp() * h
+    }
+}
+
+/// χ² test: directions the GPU sampler draws follow the pdf it reports.
+#[test]
+fn guided_sampler_matches_its_pdf() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let s = SarsaSettings {
+        volumes: 4,
+        epsilon: 0.25,
+        ..Default::default()
+    };
+    let (a, b) = (s.grid[0] as usize, s.grid[1] as usize);
+    let n = a * b;
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 1).unwrap();
+    // A lumpy distribution: a few bright sectors, many dim ones, some zero.
+    let mut rng = Lcg(9);
+    let q: Vec<f32> = (0..4 * n)
+        .map(|i| match i % 7 {
+            0 => 50.0 * rng.next(),
+            1 => 0.0,
+            _ => rng.next(),
+        })
+        .collect();
+    guide.upload_q(&ctx, &q).unwrap();
+    let cdf = guide.download_cdf().unwrap();
+    let v = 2usize;
+    let p = probabilities(&cdf, v, n);
+
+    let draws = 1_000_000;
+    let uniforms: Vec<Vec3> = (0..draws)
+        .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    let samples = probe::guide_samples(&ctx, &scene, &guide, v as u32, &uniforms).unwrap();
+    common::assert_no_validation_errors(&ctx);
+
+    // Bins: each sector split 2 x 2 on the square.
+    let sub = 2usize;
+    let (ba, bb) = (a * sub, b * sub);
+    let mut observed = vec![0f64; ba * bb];
+    let eps = s.epsilon as f64;
+    for (w, pdf) in &samples {
+        assert!(
+            w.z >= 0.0 && (w.length() - 1.0).abs() < 1e-4,
+            "bad direction {w}"
+        );
+        let u = sampling::hemisphere_to_square(*w);
+        let (i, j) = (
+            ((u.x * ba as f32) as usize).min(ba - 1),
+            ((u.y * bb as f32) as usize).min(bb - 1),
+        );
+        observed[i + ba * j] += 1.0;
+        // The reported pdf is the mixture's. Within rounding of a sector edge
+        // the CPU may place the direction in the neighbouring sector: accept either.
+        let pdf_in = |k: usize| eps * w.z as f64 / PI + (1.0 - eps) * p[k] * n as f64 / (2.0 * PI);
+        let near: Vec<usize> = [
+            (0.0, 0.0),
+            (1e-5, 0.0),
+            (-1e-5, 0.0),
+            (0.0, 1e-5),
+            (0.0, -1e-5),
+        ]
+        .iter()
+        .map(|(dx, dy)| {
+            let c = (u + Vec2::new(*dx, *dy)).clamp(Vec2::ZERO, Vec2::splat(0.999_999));
+            (c.x * a as f32) as usize + a * (c.y * b as f32) as usize
+        })
+        .collect();
+        assert!(
+            near.iter()
+                .any(|&k| (*pdf as f64 - pdf_in(k)).abs() <= 1e-3 * pdf_in(k) + 1e-6),
+            "pdf {pdf} vs {} at {w}",
+            pdf_in(near[0])
+        );
+    }
+    // Expected bin probabilities: the cosine part integrated over the bin
+    // (dω = 2π du dv under the equal-area map), the guided part uniform in its sector.
+    let m = 12;
+    let mut chi2 = 0.0;
+    let mut bins = 0;
+    for j in 0..bb {
+        for i in 0..ba {
+            let mut cos_integral = 0.0;
+            for y in 0..m {
+                for x in 0..m {
+                    let u = Vec2::new(
+                        (i as f32 + (x as f32 + 0.5) / m as f32) / ba as f32,
+                        (j as f32 + (y as f32 + 0.5) / m as f32) / bb as f32,
+                    );
+                    cos_integral += sampling::square_to_hemisphere(u).z as f64;
+                }
+            }
+            let cos_prob = 2.0 * cos_integral / (m * m) as f64 / (ba * bb) as f64;
+            let k = (i / sub) + a * (j / sub);
+            let prob = eps * cos_prob + (1.0 - eps) * p[k] / (sub * sub) as f64;
+            let e = prob * draws as f64;
+            let o = observed[i + ba * j];
+            if e < 5.0 {
+                assert!(
+                    o <= 5.0 * e.max(1.0) + 10.0,
+                    "bin ({i}, {j}): {o} draws where {e} expected"
+                );
+                continue;
+            }
+            chi2 += (o - e) * (o - e) / e;
+            bins += 1;
+        }
+    }
+    let p_value = chi2_survival(chi2, (bins - 1) as f64);
+    assert!(
+        p_value > 1e-3,
+        "chi-square {chi2:.1} over {bins} bins: p = {p_value:.2e}"
+    );
+}
+
+/// CPU reference of one batch: targets, then Q as the running mean of targets.
+fn cpu_update(
+    q: &mut [f32],
+    seen: &mut [u32],
+    batch: &[Transition],
+    n: usize,
+    grid: [u32; 2],
+) -> Vec<f32> {
+    let cos: Vec<f64> = (0..n)
+        .map(|k| {
+            let (i, j) = (k % grid[0] as usize, k / grid[0] as usize);
+            let u = Vec2::new(
+                (i as f32 + 0.5) / grid[0] as f32,
+                (j as f32 + 0.5) / grid[1] as f32,
+            );
+            sampling::square_to_hemisphere(u).z as f64
+        })
+        .collect();
+    let irradiance = |v: usize| -> f64 {
+        (0..n).map(|k| q[v * n + k] as f64 * cos[k]).sum::<f64>() * 2.0 * PI / n as f64
+    };
+    let targets: Vec<f32> = batch
+        .iter()
+        .map(|t| match t.emitted {
+            Some(e) => e,
+            None => (t.albedo as f64 / PI * irradiance(t.next_volume as usize)) as f32,
+        })
+        .collect();
+    let mut sums = vec![0f64; q.len()];
+    let mut counts = vec![0u32; q.len()];
+    for (t, target) in batch.iter().zip(&targets) {
+        let i = t.volume as usize * n + t.sector as usize;
+        sums[i] += *target as f64;
+        counts[i] += 1;
+    }
+    for i in 0..q.len() {
+        if counts[i] > 0 {
+            q[i] = ((q[i] as f64 * seen[i] as f64 + sums[i]) / (seen[i] + counts[i]) as f64) as f32;
+            seen[i] += counts[i];
+        }
+    }
+    targets
+}
+
+fn check_update(atomics: Atomics) {
+    let ctx = common::gpu();
+    if atomics == Atomics::Float && !ctx.info().float_atomics {
+        eprintln!(
+            "SKIPPED float-atomics half: device '{}' lacks VK_EXT_shader_atomic_float",
+            ctx.info().name
+        );
+        return;
+    }
+    let scene = common::scene("cornell-box");
+    let s = SarsaSettings {
+        volumes: 6,
+        grid: [4, 3],
+        atomics,
+        ..Default::default()
+    };
+    let n = s.sectors() as usize;
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 2).unwrap();
+    let mut rng = Lcg(17);
+    let mut q: Vec<f32> = (0..6 * n).map(|_| 0.1 + rng.next()).collect();
+    guide.upload_q(&ctx, &q).unwrap();
+    let mut seen = vec![0u32; q.len()];
+    // Two batches, so the second folds into Q that already has visits.
+    for round in 0..2 {
+        let batch: Vec<Transition> = (0..3000)
+            .map(|_| Transition {
+                volume: rng.below(6),
+                sector: rng.below(n as u32),
+                next_volume: rng.below(6),
+                albedo: rng.next(),
+                emitted: (rng.next() < 0.2).then(|| 5.0 * rng.next()),
+            })
+            .collect();
+        let gpu_targets = probe::sarsa_updates(&ctx, &scene, &guide, &batch).unwrap();
+        let cpu_targets = cpu_update(&mut q, &mut seen, &batch, n, s.grid);
+        for (i, (g, c)) in gpu_targets.iter().zip(&cpu_targets).enumerate() {
+            assert!(
+                (g - c).abs() <= 1e-4 * c.abs() + 1e-6,
+                "round {round} transition {i}: target {g} vs {c}"
+            );
+        }
+        let gpu_q = guide.download_q().unwrap();
+        for (i, (g, c)) in gpu_q.iter().zip(&q).enumerate() {
+            assert!(
+                (g - c).abs() <= 1e-4 * c.abs() + 1e-6,
+                "{atomics:?} round {round} Q[{i}]: GPU {g} vs CPU {c}"
+            );
+        }
+        // And the distribution is Q normalised.
+        let cdf = guide.download_cdf().unwrap();
+        for v in 0..6 {
+            let total: f64 = q[v * n..(v + 1) * n].iter().map(|&x| x as f64).sum();
+            for (k, pk) in probabilities(&cdf, v, n).iter().enumerate() {
+                let want = q[v * n + k] as f64 / total;
+                assert!(
+                    (pk - want).abs() < 1e-5,
+                    "volume {v} sector {k}: P {pk} vs {want}"
+                );
+            }
+        }
+    }
+    common::assert_no_validation_errors(&ctx);
+}
+
+#[test]
+fn gpu_sarsa_update_equals_cpu_reference_with_float_atomics() {
+    check_update(Atomics::Float);
+}
+
+#[test]
+fn gpu_sarsa_update_equals_cpu_reference_with_cas_fallback() {
+    check_update(Atomics::Cas);
+}
+
+fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32) {
+    let ctx = common::gpu();
+    let scene = common::scene(scene_name);
+    let size = |o: Overrides| Overrides {
+        width: Some(32),
+        height: Some(32),
+        ..o
+    };
+    let reference = common::render_with(
+        &ctx,
+        &scene,
+        size(Overrides {
+            spp: Some(1024),
+            nee: true,
+            seed: Some(100),
+            ..Default::default()
+        }),
+    );
+    let guided = common::render_with(
+        &ctx,
+        &scene,
+        size(Overrides {
+            method: Some(Method::Sarsa),
+            spp: Some(spp),
+            nee,
+            seed: Some(200),
+            sarsa: SarsaSettings {
+                volumes: 512,
+                atomics,
+                ..Default::default()
+            },
+            ..Default::default()
+        }),
+    );
+    let name = format!("{scene_name}-sarsa-nee{nee}-{atomics:?}");
+    common::assert_same_expectation(&name, &guided, &reference);
+    // Learning shows: the last passes leave fewer zero-contribution paths than the first.
+    if !nee {
+        let p = &guided.stats.passes;
+        let first = p[0].zero_contribution_fraction;
+        let last = p[p.len() - 8..]
+            .iter()
+            .map(|r| r.zero_contribution_fraction)
+            .sum::<f64>()
+            / 8.0;
+        assert!(
+            last < first,
+            "{name}: zero-contribution {first} at first, {last} at the end"
+        );
+        assert!(p.iter().all(|r| r.loss.is_some()));
+    }
+    assert!(guided.stats.guide_bytes > 0);
+}
+
+#[test]
+fn sarsa_converges_to_pt_on_the_cornell_box() {
+    unbiased("cornell-box", false, Atomics::Auto, 2048);
+}
+
+#[test]
+fn sarsa_with_nee_converges_to_pt_on_the_cornell_box() {
+    unbiased("cornell-box", true, Atomics::Auto, 512);
+}
+
+#[test]
+fn sarsa_with_cas_atomics_converges_to_pt_on_the_cornell_box() {
+    unbiased("cornell-box", false, Atomics::Cas, 1024);
+}
+
+#[test]
+fn sarsa_converges_to_pt_on_the_indirectly_lit_room() {
+    unbiased("indirect-room", false, Atomics::Auto, 1024);
+}
