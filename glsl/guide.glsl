@@ -17,6 +17,11 @@ layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[];
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint target_sum_bits[]; };
 #endif
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
+layout(std430, set = 0, binding = B_GRID) readonly buffer Grid {
+    GridHeader grid;
+    uvec2 grid_ranges[];
+};
+layout(std430, set = 0, binding = B_GRID_ITEMS) readonly buffer GridItems { uint grid_items[]; };
 
 uint grid_a() {
     return params.sector_grid & 0xffffu;
@@ -30,9 +35,16 @@ uint sector_count() {
     return grid_a() * grid_b();
 }
 
-// Exact nearest volume to p among those facing the same way as n (so a point
-// never uses a volume on the other side of a thin wall); NO_VOLUME if none.
-uint nearest_volume(vec3 p, vec3 n) {
+// Class of a query normal: 2 * dominant axis + (component < 0); ties go to
+// the lower axis, as in src/guide/grid.rs.
+uint normal_class(vec3 n) {
+    vec3 a = abs(n);
+    uint axis = (a.x >= a.y && a.x >= a.z) ? 0u : (a.y >= a.z ? 1u : 2u);
+    return 2u * axis + (n[axis] < 0.0 ? 1u : 0u);
+}
+
+// The k-d tree search: exact everywhere, used where the grid has no list.
+uint nearest_volume_kd(vec3 p, vec3 n) {
     uint best = NO_VOLUME;
     float best_d2 = FAR;
     uint stack_lo[KD_STACK_SIZE];
@@ -74,6 +86,34 @@ uint nearest_volume(vec3 p, vec3 n) {
         top += 2u;
     }
     return best;
+}
+
+// Exact nearest volume to p among those facing the same way as n (so a point
+// never uses a volume on the other side of a thin wall); NO_VOLUME if none.
+// The grid's list for p's cell and n's class holds the answer when it exists.
+uint nearest_volume(vec3 p, vec3 n) {
+    vec3 g = (p - grid.origin) * grid.inv_cell;
+    if (all(greaterThanEqual(g, vec3(0.0))) && all(lessThan(g, vec3(grid.dims)))) {
+        uvec3 c = min(uvec3(g), grid.dims - 1u);
+        uint cell = c.x + grid.dims.x * (c.y + grid.dims.y * c.z);
+        uvec2 range = grid_ranges[cell * NORMAL_CLASSES + normal_class(n)];
+        if (range.y != GRID_FALLBACK) {
+            uint best = NO_VOLUME;
+            float best_d2 = FAR;
+            for (uint i = range.x; i < range.x + range.y; ++i) {
+                uint j = grid_items[i];
+                Volume v = volumes[j];
+                vec3 d = v.position - p;
+                float d2 = dot(d, d);
+                if (d2 < best_d2 && dot(v.normal, n) > 0.0) {
+                    best = j;
+                    best_d2 = d2;
+                }
+            }
+            return best;
+        }
+    }
+    return nearest_volume_kd(p, n);
 }
 
 // P(sector k) of volume v's distribution (the CDF is inclusive).

@@ -25,6 +25,8 @@
 #define B_VISITS 13
 #define B_VISITS_TOTAL 14
 #define B_IRRADIANCE 15
+#define B_GRID 16
+#define B_GRID_ITEMS 17
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -46,6 +48,11 @@
 #define NO_VOLUME 0xffffffffu
 // Deepest k-d tree the lookup stack holds (2^40 volumes).
 #define KD_STACK_SIZE 40
+// Lookup grid (src/guide/grid.rs): classes of query normals, the list length
+// that means "use the k-d tree", and the longest list kept.
+#define NORMAL_CLASSES 6
+#define GRID_FALLBACK 0xffffffffu
+#define GRID_MAX_LIST 96
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
@@ -62,6 +69,7 @@
 #define SIZEOF_PASS_STATS 32
 #define SIZEOF_PASS_PARAMS 128
 #define SIZEOF_VOLUME 32
+#define SIZEOF_GRID_HEADER 32
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -152,6 +160,14 @@ struct Volume {
     uint axis;         // splitting coordinate, or KD_LEAF
     vec3 normal;
     float pad;
+};
+
+// Start of the lookup-grid buffer; the (start, count) ranges follow it.
+struct GridHeader {
+    vec3 origin;
+    float inv_cell;
+    uvec3 dims;
+    uint pad;
 };
 
 #endif

@@ -33,40 +33,89 @@ fn settings(atomics: Atomics) -> SarsaSettings {
     }
 }
 
-#[test]
-fn gpu_nearest_volume_equals_brute_force() {
-    let ctx = common::gpu();
-    let scene = common::scene("cornell-box");
-    let guide = SarsaGuide::new(&ctx, &scene, &settings(Atomics::Auto), 3).unwrap();
-    let mut rng = Lcg(5);
-    let queries: Vec<(Vec3, Vec3)> = (0..4000)
-        .map(|_| {
-            let p = Vec3::new(
-                rng.next() * 600.0 - 20.0,
-                rng.next() * 600.0 - 20.0,
-                rng.next() * 600.0 - 20.0,
-            );
-            let n = (Vec3::new(rng.next(), rng.next(), rng.next()) - 0.5).normalize();
-            (p, n)
+/// Queries where the renderer makes them (on surfaces, just off them along
+/// either side's normal, with the normal of that side or a random one) and
+/// anywhere in the scene's box (where the grid falls back to the k-d tree).
+fn lookup_queries(scene: &qtrace::Scene, count: usize, rng: &mut Lcg) -> Vec<(Vec3, Vec3)> {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for t in &scene.triangles {
+        lo = lo.min(Vec3::from(t.v0));
+        hi = hi.max(Vec3::from(t.v0));
+    }
+    (0..count)
+        .map(|i| {
+            let random_normal = (Vec3::new(rng.next(), rng.next(), rng.next()) - 0.5).normalize();
+            if i % 4 == 3 {
+                let u = Vec3::new(rng.next(), rng.next(), rng.next());
+                return (lo + u * (hi - lo), random_normal);
+            }
+            let t = &scene.triangles[rng.below(scene.triangles.len() as u32) as usize];
+            let (mut a, mut b) = (rng.next(), rng.next());
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            let n = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize();
+            let side = if rng.next() < 0.5 { n } else { -n };
+            let p = Vec3::from(t.v0)
+                + a * Vec3::from(t.e1)
+                + b * Vec3::from(t.e2)
+                + side * 1e-5 * scene.extent;
+            (p, if i % 4 == 2 { random_normal } else { side })
         })
-        .collect();
+        .collect()
+}
+
+fn check_lookup(scene_name: &str, volumes_count: u32, queries: usize) {
+    let ctx = common::gpu();
+    let scene = common::scene(scene_name);
+    let s = SarsaSettings {
+        volumes: volumes_count,
+        ..Default::default()
+    };
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 3).unwrap();
+    let grid = qtrace::guide::grid::LookupGrid::build(&scene, &guide.volumes);
+    assert!(grid.coverage() > 0.0, "the grid serves no cell");
+    let mut rng = Lcg(5);
+    let queries = lookup_queries(&scene, queries, &mut rng);
     let gpu = probe::nearest_volumes(&ctx, &scene, &guide, &queries).unwrap();
     common::assert_no_validation_errors(&ctx);
+    let vols = &guide.volumes;
+    let dist = |i: u32, p: Vec3| Vec3::from(vols[i as usize].position).distance(p);
     for ((p, n), g) in queries.iter().zip(&gpu) {
-        let b = volumes::nearest_brute(&guide.volumes, *p, *n)
-            .expect("some volume faces every way here");
-        let g = g.expect("GPU found no volume");
-        let dg = Vec3::from(guide.volumes[g as usize].position).distance(*p);
-        let db = Vec3::from(guide.volumes[b as usize].position).distance(*p);
-        assert!(
-            (dg - db).abs() <= 1e-3 * db.max(1.0),
-            "query {p} {n}: GPU {dg} vs brute force {db}"
-        );
-        assert!(
-            volumes::faces_same_way(&guide.volumes[g as usize], *n),
-            "GPU used a volume facing away"
-        );
+        let b = volumes::nearest_brute(vols, *p, *n);
+        let c = grid.nearest(vols, *p, *n);
+        match (b, *g, c) {
+            (None, None, None) => {}
+            (Some(b), Some(g), Some(c)) => {
+                let db = dist(b, *p);
+                assert!(
+                    (dist(g, *p) - db).abs() <= 1e-3 * db.max(1.0),
+                    "{scene_name} query {p} {n}: GPU {} vs brute force {db}",
+                    dist(g, *p)
+                );
+                assert_eq!(
+                    dist(c, *p),
+                    db,
+                    "{scene_name} query {p} {n}: CPU grid disagrees"
+                );
+                assert!(
+                    volumes::faces_same_way(&vols[g as usize], *n),
+                    "GPU used a volume facing away"
+                );
+            }
+            other => panic!("{scene_name} query {p} {n}: brute force, GPU, grid = {other:?}"),
+        }
     }
+}
+
+#[test]
+fn gpu_nearest_volume_equals_brute_force() {
+    check_lookup("cornell-box", 1500, 6000);
+}
+
+#[test]
+fn gpu_nearest_volume_equals_brute_force_on_curved_geometry() {
+    check_lookup("complex-direct", 3000, 4000);
 }
 
 /// Sector probabilities of volume `v` from its inclusive CDF.

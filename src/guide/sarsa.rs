@@ -1,10 +1,11 @@
 //! Expected Sarsa guiding (SPEC §4.2): Q-values in radiance volumes, updated
 //! by atomic accumulation during a sample pass and folded between passes.
 
+use super::grid::LookupGrid;
 use super::volumes;
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
 use crate::scene::Scene;
-use crate::shaders::{self, spirv, PassParams, Volume};
+use crate::shaders::{self, spirv, GridHeader, PassParams, Volume};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -142,6 +143,9 @@ pub struct SarsaGuide {
     visits: Buffer,
     visits_total: Buffer,
     irradiance: Buffer,
+    grid_buf: Buffer,
+    grid_items: Buffer,
+    grid_bytes: u64,
     fold: ComputePipeline,
     build: ComputePipeline,
     fold_set: DescriptorSet,
@@ -158,13 +162,16 @@ impl SarsaGuide {
     ) -> gpu::Result<Self> {
         let mut vols = volumes::place(scene, settings.volume_count() as usize, seed as u64);
         volumes::build_kd_tree(&mut vols);
-        Self::from_volumes(ctx, vols, settings)
+        let grid = LookupGrid::build(scene, &vols);
+        Self::from_volumes(ctx, vols, Some(&grid), settings)
     }
 
-    /// A guide over given volumes (already in k-d tree order).
+    /// A guide over given volumes (already in k-d tree order); without a grid
+    /// every lookup searches the k-d tree.
     pub fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
+        grid: Option<&LookupGrid>,
         settings: &SarsaSettings,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
@@ -178,6 +185,19 @@ impl SarsaGuide {
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
         let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
+        let mut grid_words: Vec<u32> = Vec::new();
+        let mut grid_items: &[u32] = &[];
+        match grid {
+            Some(g) => {
+                grid_words.extend_from_slice(bytemuck::cast_slice(&[g.header()]));
+                grid_words.extend(g.ranges.iter().flatten());
+                grid_items = &g.items;
+            }
+            None => grid_words.extend_from_slice(bytemuck::cast_slice(&[GridHeader::default()])),
+        }
+        let grid_bytes = 4 * (grid_words.len() + grid_items.len()) as u64;
+        let grid_buf = Buffer::gpu_only_with(ctx, "volume lookup grid", &grid_words)?;
+        let grid_items = Buffer::gpu_only_with(ctx, "volume lookup lists", grid_items)?;
         let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
         let bindings = [
@@ -201,6 +221,9 @@ impl SarsaGuide {
             visits,
             visits_total,
             irradiance,
+            grid_buf,
+            grid_items,
+            grid_bytes,
             fold,
             build,
             fold_set,
@@ -218,7 +241,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 7] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 9] {
         [
             (shaders::B_VOLUMES, &self.volume_buf),
             (shaders::B_Q, &self.q),
@@ -227,6 +250,8 @@ impl SarsaGuide {
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
             (shaders::B_IRRADIANCE, &self.irradiance),
+            (shaders::B_GRID, &self.grid_buf),
+            (shaders::B_GRID_ITEMS, &self.grid_items),
         ]
     }
 
@@ -288,7 +313,7 @@ impl SarsaGuide {
 
     /// Device memory the guide holds.
     pub fn bytes(&self) -> u64 {
-        self.volumes.len() as u64 * bytes_per_volume(self.settings.sectors())
+        self.volumes.len() as u64 * bytes_per_volume(self.settings.sectors()) + self.grid_bytes
     }
 
     /// Current Q-values, volume-major.

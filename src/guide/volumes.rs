@@ -7,7 +7,7 @@ use crate::shaders::{Volume, KD_LEAF};
 use glam::Vec3;
 
 /// Deterministic generator for placement (SplitMix64).
-struct SplitMix(u64);
+pub(crate) struct SplitMix(pub u64);
 
 impl SplitMix {
     fn next_u64(&mut self) -> u64 {
@@ -106,6 +106,11 @@ pub fn nearest_brute(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
 
 /// The same search through the k-d tree (what the shader does).
 pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
+    nearest_where(volumes, p, |v| faces_same_way(v, n))
+}
+
+/// Nearest volume to `p` among those `accept` lets through, via the k-d tree.
+pub fn nearest_where(volumes: &[Volume], p: Vec3, accept: impl Fn(&Volume) -> bool) -> Option<u32> {
     let mut best: Option<(f32, u32)> = None;
     let mut stack = vec![(0usize, volumes.len(), 0.0f32)];
     while let Some((lo, hi, plane_d2)) = stack.pop() {
@@ -115,7 +120,7 @@ pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
         let m = (lo + hi) / 2;
         let v = &volumes[m];
         let d2 = Vec3::from(v.position).distance_squared(p);
-        if faces_same_way(v, n) && best.is_none_or(|(d, _)| d2 < d) {
+        if best.is_none_or(|(d, _)| d2 < d) && accept(v) {
             best = Some((d2, m as u32));
         }
         if v.axis == KD_LEAF {

@@ -26,7 +26,7 @@ fn run(
     let guide = match guide {
         Some(g) => g,
         None => {
-            empty = SarsaGuide::from_volumes(ctx, Vec::new(), &Default::default())?;
+            empty = SarsaGuide::from_volumes(ctx, Vec::new(), None, &Default::default())?;
             &empty
         }
     };

@@ -1,0 +1,240 @@
+//! A lookup grid that makes the exact nearest-volume search cheap on the GPU.
+//!
+//! Query normals fall into six classes by their dominant axis. For a cell C and
+//! class c, any volume facing the same way as *every* normal of the class (an
+//! "always-facing" volume i) bounds the answer: the nearest facing volume to
+//! any p in C is no farther than i, so no farther than dmax(C, i). The cell's
+//! list holds every volume that can face some normal of the class and lies
+//! within that bound of the cell. The shader scans the list; cells without
+//! geometry, long lists and points outside the grid fall back to the k-d tree,
+//! so the search stays exact everywhere.
+
+use super::volumes::nearest_where;
+use crate::scene::Scene;
+use crate::shaders::{GridHeader, Volume, GRID_FALLBACK, GRID_MAX_LIST, NORMAL_CLASSES};
+use glam::{UVec3, Vec3};
+
+pub struct LookupGrid {
+    pub origin: Vec3,
+    pub cell: f32,
+    pub dims: UVec3,
+    /// Per (cell, class): start and length in `items`; length GRID_FALLBACK
+    /// means "use the k-d tree".
+    pub ranges: Vec<[u32; 2]>,
+    pub items: Vec<u32>,
+}
+
+/// The class of a query normal: 2 · dominant axis + (component < 0).
+/// Ties go to the lower axis; the shader decides the same way.
+pub fn normal_class(n: Vec3) -> u32 {
+    let a = n.abs();
+    let axis = if a.x >= a.y && a.x >= a.z {
+        0
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    };
+    2 * axis + u32::from(n[axis as usize] < 0.0)
+}
+
+/// The four directions spanning the closed cone of normals of class `c`.
+fn generators(c: u32) -> [Vec3; 4] {
+    let axis = (c / 2) as usize;
+    let sign = if c % 2 == 0 { 1.0 } else { -1.0 };
+    let mut out = [Vec3::ZERO; 4];
+    for (k, g) in out.iter_mut().enumerate() {
+        let (s1, s2) = (
+            if k & 1 == 0 { 1.0 } else { -1.0 },
+            if k & 2 == 0 { 1.0 } else { -1.0 },
+        );
+        let mut v = Vec3::ZERO;
+        v[axis] = sign;
+        v[(axis + 1) % 3] = s1;
+        v[(axis + 2) % 3] = s2;
+        *g = v;
+    }
+    out
+}
+
+fn dmin2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
+    (lo - p).max(p - hi).max(Vec3::ZERO).length_squared()
+}
+
+fn dmax2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
+    (p - lo).abs().max((hi - p).abs()).length_squared()
+}
+
+impl LookupGrid {
+    /// Builds the grid for `volumes` (in k-d tree order) over `scene`.
+    pub fn build(scene: &Scene, volumes: &[Volume]) -> Self {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        let mut area = 0.0f64;
+        for t in &scene.triangles {
+            let v0 = Vec3::from(t.v0);
+            for p in [v0, v0 + Vec3::from(t.e1), v0 + Vec3::from(t.e2)] {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+            area += t.area as f64;
+        }
+        let margin = 1e-3 * scene.extent;
+        lo -= Vec3::splat(margin);
+        hi += Vec3::splat(margin);
+        // Cells about as wide as the spacing of the volumes, at most 128 a side.
+        let spacing = (area / volumes.len().max(1) as f64).sqrt() as f32;
+        let size = hi - lo;
+        let cell = spacing.max(size.max_element() / 128.0).max(1e-6);
+        let dims = (size / cell).ceil().as_uvec3().max(UVec3::ONE);
+        let cells = (dims.x * dims.y * dims.z) as usize;
+
+        // Cells touched by geometry (triangle boxes grown by the ray offset).
+        let mut touched = vec![false; cells];
+        let cell_of = |p: Vec3| {
+            ((p - lo) / cell)
+                .floor()
+                .as_ivec3()
+                .clamp(glam::IVec3::ZERO, dims.as_ivec3() - 1)
+        };
+        for t in &scene.triangles {
+            let v0 = Vec3::from(t.v0);
+            let ps = [v0, v0 + Vec3::from(t.e1), v0 + Vec3::from(t.e2)];
+            let tl = ps[0].min(ps[1]).min(ps[2]) - Vec3::splat(margin);
+            let th = ps[0].max(ps[1]).max(ps[2]) + Vec3::splat(margin);
+            let (a, b) = (cell_of(tl), cell_of(th));
+            for z in a.z..=b.z {
+                for y in a.y..=b.y {
+                    for x in a.x..=b.x {
+                        touched[(x as u32 + dims.x * (y as u32 + dims.y * z as u32)) as usize] =
+                            true;
+                    }
+                }
+            }
+        }
+
+        // Volumes bucketed by cell, for the range queries.
+        let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); cells];
+        for (i, v) in volumes.iter().enumerate() {
+            let c = cell_of(Vec3::from(v.position));
+            buckets[(c.x as u32 + dims.x * (c.y as u32 + dims.y * c.z as u32)) as usize]
+                .push(i as u32);
+        }
+
+        let mut ranges = vec![[0, GRID_FALLBACK]; cells * NORMAL_CLASSES as usize];
+        let mut items = Vec::new();
+        for c in 0..NORMAL_CLASSES {
+            let g = generators(c);
+            let always = |v: &Volume| g.iter().all(|d| Vec3::from(v.normal).dot(*d) > 0.0);
+            let maybe = |v: &Volume| g.iter().any(|d| Vec3::from(v.normal).dot(*d) > 0.0);
+            if !volumes.iter().any(always) {
+                continue; // no bound: this class always uses the k-d tree
+            }
+            for z in 0..dims.z {
+                for y in 0..dims.y {
+                    for x in 0..dims.x {
+                        let index = (x + dims.x * (y + dims.y * z)) as usize;
+                        if !touched[index] {
+                            continue;
+                        }
+                        // The box grows a little so rounding at its faces cannot matter.
+                        let slack = Vec3::splat(1e-3 * cell);
+                        let clo = lo + Vec3::new(x as f32, y as f32, z as f32) * cell - slack;
+                        let chi = clo + Vec3::splat(cell) + 2.0 * slack;
+                        let centre = 0.5 * (clo + chi);
+                        let Some(i) = nearest_where(volumes, centre, always) else {
+                            continue;
+                        };
+                        let bound2 = dmax2(clo, chi, Vec3::from(volumes[i as usize].position));
+                        let reach = (bound2.sqrt() / cell).ceil() as i32 + 1;
+                        let start = items.len();
+                        let mut overflow = false;
+                        'search: for bz in
+                            (z as i32 - reach).max(0)..=(z as i32 + reach).min(dims.z as i32 - 1)
+                        {
+                            for by in (y as i32 - reach).max(0)
+                                ..=(y as i32 + reach).min(dims.y as i32 - 1)
+                            {
+                                for bx in (x as i32 - reach).max(0)
+                                    ..=(x as i32 + reach).min(dims.x as i32 - 1)
+                                {
+                                    let b = (bx as u32 + dims.x * (by as u32 + dims.y * bz as u32))
+                                        as usize;
+                                    for &j in &buckets[b] {
+                                        let v = &volumes[j as usize];
+                                        if maybe(v)
+                                            && dmin2(clo, chi, Vec3::from(v.position)) <= bound2
+                                        {
+                                            items.push(j);
+                                            if items.len() - start > GRID_MAX_LIST as usize {
+                                                overflow = true;
+                                                break 'search;
+                                            }
+                                        }
+                                    }
+                                }
+                            }
+                        }
+                        if overflow {
+                            items.truncate(start);
+                        } else {
+                            ranges[index * NORMAL_CLASSES as usize + c as usize] =
+                                [start as u32, (items.len() - start) as u32];
+                        }
+                    }
+                }
+            }
+        }
+        Self {
+            origin: lo,
+            cell,
+            dims,
+            ranges,
+            items,
+        }
+    }
+
+    /// Nearest facing volume through the grid, falling back to the k-d tree
+    /// (the shader's search, on the CPU).
+    pub fn nearest(&self, volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
+        let g = (p - self.origin) / self.cell;
+        if g.cmpge(Vec3::ZERO).all() && g.cmplt(self.dims.as_vec3()).all() {
+            let c = g.as_uvec3();
+            let index =
+                (c.x + self.dims.x * (c.y + self.dims.y * c.z)) * NORMAL_CLASSES + normal_class(n);
+            let [start, count] = self.ranges[index as usize];
+            if count != GRID_FALLBACK {
+                let list = &self.items[start as usize..(start + count) as usize];
+                return list
+                    .iter()
+                    .filter(|&&j| Vec3::from(volumes[j as usize].normal).dot(n) > 0.0)
+                    .min_by(|&&a, &&b| {
+                        let da = Vec3::from(volumes[a as usize].position).distance_squared(p);
+                        let db = Vec3::from(volumes[b as usize].position).distance_squared(p);
+                        da.total_cmp(&db)
+                    })
+                    .copied();
+            }
+        }
+        super::volumes::nearest_kd(volumes, p, n)
+    }
+
+    /// Share of geometry cells × classes served by lists (the rest use the tree).
+    pub fn coverage(&self) -> f64 {
+        let listed = self.ranges.iter().filter(|r| r[1] != GRID_FALLBACK).count();
+        listed as f64 / self.ranges.len().max(1) as f64
+    }
+
+    pub fn bytes(&self) -> u64 {
+        size_of::<GridHeader>() as u64 + 8 * self.ranges.len() as u64 + 4 * self.items.len() as u64
+    }
+
+    /// The header the shader reads before the ranges.
+    pub fn header(&self) -> GridHeader {
+        GridHeader {
+            origin: self.origin.into(),
+            inv_cell: 1.0 / self.cell,
+            dims: self.dims.into(),
+            pad: 0,
+        }
+    }
+}
