@@ -138,25 +138,32 @@ uint pick_sector(uint v, float u) {
     return lo;
 }
 
-// Solid-angle pdf of the one-sample mixture: epsilon * cosine + (1 - epsilon) * guide,
-// where the guide's density in sector k is P(k) * n / (2 pi).
-float guide_pdf(uint v, vec3 local) {
-    if (local.z <= 0.0) {
+// Solid-angle pdf of the one-sample mixture epsilon * cosine + (1 - epsilon) * guide
+// for a local direction with cos(theta) = cos_theta lying in sector k; the
+// guide's density in sector k is P(k) * n / (2 pi).
+float guide_pdf_in_sector(uint v, uint k, float cos_theta) {
+    if (cos_theta <= 0.0) {
         return 0.0;
     }
-    float cosine = local.z * INV_PI;
+    float cosine = cos_theta * INV_PI;
     if (v == NO_VOLUME) {
         return cosine;
     }
-    float n = float(sector_count());
-    float guided = sector_probability(v, hemisphere_sector(local, grid_a(), grid_b())) * n * 0.5 * INV_PI;
+    float guided = sector_probability(v, k) * float(sector_count()) * 0.5 * INV_PI;
     return params.guide_epsilon * cosine + (1.0 - params.guide_epsilon) * guided;
 }
 
-// A local direction from the mixture; u = three uniform numbers.
-vec3 guide_sample(uint v, vec3 u) {
+float guide_pdf(uint v, vec3 local) {
+    return guide_pdf_in_sector(v, hemisphere_sector(local, grid_a(), grid_b()), local.z);
+}
+
+// A local direction from the mixture, and the sector it lies in; u = three
+// uniform numbers.
+vec3 guide_sample(uint v, vec3 u, out uint sector) {
     if (v == NO_VOLUME || u.z < params.guide_epsilon) {
-        return sample_cosine(u.xy);
+        vec3 w = sample_cosine(u.xy);
+        sector = hemisphere_sector(w, grid_a(), grid_b());
+        return w;
     }
     // Reuse u.z, rescaled, to pick the sector.
     float us = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon);
@@ -164,11 +171,12 @@ vec3 guide_sample(uint v, vec3 u) {
     uint a = grid_a();
     uint i = k % a;
     uint j = k / a;
-    // Keep clear of the cell's edges: rounding in the map and its inverse must
-    // not move the direction into a neighbouring sector, whose P(k) guide_pdf
-    // would then report. (The strip left out is 2e-5 of the cell.)
+    // Keep clear of the cell's edges: rounding in the map must not move the
+    // direction into a neighbouring sector, so that k is the sector guide_pdf
+    // finds for it. (The strip left out is 2e-5 of the cell.)
     vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
     vec2 cell = vec2((float(i) + inner.x) / float(a), (float(j) + inner.y) / float(grid_b()));
+    sector = k;
     return square_to_hemisphere(cell);
 }
 

@@ -42,8 +42,9 @@ void main() {
         // in = (volume bits, u1, u2, u3); out = (local direction, pdf)
         vec4 q = probe_in[i];
         uint v = floatBitsToUint(q.x);
-        vec3 w = guide_sample(v, q.yzw);
-        probe_out[i] = vec4(w, guide_pdf(v, w));
+        uint sector;
+        vec3 w = guide_sample(v, q.yzw, sector);
+        probe_out[i] = vec4(w, guide_pdf_in_sector(v, sector, w.z));
     } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
         // in = (volume bits, sector bits, next volume bits, albedo or -emitted);
         // out.x = the target recorded

@@ -46,8 +46,8 @@
 // Volume.axis of a k-d tree node without children; also "no volume".
 #define KD_LEAF 3
 #define NO_VOLUME 0xffffffffu
-// Deepest k-d tree the lookup stack holds (2^40 volumes).
-#define KD_STACK_SIZE 40
+// Entries of the k-d search stack: depth + 1 for the 2^22 volumes allowed.
+#define KD_STACK_SIZE 24
 // Lookup grid (src/guide/grid.rs): classes of query normals, the list length
 // that means "use the k-d tree", and the longest list kept.
 #define NORMAL_CLASSES 6

@@ -172,10 +172,11 @@ void main() {
 
 #ifdef METHOD_SARSA
         // Guided sampling: the mixture of cosine and the volume's sector distribution.
-        vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)));
-        float pdf = guide_pdf(volume, local);
+        uint sector;
+        vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)), sector);
+        float pdf = guide_pdf_in_sector(volume, sector, local.z);
         prev_volume = volume;
-        prev_sector = hemisphere_sector(local, grid_a(), grid_b());
+        prev_sector = sector;
 #else
         // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
         vec2 u = rng_next2(rng);

@@ -4,6 +4,7 @@
 //! the same code. `unsafe` lives in [`gpu`] only.
 #![deny(unsafe_code)]
 
+pub mod bench;
 #[allow(unsafe_code)]
 pub mod gpu;
 pub mod guide;

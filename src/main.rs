@@ -3,6 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use qtrace::bench::{self, Config, SpeedPlan};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
 use qtrace::guide::sarsa::{Atomics, Distribution};
 use qtrace::guide::SarsaSettings;
@@ -176,6 +177,12 @@ enum Command {
         height: u32,
         #[arg(long, default_value_t = 32)]
         spp: u32,
+        /// Configurations to compare; the first is the baseline of the cost ratio.
+        #[arg(long, value_delimiter = ',', default_values = ["pt", "pt+nee"])]
+        configs: Vec<Config>,
+        /// Runs per configuration; the fastest counts.
+        #[arg(long, default_value_t = 2)]
+        repeats: u32,
         /// Write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -398,57 +405,36 @@ fn cmd_inspect(path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn cmd_bench(
-    scenes: &[PathBuf],
-    width: u32,
-    height: u32,
-    spp: u32,
-    json: Option<&Path>,
-    device: &DeviceArgs,
-) -> Result<()> {
+fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> Result<()> {
     if let Some(p) = json {
         check_output(p, "json")?;
     }
     let ctx = open_device(device)?;
     println!("device: {} ({})", ctx.info().name, ctx.info().driver);
     println!(
-        "{:<28} {:<8} {:>6} {:>10} {:>12} {:>12} {:>12} {:>10}",
-        "scene", "method", "spp", "wall s", "samples/s", "Mrays/s", "trace ms", "zero %"
+        "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>7}  per pass (ms)",
+        "scene", "config", "spp", "wall s", "samples/s", "Mrays/s", "pass ms", "cost", "zero %"
     );
-    let mut rows = Vec::new();
-    for path in scenes {
-        let scene = Scene::load(path)?;
-        for nee in [false, true] {
-            let o = Overrides {
-                spp: Some(spp),
-                width: Some(width),
-                height: Some(height),
-                nee,
-                ..Default::default()
-            };
-            let settings = RenderSettings::resolve(&scene, &o)?;
-            let out = render::render(&ctx, &scene, settings, &mut |_| {})?;
-            let s = out.stats;
-            let trace_ms = s
-                .gpu_passes
-                .iter()
-                .find(|t| t.name == "trace")
-                .map_or(0.0, |t| t.mean_ms());
-            let name = if nee { "pt+nee" } else { "pt" };
-            println!(
-                "{:<28} {:<8} {:>6} {:>10.3} {:>12.0} {:>12.3} {:>12.3} {:>10.2}",
-                path.display().to_string(),
-                name,
-                s.spp,
-                s.wall_seconds,
-                s.samples_per_second,
-                s.rays_per_second / 1e6,
-                trace_ms,
-                100.0 * s.zero_contribution_fraction
-            );
-            rows.push(s);
-        }
-    }
+    let rows = bench::speed(&ctx, plan, &mut |r| {
+        let breakdown: Vec<String> = r
+            .pass_breakdown_ms
+            .iter()
+            .map(|(n, ms)| format!("{n} {ms:.2}"))
+            .collect();
+        println!(
+            "{:<28} {:<10} {:>5} {:>9.3} {:>11.0} {:>9.3} {:>9.3} {:>5.2}x {:>7.2}  {}",
+            r.scene.display().to_string(),
+            r.config,
+            r.spp,
+            r.wall_seconds,
+            r.samples_per_second,
+            r.rays_per_second / 1e6,
+            r.pass_ms,
+            r.pass_cost_ratio,
+            100.0 * r.zero_contribution_fraction,
+            breakdown.join(", ")
+        );
+    })?;
     if let Some(p) = json {
         let text = serde_json::to_string_pretty(&rows)?;
         image::write_atomically(p, |tmp| {
@@ -485,9 +471,21 @@ fn run(cli: Cli) -> Result<()> {
             width,
             height,
             spp,
+            configs,
+            repeats,
             json,
             device,
-        } => cmd_bench(scenes, *width, *height, *spp, json.as_deref(), device),
+        } => {
+            let plan = SpeedPlan {
+                scenes,
+                configs,
+                width: *width,
+                height: *height,
+                spp: *spp,
+                repeats: *repeats,
+            };
+            cmd_bench(&plan, json.as_deref(), device)
+        }
     }
 }
 

@@ -15,6 +15,11 @@ pub struct PassTiming {
     pub total_ms: f64,
     pub min_ms: f64,
     pub max_ms: f64,
+    /// Median of the individual timings: robust to the first dispatch, which
+    /// may include the driver's shader compilation.
+    pub median_ms: f64,
+    #[serde(skip)]
+    samples: Vec<f32>,
 }
 
 impl PassTiming {
@@ -142,13 +147,25 @@ impl Profiler {
             t.total_ms += ms;
             t.min_ms = t.min_ms.min(ms);
             t.max_ms = t.max_ms.max(ms);
+            t.samples.push(ms as f32);
         }
         Ok(())
     }
 
     /// Totals per pass name, in first-seen order.
-    pub fn timings(&self) -> &[PassTiming] {
-        &self.timings
+    pub fn timings(&self) -> Vec<PassTiming> {
+        self.timings
+            .iter()
+            .map(|t| {
+                let mut sorted = t.samples.clone();
+                sorted.sort_by(f32::total_cmp);
+                PassTiming {
+                    median_ms: sorted.get(sorted.len() / 2).map_or(0.0, |&m| m as f64),
+                    samples: Vec::new(),
+                    ..t.clone()
+                }
+            })
+            .collect()
     }
 }
 

@@ -22,6 +22,8 @@ pub struct LookupGrid {
     /// means "use the k-d tree".
     pub ranges: Vec<[u32; 2]>,
     pub items: Vec<u32>,
+    /// (cell, class) pairs that surface points can query.
+    pub touched_classes: u32,
 }
 
 /// The class of a query normal: 2 · dominant axis + (component < 0).
@@ -88,8 +90,9 @@ impl LookupGrid {
         let dims = (size / cell).ceil().as_uvec3().max(UVec3::ONE);
         let cells = (dims.x * dims.y * dims.z) as usize;
 
-        // Cells touched by geometry (triangle boxes grown by the ray offset).
-        let mut touched = vec![false; cells];
+        // Cells touched by geometry (triangle boxes grown by the ray offset), with
+        // the classes of the normals queries there can have: either side's.
+        let mut touched = vec![0u8; cells];
         let cell_of = |p: Vec3| {
             ((p - lo) / cell)
                 .floor()
@@ -102,11 +105,13 @@ impl LookupGrid {
             let tl = ps[0].min(ps[1]).min(ps[2]) - Vec3::splat(margin);
             let th = ps[0].max(ps[1]).max(ps[2]) + Vec3::splat(margin);
             let (a, b) = (cell_of(tl), cell_of(th));
+            let n = Vec3::from(t.e1).cross(Vec3::from(t.e2));
+            let classes = (1u8 << normal_class(n)) | (1u8 << normal_class(-n));
             for z in a.z..=b.z {
                 for y in a.y..=b.y {
                     for x in a.x..=b.x {
-                        touched[(x as u32 + dims.x * (y as u32 + dims.y * z as u32)) as usize] =
-                            true;
+                        touched[(x as u32 + dims.x * (y as u32 + dims.y * z as u32)) as usize] |=
+                            classes;
                     }
                 }
             }
@@ -133,7 +138,7 @@ impl LookupGrid {
                 for y in 0..dims.y {
                     for x in 0..dims.x {
                         let index = (x + dims.x * (y + dims.y * z)) as usize;
-                        if !touched[index] {
+                        if touched[index] & (1 << c) == 0 {
                             continue;
                         }
                         // The box grows a little so rounding at its faces cannot matter.
@@ -176,10 +181,43 @@ impl LookupGrid {
                         }
                         if overflow {
                             items.truncate(start);
-                        } else {
-                            ranges[index * NORMAL_CLASSES as usize + c as usize] =
-                                [start as u32, (items.len() - start) as u32];
+                            continue;
                         }
+                        // Drop j when an always-facing i is nearer than j at every
+                        // corner of the cell: the bisector plane keeps all of the cell
+                        // on i's side, and i serves every query j could serve.
+                        let corners: Vec<Vec3> = (0..8)
+                            .map(|k| {
+                                Vec3::new(
+                                    if k & 1 == 0 { clo.x } else { chi.x },
+                                    if k & 2 == 0 { clo.y } else { chi.y },
+                                    if k & 4 == 0 { clo.z } else { chi.z },
+                                )
+                            })
+                            .collect();
+                        let found = items[start..].to_vec();
+                        let pruners: Vec<Vec3> = found
+                            .iter()
+                            .filter(|&&i| always(&volumes[i as usize]))
+                            .map(|&i| Vec3::from(volumes[i as usize].position))
+                            .collect();
+                        items.truncate(start);
+                        for &j in &found {
+                            let pj = Vec3::from(volumes[j as usize].position);
+                            let dominated = pruners.iter().any(|&pi| {
+                                pi != pj
+                                    && corners.iter().all(|&q| {
+                                        let (di, dj) =
+                                            (q.distance_squared(pi), q.distance_squared(pj));
+                                        di < dj * (1.0 - 1e-4)
+                                    })
+                            });
+                            if !dominated {
+                                items.push(j);
+                            }
+                        }
+                        ranges[index * NORMAL_CLASSES as usize + c as usize] =
+                            [start as u32, (items.len() - start) as u32];
                     }
                 }
             }
@@ -190,6 +228,7 @@ impl LookupGrid {
             dims,
             ranges,
             items,
+            touched_classes: touched.iter().map(|t| t.count_ones()).sum(),
         }
     }
 
@@ -218,10 +257,21 @@ impl LookupGrid {
         super::volumes::nearest_kd(volumes, p, n)
     }
 
-    /// Share of geometry cells × classes served by lists (the rest use the tree).
+    /// Share of the (cell, class) pairs surfaces query that lists serve.
     pub fn coverage(&self) -> f64 {
         let listed = self.ranges.iter().filter(|r| r[1] != GRID_FALLBACK).count();
-        listed as f64 / self.ranges.len().max(1) as f64
+        listed as f64 / self.touched_classes.max(1) as f64
+    }
+
+    /// Mean length of the lists the grid keeps.
+    pub fn mean_list_length(&self) -> f64 {
+        let lists: Vec<u32> = self
+            .ranges
+            .iter()
+            .filter(|r| r[1] != GRID_FALLBACK)
+            .map(|r| r[1])
+            .collect();
+        lists.iter().map(|&l| l as f64).sum::<f64>() / lists.len().max(1) as f64
     }
 
     pub fn bytes(&self) -> u64 {

@@ -162,7 +162,17 @@ impl SarsaGuide {
     ) -> gpu::Result<Self> {
         let mut vols = volumes::place(scene, settings.volume_count() as usize, seed as u64);
         volumes::build_kd_tree(&mut vols);
+        let start = std::time::Instant::now();
         let grid = LookupGrid::build(scene, &vols);
+        log::info!(
+            "lookup grid {}x{}x{}: {:.1}% of cell classes listed, mean list {:.1}, built in {:.2} s",
+            grid.dims.x,
+            grid.dims.y,
+            grid.dims.z,
+            100.0 * grid.coverage(),
+            grid.mean_list_length(),
+            start.elapsed().as_secs_f64()
+        );
         Self::from_volumes(ctx, vols, Some(&grid), settings)
     }
 

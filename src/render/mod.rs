@@ -323,7 +323,7 @@ impl Renderer {
                 };
             }
         }
-        let timings = self.profiler.timings().to_vec();
+        let timings = self.profiler.timings();
         let nz = paths.max(1) as f64;
         let stats = RenderStats {
             method: self.settings.method.name().into(),

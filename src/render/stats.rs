@@ -53,12 +53,12 @@ impl RenderStats {
     pub fn profile_table(&self) -> String {
         let total: f64 = self.gpu_passes.iter().map(|t| t.total_ms).sum();
         let mut s = format!(
-            "{:<16} {:>7} {:>11} {:>7} {:>10} {:>10} {:>10}\n",
-            "pass", "count", "total ms", "share", "mean ms", "min ms", "max ms"
+            "{:<20} {:>7} {:>11} {:>7} {:>10} {:>10} {:>10} {:>10}\n",
+            "pass", "count", "total ms", "share", "mean ms", "median ms", "min ms", "max ms"
         );
         for t in &self.gpu_passes {
             s += &format!(
-                "{:<16} {:>7} {:>11.3} {:>6.1}% {:>10.4} {:>10.4} {:>10.4}\n",
+                "{:<20} {:>7} {:>11.3} {:>6.1}% {:>10.4} {:>10.4} {:>10.4} {:>10.4}\n",
                 t.name,
                 t.count,
                 t.total_ms,
@@ -68,6 +68,7 @@ impl RenderStats {
                     0.0
                 },
                 t.mean_ms(),
+                t.median_ms,
                 t.min_ms,
                 t.max_ms
             );

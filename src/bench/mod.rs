@@ -1,0 +1,138 @@
+//! Speed measurements: samples/s, rays/s and GPU time per pass for a list of
+//! method configurations, from timestamp queries.
+
+use crate::gpu::GpuContext;
+use crate::render::{self, Method, Overrides, RenderError, RenderSettings};
+use crate::scene::{Scene, SceneError};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// A method with or without next-event estimation, written `pt`, `pt+nee`,
+/// `sarsa`, `sarsa+nee`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Config {
+    pub method: Method,
+    pub nee: bool,
+}
+
+impl Config {
+    pub fn label(&self) -> String {
+        format!(
+            "{}{}",
+            self.method.name(),
+            if self.nee { "+nee" } else { "" }
+        )
+    }
+}
+
+impl std::str::FromStr for Config {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, nee) = match s.strip_suffix("+nee") {
+            Some(n) => (n, true),
+            None => (s, false),
+        };
+        let method = <Method as clap::ValueEnum>::from_str(name, true).map_err(|_| {
+            format!("unknown method '{name}' in '{s}' (pt, sarsa; add +nee for NEE)")
+        })?;
+        Ok(Self { method, nee })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Render(#[from] RenderError),
+}
+
+/// One configuration on one scene: the fastest of the repeats.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpeedRow {
+    pub scene: PathBuf,
+    pub config: String,
+    pub spp: u32,
+    pub width: u32,
+    pub height: u32,
+    pub wall_seconds: f64,
+    pub samples_per_second: f64,
+    pub rays_per_second: f64,
+    /// GPU ms of one sample pass, all its dispatches together (sum of medians).
+    pub pass_ms: f64,
+    /// Median GPU ms per pass name.
+    pub pass_breakdown_ms: Vec<(String, f64)>,
+    /// `pass_ms` over the first configuration's on the same scene.
+    pub pass_cost_ratio: f64,
+    pub zero_contribution_fraction: f64,
+    pub mean_path_length: f64,
+}
+
+pub struct SpeedPlan<'a> {
+    pub scenes: &'a [PathBuf],
+    pub configs: &'a [Config],
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub repeats: u32,
+}
+
+/// Renders every configuration on every scene `repeats` times, keeping each
+/// one's fastest run; `progress` hears of each finished row.
+pub fn speed(
+    ctx: &Arc<GpuContext>,
+    plan: &SpeedPlan<'_>,
+    progress: &mut dyn FnMut(&SpeedRow),
+) -> Result<Vec<SpeedRow>, BenchError> {
+    let mut rows = Vec::new();
+    for path in plan.scenes {
+        let scene = Scene::load(path)?;
+        let mut baseline = None;
+        for config in plan.configs {
+            let o = Overrides {
+                method: Some(config.method),
+                spp: Some(plan.spp),
+                width: Some(plan.width),
+                height: Some(plan.height),
+                nee: config.nee,
+                ..Default::default()
+            };
+            let mut best: Option<SpeedRow> = None;
+            for _ in 0..plan.repeats.max(1) {
+                let settings = RenderSettings::resolve(&scene, &o).map_err(RenderError::from)?;
+                let s = render::render(ctx, &scene, settings, &mut |_| {})?.stats;
+                let breakdown: Vec<(String, f64)> = s
+                    .gpu_passes
+                    .iter()
+                    .map(|t| (t.name.clone(), t.median_ms))
+                    .collect();
+                let pass_ms = breakdown.iter().map(|(_, ms)| ms).sum();
+                let row = SpeedRow {
+                    scene: path.clone(),
+                    config: config.label(),
+                    spp: s.spp,
+                    width: s.width,
+                    height: s.height,
+                    wall_seconds: s.wall_seconds,
+                    samples_per_second: s.samples_per_second,
+                    rays_per_second: s.rays_per_second,
+                    pass_ms,
+                    pass_breakdown_ms: breakdown,
+                    pass_cost_ratio: 1.0,
+                    zero_contribution_fraction: s.zero_contribution_fraction,
+                    mean_path_length: s.mean_path_length,
+                };
+                if best.as_ref().is_none_or(|b| row.pass_ms < b.pass_ms) {
+                    best = Some(row);
+                }
+            }
+            let mut row = best.expect("at least one repeat");
+            let base = *baseline.get_or_insert(row.pass_ms);
+            row.pass_cost_ratio = row.pass_ms / base;
+            progress(&row);
+            rows.push(row);
+        }
+    }
+    Ok(rows)
+}
