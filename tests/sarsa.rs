@@ -25,12 +25,6 @@ impl Lcg {
     }
 }
 
-fn settings(atomics: Atomics) -> SarsaSettings {
-    SarsaSettings {
-        volumes: 1500,
-        atomics,
-        ..Default::default()
-    }
 }
 
 /// Queries where the renderer makes them (on surfaces, just off them along
