@@ -25,8 +25,6 @@ impl Lcg {
     }
 }
 
-}
-
 /// Queries where the renderer makes them (on surfaces, just off them along
 /// either side's normal, with the normal of that side or a random one) and
 /// anywhere in the scene's box (where the grid falls back to the k-d tree).
