@@ -84,7 +84,7 @@ struct SarsaArgs {
     #[arg(long, default_value_t = SarsaSettings::default().epsilon)]
     sarsa_epsilon: f32,
     /// Sample sectors in proportion to Q or to Q·cos θ.
-    #[arg(long, value_enum, default_value_t = Distribution::Q)]
+    #[arg(long, value_enum, default_value_t = Distribution::Qcos)]
     sarsa_distribution: Distribution,
     /// Stop learning after this many sample passes.
     #[arg(long)]

@@ -281,15 +281,9 @@ fn guided_sampler_matches_its_pdf() {
     );
 }
 
-/// CPU reference of one batch: targets, then Q as the running mean of targets.
-fn cpu_update(
-    q: &mut [f32],
-    seen: &mut [u32],
-    batch: &[Transition],
-    n: usize,
-    grid: [u32; 2],
-) -> Vec<f32> {
-    let cos: Vec<f64> = (0..n)
+/// cos θ at the centre of each sector.
+fn sector_cosines(n: usize, grid: [u32; 2]) -> Vec<f64> {
+    (0..n)
         .map(|k| {
             let (i, j) = (k % grid[0] as usize, k / grid[0] as usize);
             let u = Vec2::new(
@@ -298,7 +292,18 @@ fn cpu_update(
             );
             sampling::square_to_hemisphere(u).z as f64
         })
-        .collect();
+        .collect()
+}
+
+/// CPU reference of one batch: targets, then Q as the running mean of targets.
+fn cpu_update(
+    q: &mut [f32],
+    seen: &mut [u32],
+    batch: &[Transition],
+    n: usize,
+    grid: [u32; 2],
+) -> Vec<f32> {
+    let cos = sector_cosines(n, grid);
     let irradiance = |v: usize| -> f64 {
         (0..n).map(|k| q[v * n + k] as f64 * cos[k]).sum::<f64>() * 2.0 * PI / n as f64
     };
@@ -373,12 +378,14 @@ fn check_update(atomics: Atomics) {
                 "{atomics:?} round {round} Q[{i}]: GPU {g} vs CPU {c}"
             );
         }
-        // And the distribution is Q normalised.
+        // And the distribution is Q·cos θ_k normalised (the default).
+        let cos = sector_cosines(n, s.grid);
         let cdf = guide.download_cdf().unwrap();
         for v in 0..6 {
-            let total: f64 = q[v * n..(v + 1) * n].iter().map(|&x| x as f64).sum();
+            let w = |k: usize| q[v * n + k] as f64 * cos[k];
+            let total: f64 = (0..n).map(w).sum();
             for (k, pk) in probabilities(&cdf, v, n).iter().enumerate() {
-                let want = q[v * n + k] as f64 / total;
+                let want = w(k) / total;
                 assert!(
                     (pk - want).abs() < 1e-5,
                     "volume {v} sector {k}: P {pk} vs {want}"
