@@ -4,7 +4,7 @@
 # tools the shaderc crate needs to build from source. Safe to run again.
 set -euo pipefail
 
-packages=(mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers
+packages=(mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers fonts-dejavu-core
           cmake python3 g++ git)
 missing=()
 for p in "${packages[@]}"; do

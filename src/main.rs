@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use qtrace::bench::{self, Config, SpeedPlan};
+use qtrace::bench::{self, Config, EvalPlan, SpeedPlan};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
 use qtrace::guide::sarsa::{Atomics, Distribution};
 use qtrace::guide::SarsaSettings;
@@ -166,24 +166,46 @@ enum Command {
     Devices,
     /// Triangles, lights, BVH statistics of a scene.
     Inspect { scene: PathBuf },
-    /// Measure samples/s and rays/s (Cornell box, pt with and without NEE by default).
+    /// Evaluate methods (SPEC §6): images, error vs spp and vs time, per-pass
+    /// statistics, pictures of what was learned, charts, CSV/JSON and an HTML page.
+    /// With --speed, print only a speed table (samples/s, rays/s, GPU ms per pass).
     Bench {
-        /// Scenes to measure.
+        /// Scenes to evaluate.
         #[arg(default_values = ["scenes/cornell-box.toml"])]
         scenes: Vec<PathBuf>,
-        #[arg(long, default_value_t = 256)]
-        width: u32,
-        #[arg(long, default_value_t = 256)]
-        height: u32,
+        /// Methods to compare (pt, sarsa; add +nee for next-event estimation).
+        #[arg(long, alias = "configs", value_delimiter = ',', default_values = ["pt", "sarsa"])]
+        methods: Vec<Config>,
+        /// Sample counts at which images and errors are kept.
+        #[arg(long, value_delimiter = ',', default_values = ["1", "16", "32", "64", "128", "256"])]
+        spp_list: Vec<u32>,
+        /// Image size (default 256x256; 64x64 with --quick).
+        #[arg(long)]
+        width: Option<u32>,
+        #[arg(long)]
+        height: Option<u32>,
+        /// Reference image (single scene only); otherwise pt+nee renders one, cached.
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// Samples per pixel of a rendered reference (default 1024; 256 with --quick).
+        #[arg(long)]
+        reference_spp: Option<u32>,
+        /// Report directory.
+        #[arg(long, default_value = "bench-report")]
+        out: PathBuf,
+        /// Small images and few samples (spp 1,4,16,32 at 64x64): about two minutes.
+        #[arg(long)]
+        quick: bool,
+        #[arg(long, default_value_t = 1)]
+        seed: u32,
+        /// Only the speed table: each method at --spp, fastest of --repeats runs.
+        #[arg(long)]
+        speed: bool,
         #[arg(long, default_value_t = 32)]
         spp: u32,
-        /// Configurations to compare; the first is the baseline of the cost ratio.
-        #[arg(long, value_delimiter = ',', default_values = ["pt", "pt+nee"])]
-        configs: Vec<Config>,
-        /// Runs per configuration; the fastest counts.
         #[arg(long, default_value_t = 2)]
         repeats: u32,
-        /// Write the results as JSON here.
+        /// Speed table as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
         #[command(flatten)]
@@ -314,6 +336,10 @@ fn cmd_render(
     if profile {
         eprint!("{}", s.profile_table());
     }
+    check_validation(&ctx)
+}
+
+fn check_validation(ctx: &GpuContext) -> Result<()> {
     if ctx.validation_errors() > 0 {
         bail!(
             "the Vulkan validation layer reported {} errors",
@@ -441,7 +467,77 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
             std::fs::write(tmp, &text).map_err(|e| e.to_string())
         })?;
     }
-    Ok(())
+    check_validation(&ctx)
+}
+
+fn cmd_evaluate(mut plan: EvalPlan, device: &DeviceArgs) -> Result<()> {
+    plan.spp_list.sort_unstable();
+    plan.spp_list.dedup();
+    if plan.spp_list.first() == Some(&0)
+        || plan
+            .spp_list
+            .last()
+            .is_some_and(|&n| n > qtrace::render::settings::MAX_SPP)
+    {
+        bail!(
+            "--spp-list values must lie in 1..={}",
+            qtrace::render::settings::MAX_SPP
+        );
+    }
+    if plan.spp_list.is_empty() || plan.methods_empty() {
+        bail!("bench needs at least one method and one sample count");
+    }
+    if plan.reference.is_some() && plan.scenes.len() != 1 {
+        bail!("--reference applies to one scene; give one scene or let bench render references");
+    }
+    if plan.reference_spp == 0 {
+        bail!("--reference-spp must be at least 1");
+    }
+    // Check the scenes before any GPU work, so a typo fails at once.
+    for s in &plan.scenes {
+        Scene::load(s)?;
+    }
+    std::fs::create_dir_all(&plan.out)
+        .with_context(|| format!("{}: cannot create the report directory", plan.out.display()))?;
+    let ctx = open_device(device)?;
+    let bar = std::io::stderr().is_terminal().then(|| {
+        ProgressBar::new(1).with_style(
+            ProgressStyle::with_template(
+                "{bar:40.cyan/blue} {percent:>3}%  {msg}  elapsed {elapsed}  eta {eta}",
+            )
+            .unwrap(),
+        )
+    });
+    let report = bench::evaluate(&ctx, &plan, &mut |p| {
+        if let Some(b) = &bar {
+            b.set_length(p.total.max(1));
+            b.set_position(p.done);
+            b.set_message(p.message.to_string());
+        }
+    })?;
+    bench::report::write(&report, &plan.out)?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    println!(
+        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10}",
+        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s"
+    );
+    for s in &report.scenes {
+        for r in &s.runs {
+            println!(
+                "{:<20} {:<12} {:>8.2} {:>12.5} {:>14.5} {:>10.3}",
+                s.name,
+                r.config,
+                100.0 * r.zero_contribution_fraction,
+                r.checkpoints.last().map_or(f64::NAN, |c| c.error.rel_mse),
+                r.error_at_equal_time.rel_mse,
+                r.rays_per_second / 1e6
+            );
+        }
+    }
+    println!("report: {}", plan.out.join("index.html").display());
+    check_validation(&ctx)
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -468,23 +564,47 @@ fn run(cli: Cli) -> Result<()> {
         Command::Inspect { scene } => cmd_inspect(scene),
         Command::Bench {
             scenes,
+            methods,
+            spp_list,
             width,
             height,
+            reference,
+            reference_spp,
+            out,
+            quick,
+            seed,
+            speed,
             spp,
-            configs,
             repeats,
             json,
             device,
         } => {
-            let plan = SpeedPlan {
-                scenes,
-                configs,
-                width: *width,
-                height: *height,
-                spp: *spp,
-                repeats: *repeats,
-            };
-            cmd_bench(&plan, json.as_deref(), device)
+            let (w, h) = if *quick { (64, 64) } else { (256, 256) };
+            let (width, height) = (width.unwrap_or(w), height.unwrap_or(h));
+            if *speed {
+                let plan = SpeedPlan {
+                    scenes,
+                    configs: methods,
+                    width,
+                    height,
+                    spp: *spp,
+                    repeats: *repeats,
+                };
+                return cmd_bench(&plan, json.as_deref(), device);
+            }
+            let mut plan = EvalPlan::quick(scenes.clone(), methods.clone(), out.clone());
+            if !*quick {
+                plan.spp_list = spp_list.clone();
+                plan.reference_spp = 1024;
+            }
+            plan.width = width;
+            plan.height = height;
+            plan.seed = *seed;
+            plan.reference = reference.clone();
+            if let Some(n) = reference_spp {
+                plan.reference_spp = *n;
+            }
+            cmd_evaluate(plan, device)
         }
     }
 }

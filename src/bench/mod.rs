@@ -1,5 +1,12 @@
-//! Speed measurements: samples/s, rays/s and GPU time per pass for a list of
-//! method configurations, from timestamp queries.
+//! Measurements: the speed table (samples/s, rays/s, GPU time per pass from
+//! timestamp queries) and the evaluation report of SPEC §6.
+
+mod charts;
+pub mod eval;
+mod learned;
+pub mod report;
+
+pub use eval::{evaluate, EvalPlan, EvalProgress, Report};
 
 use crate::gpu::GpuContext;
 use crate::render::{self, Method, Overrides, RenderError, RenderSettings};
@@ -46,6 +53,10 @@ pub enum BenchError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Render(#[from] RenderError),
+    #[error(transparent)]
+    Image(#[from] crate::image::ImageError),
+    #[error("{0}: {1}")]
+    Io(PathBuf, String),
 }
 
 /// One configuration on one scene: the fastest of the repeats.

@@ -105,6 +105,16 @@ pub struct Progress {
     pub rays_per_second: f64,
 }
 
+/// The image part-way through a render.
+pub struct Checkpoint {
+    pub spp: u32,
+    /// Render time so far, read-backs for checkpoints excluded.
+    pub seconds: f64,
+    pub image: Image,
+    /// Over all passes so far.
+    pub zero_contribution_fraction: f64,
+}
+
 /// The finished render.
 pub struct RenderOutput {
     /// Mean of the path estimates per pixel.
@@ -261,8 +271,49 @@ impl Renderer {
     }
 
     /// Renders until the budget is spent, reporting progress after each pass.
-    pub fn run(mut self, progress: &mut dyn FnMut(&Progress)) -> Result<RenderOutput, RenderError> {
+    pub fn run(
+        &mut self,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<RenderOutput, RenderError> {
+        self.run_with_checkpoints(progress, &[], &mut |_| {})
+    }
+
+    /// The learned guide, if the method has one.
+    pub fn guide(&self) -> Option<&SarsaGuide> {
+        self.guide.as_ref()
+    }
+
+    /// Mean and per-path variance of what has been accumulated so far.
+    fn images(&self) -> Result<(Image, Image), RenderError> {
+        let accum: Vec<Accum> = self.accum.download()?;
+        let (w, h) = (self.settings.width as usize, self.settings.height as usize);
+        let mut image = Image::new(w, h);
+        let mut variance = Image::new(w, h);
+        for (i, a) in accum.iter().take(w * h).enumerate() {
+            let n = a.sum[3].max(1.0);
+            for c in 0..3 {
+                let mean = a.sum[c] / n;
+                image.pixels[i][c] = mean;
+                variance.pixels[i][c] = if n > 1.0 {
+                    ((a.sum_sq[c] - n * mean * mean) / (n - 1.0)).max(0.0)
+                } else {
+                    0.0
+                };
+            }
+        }
+        Ok((image, variance))
+    }
+
+    /// [`Renderer::run`], also handing `on_checkpoint` the image after each
+    /// pass count in `checkpoints`. Reading it back does not count as render time.
+    pub fn run_with_checkpoints(
+        &mut self,
+        progress: &mut dyn FnMut(&Progress),
+        checkpoints: &[u32],
+        on_checkpoint: &mut dyn FnMut(&Checkpoint),
+    ) -> Result<RenderOutput, RenderError> {
         let start = Instant::now();
+        let mut paused = 0.0f64;
         let (passes_total, budget_seconds) = match self.settings.budget {
             Budget::Samples(n) => (Some(n), None),
             Budget::Seconds(t) => (None, Some(t)),
@@ -290,7 +341,18 @@ impl Renderer {
                     .as_ref()
                     .map(|_| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
             });
-            let elapsed = start.elapsed().as_secs_f64();
+            let mut elapsed = start.elapsed().as_secs_f64() - paused;
+            if checkpoints.contains(&done) {
+                let (image, _) = self.images()?;
+                on_checkpoint(&Checkpoint {
+                    spp: done,
+                    seconds: elapsed,
+                    image,
+                    zero_contribution_fraction: zero as f64 / paths.max(1) as f64,
+                });
+                paused = start.elapsed().as_secs_f64() - elapsed;
+                elapsed = start.elapsed().as_secs_f64() - paused;
+            }
             progress(&Progress {
                 passes_done: done,
                 passes_total,
@@ -306,23 +368,8 @@ impl Renderer {
                 break;
             }
         }
-        let accum: Vec<Accum> = self.accum.download()?;
-        let wall = start.elapsed().as_secs_f64();
-        let (w, h) = (self.settings.width as usize, self.settings.height as usize);
-        let mut image = Image::new(w, h);
-        let mut variance = Image::new(w, h);
-        for (i, a) in accum.iter().take(w * h).enumerate() {
-            let n = a.sum[3].max(1.0);
-            for c in 0..3 {
-                let mean = a.sum[c] / n;
-                image.pixels[i][c] = mean;
-                variance.pixels[i][c] = if n > 1.0 {
-                    ((a.sum_sq[c] - n * mean * mean) / (n - 1.0)).max(0.0)
-                } else {
-                    0.0
-                };
-            }
-        }
+        let (image, variance) = self.images()?;
+        let wall = start.elapsed().as_secs_f64() - paused;
         let timings = self.profiler.timings();
         let nz = paths.max(1) as f64;
         let stats = RenderStats {

@@ -1,0 +1,485 @@
+//! The evaluation of SPEC §6: every method on every scene, images and error
+//! at a list of sample counts, error at equal time, per-pass statistics and
+//! pictures of what was learned.
+
+use super::{learned, BenchError, Config};
+use crate::gpu::{GpuContext, PassTiming};
+use crate::image::{self, ErrorMetrics, Image};
+use crate::render::{Checkpoint, Method, Overrides, PassRecord, RenderSettings, Renderer};
+use crate::scene::Scene;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+pub struct EvalPlan {
+    pub scenes: Vec<PathBuf>,
+    pub configs: Vec<Config>,
+    /// Sample counts at which images are kept (sorted, distinct).
+    pub spp_list: Vec<u32>,
+    pub width: u32,
+    pub height: u32,
+    /// A reference image for a single scene; otherwise one is rendered and cached.
+    pub reference: Option<PathBuf>,
+    pub reference_spp: u32,
+    pub seed: u32,
+    pub out: PathBuf,
+    pub cache_dir: PathBuf,
+}
+
+impl EvalPlan {
+    pub fn methods_empty(&self) -> bool {
+        self.configs.is_empty()
+    }
+
+    /// Small images and few samples: the whole shipped set in about two minutes on lavapipe.
+    pub fn quick(scenes: Vec<PathBuf>, configs: Vec<Config>, out: PathBuf) -> Self {
+        Self {
+            scenes,
+            configs,
+            spp_list: vec![1, 4, 16, 32],
+            width: 64,
+            height: 64,
+            reference: None,
+            reference_spp: 256,
+            seed: 1,
+            out,
+            cache_dir: default_cache_dir(),
+        }
+    }
+}
+
+/// `$QTRACE_CACHE`, else `$XDG_CACHE_HOME/qtrace`, else `~/.cache/qtrace`.
+pub fn default_cache_dir() -> PathBuf {
+    if let Ok(d) = std::env::var("QTRACE_CACHE") {
+        return PathBuf::from(d);
+    }
+    let base = std::env::var("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|_| std::env::var("HOME").map(|h| Path::new(&h).join(".cache")))
+        .unwrap_or_else(|_| std::env::temp_dir());
+    base.join("qtrace")
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CheckpointRow {
+    pub spp: u32,
+    pub seconds: f64,
+    #[serde(flatten)]
+    pub error: ErrorMetrics,
+    pub zero_contribution_fraction: f64,
+    /// Relative paths under the report directory, where an image was kept.
+    pub png: Option<String>,
+    pub exr: Option<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct LearnedPictures {
+    pub voronoi: String,
+    pub hemispheres: String,
+    pub volumes: Vec<u32>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    pub config: String,
+    pub checkpoints: Vec<CheckpointRow>,
+    pub passes: Vec<PassRecord>,
+    pub gpu_passes: Vec<PassTiming>,
+    pub wall_seconds: f64,
+    pub rays_per_second: f64,
+    pub samples_per_second: f64,
+    pub zero_contribution_fraction: f64,
+    pub mean_path_length: f64,
+    pub guide_bytes: u64,
+    /// Error interpolated (log-log) at the scene's equal-time budget.
+    pub error_at_equal_time: ErrorMetrics,
+    pub learned: Option<LearnedPictures>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    /// Config with the fewest zero-contribution paths over the whole render.
+    pub fewest_zero_contribution: String,
+    /// Config with the lowest relMSE at the largest sample count.
+    pub lowest_error_equal_spp: String,
+    /// Config with the lowest relMSE at equal time.
+    pub lowest_error_equal_time: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneReport {
+    pub scene: String,
+    /// File-name-safe short name; the scene's folder in the report.
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub reference: String,
+    pub reference_spp: Option<u32>,
+    pub equal_time_seconds: f64,
+    pub runs: Vec<RunReport>,
+    pub summary: Summary,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub device: String,
+    pub spp_list: Vec<u32>,
+    pub configs: Vec<String>,
+    pub scenes: Vec<SceneReport>,
+}
+
+/// FNV-1a, stable across runs and builds (unlike std's hasher).
+fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
+    for b in bytes {
+        h ^= *b as u64;
+        h = h.wrapping_mul(0x100_0000_01b3);
+    }
+    h
+}
+
+fn scene_key(path: &Path, scene: &Scene, plan: &EvalPlan, max_depth: u32) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325;
+    h = fnv1a(&std::fs::read(path).unwrap_or_default(), h);
+    h = fnv1a(bytemuck::cast_slice(&scene.triangles), h);
+    let settings = format!(
+        "{}x{} spp{} depth{} seed{} v{}",
+        plan.width,
+        plan.height,
+        plan.reference_spp,
+        max_depth,
+        plan.seed,
+        env!("CARGO_PKG_VERSION")
+    );
+    fnv1a(settings.as_bytes(), h)
+}
+
+fn short_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| {
+            s.to_string_lossy()
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '-' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect()
+        })
+        .unwrap_or_else(|| "scene".into())
+}
+
+/// Error at time `t` by log-log interpolation between checkpoints.
+pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
+    let first = &rows[0];
+    if t <= first.seconds || rows.len() == 1 {
+        return first.error;
+    }
+    for w in rows.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        if t <= b.seconds {
+            let f = ((t / a.seconds).ln() / (b.seconds / a.seconds).ln()).clamp(0.0, 1.0);
+            let lerp = |x: f64, y: f64| {
+                if x > 0.0 && y > 0.0 {
+                    (x.ln() + f * (y.ln() - x.ln())).exp()
+                } else {
+                    x + f * (y - x)
+                }
+            };
+            return ErrorMetrics {
+                mse: lerp(a.error.mse, b.error.mse),
+                rel_mse: lerp(a.error.rel_mse, b.error.rel_mse),
+                mape: lerp(a.error.mape, b.error.mape),
+            };
+        }
+    }
+    rows[rows.len() - 1].error
+}
+
+/// What the evaluation is doing, for a progress bar.
+pub struct EvalProgress<'a> {
+    pub message: &'a str,
+    /// Sample passes done and planned, over the whole evaluation.
+    pub done: u64,
+    pub total: u64,
+}
+
+fn render_settings(
+    scene: &Scene,
+    plan: &EvalPlan,
+    config: &Config,
+    spp: u32,
+    seed: u32,
+) -> Result<RenderSettings, BenchError> {
+    let o = Overrides {
+        method: Some(config.method),
+        spp: Some(spp),
+        width: Some(plan.width),
+        height: Some(plan.height),
+        nee: config.nee,
+        seed: Some(seed),
+        ..Default::default()
+    };
+    RenderSettings::resolve(scene, &o).map_err(|e| BenchError::Render(e.into()))
+}
+
+fn write_image(
+    image: &Image,
+    dir: &Path,
+    stem: &str,
+    out: &Path,
+) -> Result<(String, String), BenchError> {
+    let exr = dir.join(format!("{stem}.exr"));
+    let png = dir.join(format!("{stem}.png"));
+    image.write_exr(&exr)?;
+    image.write_png(&png)?;
+    let rel = |p: &Path| p.strip_prefix(out).unwrap_or(p).display().to_string();
+    Ok((rel(&png), rel(&exr)))
+}
+
+/// Runs the plan, writing images and pictures under `plan.out`; the report
+/// files themselves are written by [`super::report::write`].
+pub fn evaluate(
+    ctx: &Arc<GpuContext>,
+    plan: &EvalPlan,
+    progress: &mut dyn FnMut(&EvalProgress<'_>),
+) -> Result<Report, BenchError> {
+    let max_spp = *plan.spp_list.iter().max().unwrap_or(&1);
+    let mut checkpoints: Vec<u32> = plan.spp_list.clone();
+    let mut p = 1;
+    while p <= max_spp {
+        checkpoints.push(p);
+        p *= 2;
+    }
+    checkpoints.push(max_spp);
+    checkpoints.sort_unstable();
+    checkpoints.dedup();
+
+    let reference_passes = if plan.reference.is_some() {
+        0
+    } else {
+        plan.reference_spp as u64
+    };
+    let total =
+        plan.scenes.len() as u64 * (reference_passes + plan.configs.len() as u64 * max_spp as u64);
+    let mut done = 0u64;
+    let mut scenes = Vec::new();
+    let mut names: Vec<String> = Vec::new();
+    for path in &plan.scenes {
+        let scene = Scene::load(path)?;
+        let mut name = short_name(path);
+        while names.contains(&name) {
+            name.push('_');
+        }
+        names.push(name.clone());
+        let dir = plan.out.join(&name);
+        std::fs::create_dir_all(&dir).map_err(|e| BenchError::Io(dir.clone(), e.to_string()))?;
+
+        // The reference: given, cached, or rendered now with pt + NEE.
+        let pt = Config {
+            method: Method::Pt,
+            nee: true,
+        };
+        let ref_settings = render_settings(
+            &scene,
+            plan,
+            &pt,
+            plan.reference_spp,
+            plan.seed.wrapping_add(7919),
+        )?;
+        let (reference, reference_label, reference_spp) = match &plan.reference {
+            Some(r) => (Image::read_exr(r)?, r.display().to_string(), None),
+            None => {
+                std::fs::create_dir_all(&plan.cache_dir)
+                    .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
+                let key = scene_key(path, &scene, plan, ref_settings.max_depth);
+                let cached = plan
+                    .cache_dir
+                    .join(format!("reference-{name}-{key:016x}.exr"));
+                let image = match Image::read_exr(&cached) {
+                    Ok(img) => {
+                        done += reference_passes;
+                        img
+                    }
+                    Err(_) => {
+                        let message =
+                            format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
+                        let start = done;
+                        let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
+                        let out = renderer.run(&mut |pr| {
+                            progress(&EvalProgress {
+                                message: &message,
+                                done: start + pr.passes_done as u64,
+                                total,
+                            })
+                        })?;
+                        done += reference_passes;
+                        out.image.write_exr(&cached)?;
+                        out.image
+                    }
+                };
+                (
+                    image,
+                    cached.display().to_string(),
+                    Some(plan.reference_spp),
+                )
+            }
+        };
+        if (reference.width, reference.height) != (plan.width as usize, plan.height as usize) {
+            return Err(BenchError::Io(
+                PathBuf::from(&reference_label),
+                format!(
+                    "reference is {}x{}, the bench renders {}x{}",
+                    reference.width, reference.height, plan.width, plan.height
+                ),
+            ));
+        }
+        write_image(&reference, &dir, "reference", &plan.out)?;
+
+        let mut runs = Vec::new();
+        for config in &plan.configs {
+            let label = config.label();
+            let run_dir = dir.join(&label);
+            std::fs::create_dir_all(&run_dir)
+                .map_err(|e| BenchError::Io(run_dir.clone(), e.to_string()))?;
+            let settings = render_settings(&scene, plan, config, max_spp, plan.seed)?;
+            let mut renderer = Renderer::new(ctx, &scene, settings)?;
+            let mut rows: Vec<CheckpointRow> = Vec::new();
+            let mut failure: Option<BenchError> = None;
+            let message = format!("{name}: {label}");
+            let start = done;
+            let out = renderer.run_with_checkpoints(
+                &mut |pr| {
+                    progress(&EvalProgress {
+                        message: &message,
+                        done: start + pr.passes_done as u64,
+                        total,
+                    })
+                },
+                &checkpoints,
+                &mut |c: &Checkpoint| {
+                    let error = match image::compare(&c.image, &reference) {
+                        Ok(e) => e,
+                        Err(e) => {
+                            failure.get_or_insert(e.into());
+                            return;
+                        }
+                    };
+                    let (png, exr) = if plan.spp_list.contains(&c.spp) {
+                        match write_image(
+                            &c.image,
+                            &run_dir,
+                            &format!("spp-{:04}", c.spp),
+                            &plan.out,
+                        ) {
+                            Ok((p, e)) => (Some(p), Some(e)),
+                            Err(e) => {
+                                failure.get_or_insert(e);
+                                (None, None)
+                            }
+                        }
+                    } else {
+                        (None, None)
+                    };
+                    rows.push(CheckpointRow {
+                        spp: c.spp,
+                        seconds: c.seconds,
+                        error,
+                        zero_contribution_fraction: c.zero_contribution_fraction,
+                        png,
+                        exr,
+                    });
+                },
+            )?;
+            done = start + max_spp as u64;
+            if let Some(e) = failure {
+                return Err(e);
+            }
+            let learned = match renderer.guide() {
+                Some(guide) => {
+                    let voronoi = learned::voronoi(
+                        ctx,
+                        &scene,
+                        guide,
+                        plan.width.max(128),
+                        plan.height.max(128),
+                    )?;
+                    let (vpng, _) = write_image(&voronoi, &run_dir, "voronoi", &plan.out)?;
+                    let volumes = learned::volumes_near_light(&scene, guide, 6);
+                    let q = guide
+                        .download_q()
+                        .map_err(|e| BenchError::Render(e.into()))?;
+                    let hemis = learned::hemispheres(guide, &q, &volumes, 96);
+                    let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
+                    Some(LearnedPictures {
+                        voronoi: vpng,
+                        hemispheres: hpng,
+                        volumes,
+                    })
+                }
+                None => None,
+            };
+            let s = out.stats;
+            runs.push(RunReport {
+                config: label,
+                checkpoints: rows,
+                passes: s.passes,
+                gpu_passes: s.gpu_passes,
+                wall_seconds: s.wall_seconds,
+                rays_per_second: s.rays_per_second,
+                samples_per_second: s.samples_per_second,
+                zero_contribution_fraction: s.zero_contribution_fraction,
+                mean_path_length: s.mean_path_length,
+                guide_bytes: s.guide_bytes,
+                error_at_equal_time: ErrorMetrics {
+                    mse: 0.0,
+                    rel_mse: 0.0,
+                    mape: 0.0,
+                },
+                learned,
+            });
+        }
+
+        // Equal time: the budget the fastest configuration needed for all its samples.
+        let equal_time = runs
+            .iter()
+            .filter_map(|r| r.checkpoints.last().map(|c| c.seconds))
+            .fold(f64::INFINITY, f64::min);
+        for r in &mut runs {
+            r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
+        }
+        let best = |key: &dyn Fn(&RunReport) -> f64| {
+            runs.iter()
+                .min_by(|a, b| key(a).total_cmp(&key(b)))
+                .map(|r| r.config.clone())
+                .unwrap_or_default()
+        };
+        let summary = Summary {
+            fewest_zero_contribution: best(&|r| r.zero_contribution_fraction),
+            lowest_error_equal_spp: best(&|r| {
+                r.checkpoints
+                    .last()
+                    .map_or(f64::INFINITY, |c| c.error.rel_mse)
+            }),
+            lowest_error_equal_time: best(&|r| r.error_at_equal_time.rel_mse),
+        };
+        scenes.push(SceneReport {
+            scene: path.display().to_string(),
+            name,
+            width: plan.width,
+            height: plan.height,
+            reference: reference_label,
+            reference_spp,
+            equal_time_seconds: equal_time,
+            runs,
+            summary,
+        });
+    }
+    Ok(Report {
+        device: ctx.info().name.clone(),
+        spp_list: plan.spp_list.clone(),
+        configs: plan.configs.iter().map(|c| c.label()).collect(),
+        scenes,
+    })
+}

@@ -1,0 +1,134 @@
+//! Pictures of what a guide learned: the Voronoi regions of the radiance
+//! volumes as the camera sees them, and Q hemispheres of volumes near the light.
+
+use crate::gpu::GpuContext;
+use crate::guide::SarsaGuide;
+use crate::image::Image;
+use crate::render::{probe, RenderError};
+use crate::sampling;
+use crate::scene::Scene;
+use glam::{Vec2, Vec3};
+use std::sync::Arc;
+
+/// A colour per volume index, stable across runs.
+fn volume_colour(i: u32) -> Vec3 {
+    let mut h = i.wrapping_mul(0x9E37_79B1) ^ 0x5bd1_e995;
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x2c1b_3c6d);
+    h ^= h >> 12;
+    let c = Vec3::new(
+        (h & 0xff) as f32,
+        ((h >> 8) & 0xff) as f32,
+        ((h >> 16) & 0xff) as f32,
+    ) / 255.0;
+    0.25 + 0.75 * c
+}
+
+/// Each pixel coloured by the volume its first hit uses (shaded by the angle
+/// to the camera so shapes stay readable); misses are black.
+pub fn voronoi(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    width: u32,
+    height: u32,
+) -> Result<Image, RenderError> {
+    let cam = &scene.camera;
+    let rays: Vec<(Vec3, Vec3)> = (0..height)
+        .flat_map(|y| (0..width).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            (
+                cam.position,
+                cam.ray_direction(x as f32 + 0.5, y as f32 + 0.5, width, height),
+            )
+        })
+        .collect();
+    let hits = probe::trace_rays(ctx, scene, &rays)?;
+    let mut queries = Vec::new();
+    let mut shade = Vec::new();
+    for ((o, d), (hit, _)) in rays.iter().zip(&hits) {
+        if let Some((t, tri)) = hit {
+            let tri = &scene.triangles[*tri as usize];
+            let n = Vec3::from(tri.e1).cross(Vec3::from(tri.e2)).normalize();
+            let n = if n.dot(*d) < 0.0 { n } else { -n };
+            queries.push((*o + *d * *t + n * 1e-5 * scene.extent, n));
+            shade.push(0.35 + 0.65 * n.dot(-*d).abs());
+        } else {
+            queries.push((Vec3::ZERO, Vec3::ZERO));
+            shade.push(0.0);
+        }
+    }
+    let volumes = probe::nearest_volumes(ctx, scene, guide, &queries)?;
+    let mut image = Image::new(width as usize, height as usize);
+    for (i, v) in volumes.iter().enumerate() {
+        if shade[i] > 0.0 {
+            let c = v.map_or(Vec3::splat(0.1), volume_colour) * shade[i];
+            image.pixels[i] = c.into();
+        }
+    }
+    Ok(image)
+}
+
+/// The volumes nearest to the centre of the brightest light.
+pub fn volumes_near_light(scene: &Scene, guide: &SarsaGuide, count: usize) -> Vec<u32> {
+    let Some(light) = scene.lights.iter().max_by(|a, b| a.pdf.total_cmp(&b.pdf)) else {
+        return (0..count.min(guide.volumes.len()) as u32).collect();
+    };
+    let t = &scene.triangles[light.triangle as usize];
+    let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
+    let mut order: Vec<u32> = (0..guide.volumes.len() as u32).collect();
+    order.sort_by(|&a, &b| {
+        let da = Vec3::from(guide.volumes[a as usize].position).distance_squared(centre);
+        let db = Vec3::from(guide.volumes[b as usize].position).distance_squared(centre);
+        da.total_cmp(&db)
+    });
+    order.truncate(count);
+    order
+}
+
+/// A perceptual-ish ramp from dark blue through red to pale yellow.
+fn ramp(x: f32) -> Vec3 {
+    let stops = [
+        Vec3::new(0.02, 0.02, 0.10),
+        Vec3::new(0.30, 0.05, 0.45),
+        Vec3::new(0.80, 0.20, 0.20),
+        Vec3::new(0.98, 0.60, 0.10),
+        Vec3::new(0.99, 0.98, 0.75),
+    ];
+    let x = x.clamp(0.0, 1.0) * (stops.len() - 1) as f32;
+    let i = (x as usize).min(stops.len() - 2);
+    stops[i].lerp(stops[i + 1], x - i as f32)
+}
+
+/// One disk per volume, side by side: the hemisphere seen from above (the
+/// equal-area disk), each sector coloured by its Q relative to the volume's largest.
+pub fn hemispheres(guide: &SarsaGuide, q: &[f32], volumes: &[u32], size: usize) -> Image {
+    let [a, b] = guide.settings.grid;
+    let n = (a * b) as usize;
+    let gap = size / 8;
+    let mut image = Image::new(volumes.len() * (size + gap) + gap, size + 2 * gap);
+    for p in image.pixels.iter_mut() {
+        *p = [0.12; 3];
+    }
+    for (slot, &v) in volumes.iter().enumerate() {
+        let values = &q[v as usize * n..(v as usize + 1) * n];
+        let max = values.iter().cloned().fold(0.0f32, f32::max).max(1e-12);
+        for y in 0..size {
+            for x in 0..size {
+                let d = Vec2::new(
+                    2.0 * (x as f32 + 0.5) / size as f32 - 1.0,
+                    1.0 - 2.0 * (y as f32 + 0.5) / size as f32,
+                );
+                if d.length() > 1.0 {
+                    continue;
+                }
+                let u = sampling::disk_to_square(d);
+                let k = ((u.x * a as f32) as usize).min(a as usize - 1)
+                    + a as usize * ((u.y * b as f32) as usize).min(b as usize - 1);
+                let px = gap + slot * (size + gap) + x;
+                image.pixels[(gap + y) * image.width + px] = ramp(values[k] / max).into();
+            }
+        }
+    }
+    image
+}

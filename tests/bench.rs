@@ -1,0 +1,191 @@
+//! `qtrace bench --quick` writes the whole report: images, pictures of what
+//! was learned, charts, CSV/JSON with the right columns and sane values, HTML.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(String::from)
+        .collect::<Vec<_>>();
+    let rows = lines
+        .map(|l| l.split(',').map(String::from).collect())
+        .collect();
+    (header, rows)
+}
+
+fn column(header: &[String], name: &str) -> usize {
+    header
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column '{name}' in {header:?}"))
+}
+
+fn number(row: &[String], i: usize) -> f64 {
+    row[i]
+        .parse::<f64>()
+        .unwrap_or_else(|_| panic!("'{}' is not a number in {row:?}", row[i]))
+}
+
+#[test]
+fn quick_bench_writes_the_report() {
+    let out = common::repo("target/test-scratch/bench-report");
+    let cache = common::repo("target/test-scratch/bench-cache");
+    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&cache);
+    let run = || {
+        Command::new(env!("CARGO_BIN_EXE_qtrace"))
+            .args([
+                "bench",
+                "scenes/cornell-box.toml",
+                "--quick",
+                "--methods",
+                "pt,sarsa",
+                "--out",
+            ])
+            .arg(&out)
+            .env("QTRACE_CACHE", &cache)
+            .env("QTRACE_VALIDATION", "1")
+            .current_dir(common::repo("."))
+            .output()
+            .unwrap()
+    };
+    let output = run();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "bench failed: {stderr}");
+
+    for f in [
+        "index.html",
+        "results.json",
+        "summary.csv",
+        "checkpoints.csv",
+        "passes.csv",
+        "equal_time.csv",
+        "gpu_passes.csv",
+        "cornell-box/reference.exr",
+        "cornell-box/error-vs-spp.png",
+        "cornell-box/error-vs-time.png",
+        "cornell-box/zero-vs-pass.png",
+        "cornell-box/length-vs-pass.png",
+        "cornell-box/loss-vs-pass.png",
+        "cornell-box/pt/spp-0001.exr",
+        "cornell-box/pt/spp-0032.png",
+        "cornell-box/sarsa/spp-0016.png",
+        "cornell-box/sarsa/voronoi.png",
+        "cornell-box/sarsa/hemispheres.png",
+    ] {
+        let p = out.join(f);
+        assert!(
+            p.is_file() && std::fs::metadata(&p).unwrap().len() > 0,
+            "missing {}",
+            p.display()
+        );
+    }
+
+    // Checkpoints: 1, 2, 4, 8, 16, 32 spp for each method, errors finite and falling.
+    let (h, rows) = csv(&out.join("checkpoints.csv"));
+    let (spp, rel, zero, secs) = (
+        column(&h, "spp"),
+        column(&h, "rel_mse"),
+        column(&h, "zero_contribution_fraction"),
+        column(&h, "seconds"),
+    );
+    for name in ["mse", "mape", "scene", "config"] {
+        column(&h, name);
+    }
+    assert_eq!(rows.len(), 12, "{rows:?}");
+    for r in &rows {
+        assert!(number(r, rel).is_finite() && number(r, rel) >= 0.0);
+        assert!((0.0..=1.0).contains(&number(r, zero)));
+        assert!(number(r, secs) > 0.0);
+    }
+    for method in ["pt", "sarsa"] {
+        let mine: Vec<&Vec<String>> = rows.iter().filter(|r| r[1] == method).collect();
+        let (first, last) = (mine.first().unwrap(), mine.last().unwrap());
+        assert_eq!((number(first, spp), number(last, spp)), (1.0, 32.0));
+        assert!(
+            number(last, rel) < number(first, rel),
+            "{method}: error did not fall with samples"
+        );
+    }
+
+    // Per pass: 32 passes per method, loss only for the learned one.
+    let (h, rows) = csv(&out.join("passes.csv"));
+    let (cfg, loss, len) = (
+        column(&h, "config"),
+        column(&h, "loss"),
+        column(&h, "mean_path_length"),
+    );
+    assert_eq!(rows.len(), 64);
+    for r in &rows {
+        assert!(number(r, len) >= 1.0);
+        assert_eq!(r[cfg] == "sarsa", !r[loss].is_empty(), "{r:?}");
+    }
+
+    let (h, rows) = csv(&out.join("summary.csv"));
+    for name in [
+        "samples_per_second",
+        "rays_per_second",
+        "zero_contribution_fraction",
+        "equal_time_rel_mse",
+        "guide_bytes",
+    ] {
+        let i = column(&h, name);
+        assert!(rows.iter().all(|r| number(r, i) >= 0.0));
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let summary = &json["scenes"][0]["summary"];
+    for key in [
+        "fewest_zero_contribution",
+        "lowest_error_equal_spp",
+        "lowest_error_equal_time",
+    ] {
+        let v = summary[key].as_str().unwrap();
+        assert!(v == "pt" || v == "sarsa", "{key}: {v}");
+    }
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    for needle in [
+        "Summary",
+        "cornell-box/sarsa/voronoi.png",
+        "cornell-box/error-vs-time.png",
+        "relMSE at equal time",
+    ] {
+        assert!(html.contains(needle), "index.html lacks {needle}");
+    }
+
+    // A second run reuses the cached reference rather than rendering it again.
+    let cached: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
+    assert_eq!(cached.len(), 1);
+    let again = run();
+    assert!(again.status.success());
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
+}
+
+#[test]
+fn bench_rejects_a_reference_for_several_scenes() {
+    let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+        .args([
+            "bench",
+            "scenes/cornell-box.toml",
+            "scenes/furnace.toml",
+            "--reference",
+            "x.exr",
+            "--out",
+        ])
+        .arg(common::repo("target/test-scratch/bench-bad"))
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("--reference"), "{stderr}");
+}
