@@ -21,7 +21,8 @@ layout(std430, set = 0, binding = B_GRID) readonly buffer Grid {
     GridHeader grid;
     uvec2 grid_ranges[];
 };
-layout(std430, set = 0, binding = B_GRID_ITEMS) readonly buffer GridItems { uint grid_items[]; };
+// (volume position, volume index bits) per list entry.
+layout(std430, set = 0, binding = B_GRID_ITEMS) readonly buffer GridItems { vec4 grid_items[]; };
 
 uint grid_a() {
     return params.sector_grid & 0xffffu;
@@ -101,13 +102,16 @@ uint nearest_volume(vec3 p, vec3 n) {
             uint best = NO_VOLUME;
             float best_d2 = FAR;
             for (uint i = range.x; i < range.x + range.y; ++i) {
-                uint j = grid_items[i];
-                Volume v = volumes[j];
-                vec3 d = v.position - p;
+                vec4 item = grid_items[i];
+                vec3 d = item.xyz - p;
                 float d2 = dot(d, d);
-                if (d2 < best_d2 && dot(v.normal, n) > 0.0) {
-                    best = j;
-                    best_d2 = d2;
+                // The normal is read only for a candidate that would win.
+                if (d2 < best_d2) {
+                    uint j = floatBitsToUint(item.w);
+                    if (dot(volumes[j].normal, n) > 0.0) {
+                        best = j;
+                        best_d2 = d2;
+                    }
                 }
             }
             return best;

@@ -275,7 +275,7 @@ impl LookupGrid {
     }
 
     pub fn bytes(&self) -> u64 {
-        size_of::<GridHeader>() as u64 + 8 * self.ranges.len() as u64 + 4 * self.items.len() as u64
+        size_of::<GridHeader>() as u64 + 8 * self.ranges.len() as u64 + 16 * self.items.len() as u64
     }
 
     /// The header the shader reads before the ranges.

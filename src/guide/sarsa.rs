@@ -199,18 +199,23 @@ impl SarsaGuide {
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
         let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
         let mut grid_words: Vec<u32> = Vec::new();
-        let mut grid_items: &[u32] = &[];
+        // List items carry their volume's position, so the scan reads one
+        // contiguous vec4 per candidate: (position, index bits).
+        let mut grid_items: Vec<[f32; 4]> = Vec::new();
         match grid {
             Some(g) => {
                 grid_words.extend_from_slice(bytemuck::cast_slice(&[g.header()]));
                 grid_words.extend(g.ranges.iter().flatten());
-                grid_items = &g.items;
+                grid_items.extend(g.items.iter().map(|&j| {
+                    let p = vols[j as usize].position;
+                    [p[0], p[1], p[2], f32::from_bits(j)]
+                }));
             }
             None => grid_words.extend_from_slice(bytemuck::cast_slice(&[GridHeader::default()])),
         }
-        let grid_bytes = 4 * (grid_words.len() + grid_items.len()) as u64;
+        let grid_bytes = 4 * grid_words.len() as u64 + 16 * grid_items.len() as u64;
         let grid_buf = Buffer::gpu_only_with(ctx, "volume lookup grid", &grid_words)?;
-        let grid_items = Buffer::gpu_only_with(ctx, "volume lookup lists", grid_items)?;
+        let grid_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &grid_items)?;
         let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
         let bindings = [
