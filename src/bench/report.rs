@@ -335,7 +335,7 @@ fn write_html(
         }
         h += "<th>reference</th></tr>";
         let reference = format!("{}/reference.png", s.name);
-        for spp in spps.iter().rev() {
+        for (row, spp) in spps.iter().rev().enumerate() {
             let _ = write!(h, "<tr><td>{spp}</td>");
             for r in &s.runs {
                 match r
@@ -357,12 +357,18 @@ fn write_html(
                     None => h += "<td></td>",
                 }
             }
-            let _ = write!(
-                h,
-                "<td><div class=\"row\"><div class=\"cell\"><img src=\"{0}\" width=\"192\" height=\"192\"></div>{1}</div></td></tr>",
-                esc(&reference),
-                crop(&reference, s.width, s.height)
-            );
+            // The reference once, beside all rows.
+            if row == 0 {
+                let _ = write!(
+                    h,
+                    "<td rowspan=\"{0}\" style=\"vertical-align:top\"><div class=\"cell\"><img src=\"{1}\" width=\"192\" height=\"192\"><br>{2}</div>{3}</td>",
+                    spps.len(),
+                    esc(&reference),
+                    s.reference_spp.map_or("given".to_string(), |n| format!("pt+nee, {n} spp")),
+                    crop(&reference, s.width, s.height)
+                );
+            }
+            h += "</tr>";
         }
         h += "</table><h3>Charts</h3><div class=\"row\">";
         for (title, path) in scene_charts {
