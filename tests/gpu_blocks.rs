@@ -3,29 +3,11 @@
 
 mod common;
 
+use common::Lcg;
+
 use glam::{Vec2, Vec3};
 use qtrace::render::probe;
 use qtrace::sampling;
-
-/// Small deterministic generator so failures reproduce.
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
-    fn unit(&mut self) -> Vec3 {
-        loop {
-            let v = Vec3::new(self.next(), self.next(), self.next()) * 2.0 - Vec3::ONE;
-            if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
-                return v.normalize();
-            }
-        }
-    }
-}
 
 fn check_traversal(name: &str, count: usize) {
     let ctx = common::gpu();

@@ -3,6 +3,8 @@
 
 mod common;
 
+use common::Lcg;
+
 use glam::{Vec2, Vec3};
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
@@ -10,20 +12,6 @@ use qtrace::render::probe::{self, Transition};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
 use std::f64::consts::PI;
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        ((self.next() * n as f32) as u32).min(n - 1)
-    }
-}
 
 /// Queries where the renderer makes them (on surfaces, just off them along
 /// either side's normal, with the normal of that side or a random one) and

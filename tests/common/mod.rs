@@ -46,6 +46,33 @@ pub fn render_with(ctx: &Arc<GpuContext>, scene: &Scene, o: Overrides) -> Render
     out
 }
 
+/// Small deterministic generator so failures reproduce.
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    pub fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+
+    pub fn below(&mut self, n: u32) -> u32 {
+        ((self.next() * n as f32) as u32).min(n - 1)
+    }
+
+    /// A uniformly distributed unit vector (by rejection).
+    pub fn unit(&mut self) -> glam::Vec3 {
+        loop {
+            let v = glam::Vec3::new(self.next(), self.next(), self.next()) * 2.0 - glam::Vec3::ONE;
+            if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
+                return v.normalize();
+            }
+        }
+    }
+}
+
 /// Where failing image tests leave their pictures.
 pub fn artifact_dir() -> PathBuf {
     let dir = repo("target/test-output");
