@@ -11,7 +11,7 @@
 
 use super::volumes::nearest_where;
 use crate::scene::Scene;
-use crate::shaders::{GridHeader, Volume, GRID_FALLBACK, GRID_MAX_LIST, NORMAL_CLASSES};
+use crate::shaders::{GridHeader, Volume, GRID_FALLBACK, GRID_MAX_LIST, KD_LEAF, NORMAL_CLASSES};
 use glam::{UVec3, Vec3};
 
 pub struct LookupGrid {
@@ -67,6 +67,35 @@ fn dmax2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
     (p - lo).abs().max((hi - p).abs()).length_squared()
 }
 
+/// Calls `f` with every volume (k-d tree order) whose squared distance to the
+/// box [lo, hi] is at most `r2`.
+fn within_box_distance(volumes: &[Volume], lo: Vec3, hi: Vec3, r2: f32, f: &mut dyn FnMut(u32)) {
+    let mut stack = vec![(0usize, volumes.len())];
+    while let Some((a, b)) = stack.pop() {
+        if a >= b {
+            continue;
+        }
+        let m = (a + b) / 2;
+        let v = &volumes[m];
+        let p = Vec3::from(v.position);
+        if dmin2(lo, hi, p) <= r2 {
+            f(m as u32);
+        }
+        if v.axis == KD_LEAF {
+            continue;
+        }
+        let axis = v.axis as usize;
+        let r = r2.sqrt();
+        // Left subtree holds coordinates <= the split, right >= it.
+        if lo[axis] - r <= p[axis] {
+            stack.push((a, m));
+        }
+        if hi[axis] + r >= p[axis] {
+            stack.push((m + 1, b));
+        }
+    }
+}
+
 impl LookupGrid {
     /// Builds the grid for `volumes` (in k-d tree order) over `scene`.
     pub fn build(scene: &Scene, volumes: &[Volume]) -> Self {
@@ -83,10 +112,11 @@ impl LookupGrid {
         let margin = 1e-3 * scene.extent;
         lo -= Vec3::splat(margin);
         hi += Vec3::splat(margin);
-        // Cells about as wide as the spacing of the volumes, at most 128 a side.
+        // Cells half as wide as the spacing of the volumes, at most 64 a side
+        // (the ranges table holds every cell: 64³ · 6 · 8 bytes at most).
         let spacing = (area / volumes.len().max(1) as f64).sqrt() as f32;
         let size = hi - lo;
-        let cell = spacing.max(size.max_element() / 128.0).max(1e-6);
+        let cell = (0.5 * spacing).max(size.max_element() / 64.0).max(1e-6);
         let dims = (size / cell).ceil().as_uvec3().max(UVec3::ONE);
         let cells = (dims.x * dims.y * dims.z) as usize;
 
@@ -117,14 +147,6 @@ impl LookupGrid {
             }
         }
 
-        // Volumes bucketed by cell, for the range queries.
-        let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); cells];
-        for (i, v) in volumes.iter().enumerate() {
-            let c = cell_of(Vec3::from(v.position));
-            buckets[(c.x as u32 + dims.x * (c.y as u32 + dims.y * c.z as u32)) as usize]
-                .push(i as u32);
-        }
-
         let mut ranges = vec![[0, GRID_FALLBACK]; cells * NORMAL_CLASSES as usize];
         let mut items = Vec::new();
         for c in 0..NORMAL_CLASSES {
@@ -150,35 +172,15 @@ impl LookupGrid {
                             continue;
                         };
                         let bound2 = dmax2(clo, chi, Vec3::from(volumes[i as usize].position));
-                        let reach = (bound2.sqrt() / cell).ceil() as i32 + 1;
                         let start = items.len();
                         let mut overflow = false;
-                        'search: for bz in
-                            (z as i32 - reach).max(0)..=(z as i32 + reach).min(dims.z as i32 - 1)
-                        {
-                            for by in (y as i32 - reach).max(0)
-                                ..=(y as i32 + reach).min(dims.y as i32 - 1)
-                            {
-                                for bx in (x as i32 - reach).max(0)
-                                    ..=(x as i32 + reach).min(dims.x as i32 - 1)
-                                {
-                                    let b = (bx as u32 + dims.x * (by as u32 + dims.y * bz as u32))
-                                        as usize;
-                                    for &j in &buckets[b] {
-                                        let v = &volumes[j as usize];
-                                        if maybe(v)
-                                            && dmin2(clo, chi, Vec3::from(v.position)) <= bound2
-                                        {
-                                            items.push(j);
-                                            if items.len() - start > GRID_MAX_LIST as usize {
-                                                overflow = true;
-                                                break 'search;
-                                            }
-                                        }
-                                    }
-                                }
+                        within_box_distance(volumes, clo, chi, bound2, &mut |j| {
+                            let v = &volumes[j as usize];
+                            if !overflow && maybe(v) {
+                                items.push(j);
+                                overflow = items.len() - start > GRID_MAX_LIST as usize;
                             }
-                        }
+                        });
                         if overflow {
                             items.truncate(start);
                             continue;
