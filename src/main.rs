@@ -89,6 +89,9 @@ struct SarsaArgs {
     /// Stop learning after this many sample passes.
     #[arg(long)]
     sarsa_freeze_after: Option<u32>,
+    /// Restart the image after this many passes (they only train the guide).
+    #[arg(long)]
+    sarsa_reset_after: Option<u32>,
     /// How targets are added on the GPU.
     #[arg(long, value_enum, default_value_t = Atomics::Auto)]
     sarsa_atomics: Atomics,
@@ -115,6 +118,7 @@ impl SarsaArgs {
             epsilon: self.sarsa_epsilon,
             distribution: self.sarsa_distribution,
             freeze_after: self.sarsa_freeze_after,
+            reset_after: self.sarsa_reset_after,
             atomics: self.sarsa_atomics,
             ..Default::default()
         }

@@ -394,7 +394,7 @@ fn gpu_sarsa_update_equals_cpu_reference_with_cas_fallback() {
     check_update(Atomics::Cas);
 }
 
-fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32) {
+fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after: Option<u32>) {
     let ctx = common::gpu();
     let scene = common::scene(scene_name);
     let size = |o: Overrides| Overrides {
@@ -423,6 +423,7 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32) {
             sarsa: SarsaSettings {
                 volumes: 512,
                 atomics,
+                reset_after,
                 ..Default::default()
             },
             ..Default::default()
@@ -446,24 +447,26 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32) {
         assert!(p.iter().all(|r| r.loss.is_some()));
     }
     assert!(guided.stats.guide_bytes > 0);
+    assert_eq!(guided.stats.image_spp, spp - reset_after.unwrap_or(0));
 }
 
 #[test]
 fn sarsa_converges_to_pt_on_the_cornell_box() {
-    unbiased("cornell-box", false, Atomics::Auto, 2048);
+    unbiased("cornell-box", false, Atomics::Auto, 2048, None);
 }
 
 #[test]
 fn sarsa_with_nee_converges_to_pt_on_the_cornell_box() {
-    unbiased("cornell-box", true, Atomics::Auto, 512);
+    unbiased("cornell-box", true, Atomics::Auto, 512, None);
 }
 
 #[test]
 fn sarsa_with_cas_atomics_converges_to_pt_on_the_cornell_box() {
-    unbiased("cornell-box", false, Atomics::Cas, 1024);
+    unbiased("cornell-box", false, Atomics::Cas, 1024, None);
 }
 
+/// Also with the image reset after 128 training passes.
 #[test]
 fn sarsa_converges_to_pt_on_the_indirectly_lit_room() {
-    unbiased("indirect-room", false, Atomics::Auto, 1024);
+    unbiased("indirect-room", false, Atomics::Auto, 1024, Some(128));
 }

@@ -47,6 +47,9 @@ pub struct SarsaSettings {
     pub distribution: Distribution,
     /// Stop learning after this many passes (None: learn throughout).
     pub freeze_after: Option<u32>,
+    /// Reset the image after this many passes: the earlier passes only train
+    /// the guide. Each pass is unbiased, so the image stays unbiased.
+    pub reset_after: Option<u32>,
     pub atomics: Atomics,
     /// Q of every sector before any update.
     pub initial_q: f32,
@@ -65,6 +68,7 @@ impl Default for SarsaSettings {
             // Q·cos is the integrand of a diffuse bounce; it beat ∝ Q in MSE.
             distribution: Distribution::Qcos,
             freeze_after: None,
+            reset_after: None,
             atomics: Atomics::Auto,
             initial_q: 1e-2,
         }

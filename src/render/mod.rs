@@ -247,7 +247,12 @@ impl Renderer {
         let (trace, trace_set) = (&self.trace, &self.trace_set);
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
         let guide = self.guide.as_ref();
+        let reset = guide.is_some() && self.settings.sarsa.reset_after == Some(index);
+        let accum = &self.accum;
         self.ctx.submit(Some(&mut self.profiler), |rec| {
+            if reset {
+                rec.fill(accum, 0);
+            }
             rec.dispatch(Pass {
                 name: "trace",
                 pipeline: trace,
@@ -381,6 +386,14 @@ impl Renderer {
             height: self.settings.height,
             seed: self.settings.seed,
             spp: done,
+            image_spp: done
+                - self
+                    .settings
+                    .sarsa
+                    .reset_after
+                    .filter(|_| self.guide.is_some())
+                    .unwrap_or(0)
+                    .min(done),
             wall_seconds: wall,
             samples_per_second: paths as f64 / wall.max(1e-9),
             rays_per_second: rays as f64 / wall.max(1e-9),

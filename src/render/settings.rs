@@ -117,6 +117,13 @@ impl RenderSettings {
         let method = o.method.unwrap_or(Method::Pt);
         if method == Method::Sarsa {
             o.sarsa.validate().map_err(SettingsError)?;
+            if let (Some(k), Budget::Samples(n)) = (o.sarsa.reset_after, budget) {
+                if k >= n {
+                    return bad(format!(
+                        "--sarsa-reset-after {k} leaves none of the {n} passes in the image"
+                    ));
+                }
+            }
         }
         Ok(Self {
             method,

@@ -25,7 +25,10 @@ pub struct RenderStats {
     pub width: u32,
     pub height: u32,
     pub seed: u32,
+    /// Sample passes traced.
     pub spp: u32,
+    /// Samples per pixel in the image (fewer than `spp` after a guide's reset).
+    pub image_spp: u32,
     pub wall_seconds: f64,
     pub samples_per_second: f64,
     pub rays_per_second: f64,

@@ -94,7 +94,7 @@ pub fn save_failure_images(name: &str, images: &[(&str, &Image)]) {
 /// tracing add up to a near-normal mean). `bin` = full size gives the image mean.
 pub fn z_scores(a: &RenderOutput, b: &RenderOutput, bin: usize) -> Vec<f64> {
     let (w, h) = (a.image.width, a.image.height);
-    let (na, nb) = (a.stats.spp as f64, b.stats.spp as f64);
+    let (na, nb) = (a.stats.image_spp as f64, b.stats.image_spp as f64);
     let mut z = Vec::new();
     for by in (0..h).step_by(bin) {
         for bx in (0..w).step_by(bin) {
