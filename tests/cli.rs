@@ -296,3 +296,176 @@ fn compare_reports_missing_and_mismatched_images() {
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(stderr.contains("a.exr"), "{stderr}");
 }
+
+#[test]
+fn render_writes_exr_png_stats_and_profile() {
+    let dir = scratch("happy");
+    let (exr, png, json) = (dir.join("a.exr"), dir.join("a.png"), dir.join("a.json"));
+    let output = qtrace()
+        .arg("render")
+        .arg(dir.join("cornell-box.toml"))
+        .args([
+            "--spp",
+            "3",
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--nee",
+            "--profile",
+            "--validation",
+            "-o",
+        ])
+        .arg(&exr)
+        .arg("--png")
+        .arg(&png)
+        .arg("--stats")
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("trace") && stderr.contains("accumulate") && stderr.contains("median ms"),
+        "no profile table: {stderr}"
+    );
+    let image = qtrace::image::Image::read_exr(&exr).unwrap();
+    assert_eq!((image.width, image.height), (24, 16));
+    assert!(std::fs::metadata(&png).unwrap().len() > 0);
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(stats["spp"], 3);
+    assert_eq!(stats["method"], "pt");
+    assert_eq!(stats["passes"].as_array().unwrap().len(), 3);
+    assert!(stats["gpu_ms"]["trace"].as_f64().unwrap() > 0.0);
+
+    // compare: an image against itself has zero error.
+    let output = qtrace()
+        .arg("compare")
+        .arg(&exr)
+        .arg(&exr)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success());
+    assert!(stdout.contains("MSE     0.000000e0"), "{stdout}");
+}
+
+#[test]
+fn sarsa_render_reports_its_guide() {
+    let dir = scratch("sarsa-happy");
+    let json = dir.join("s.json");
+    let output = qtrace()
+        .arg("render")
+        .arg(dir.join("cornell-box.toml"))
+        .args([
+            "--method",
+            "sarsa",
+            "--spp",
+            "4",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--sarsa-volumes",
+            "64",
+        ])
+        .args([
+            "--sarsa-sectors",
+            "6x6",
+            "--sarsa-atomics",
+            "cas",
+            "--validation",
+            "-o",
+        ])
+        .arg(dir.join("s.exr"))
+        .arg("--stats")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(stats["method"], "sarsa");
+    assert_eq!(stats["guide_volumes"], 64);
+    assert!(stats["guide_bytes"].as_u64().unwrap() > 64 * 36 * 4);
+    assert!(stats["passes"][0]["loss"].as_f64().is_some());
+    assert!(stats["gpu_ms"]["guide fold"].as_f64().is_some());
+}
+
+#[test]
+fn bad_sarsa_options() {
+    let dir = scratch("bad-sarsa");
+    let scene = dir.join("cornell-box.toml");
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--sarsa-epsilon", "0"],
+        &[],
+        &["epsilon"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--sarsa-sectors", "0x5"],
+        &[],
+        &["grid"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--sarsa-sectors", "twelve"],
+        &[],
+        &["AxB"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--sarsa-memory-mib", "0.0001"],
+        &[],
+        &["memory"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "sarsa",
+            "--spp",
+            "8",
+            "--sarsa-reset-after",
+            "8",
+        ],
+        &[],
+        &["reset"],
+    );
+}
+
+#[test]
+fn devices_and_inspect() {
+    let output = qtrace().arg("devices").output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(stdout.contains("float atomics"), "{stdout}");
+    let output = qtrace()
+        .arg("inspect")
+        .arg(common::repo("scenes/complex-direct.toml"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success());
+    let triangles: u64 = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("triangles"))
+        .and_then(|v| v.trim().parse().ok())
+        .expect("a triangle count");
+    assert!(triangles >= 100_000, "{stdout}");
+}
