@@ -470,3 +470,42 @@ fn sarsa_with_cas_atomics_converges_to_pt_on_the_cornell_box() {
 fn sarsa_converges_to_pt_on_the_indirectly_lit_room() {
     unbiased("indirect-room", false, Atomics::Auto, 1024, Some(128));
 }
+
+/// The white furnace has an analytic answer (every pixel is 1): the guided
+/// estimator must match it too, even where guiding cannot help.
+#[test]
+fn sarsa_matches_the_white_furnace() {
+    let ctx = common::gpu();
+    let scene = common::scene("furnace");
+    let out = common::render_with(
+        &ctx,
+        &scene,
+        Overrides {
+            method: Some(Method::Sarsa),
+            spp: Some(256),
+            sarsa: SarsaSettings {
+                volumes: 256,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+    );
+    let n = (3 * out.image.pixels.len()) as f64;
+    let mean = out.image.mean();
+    // Standard error of the image mean from the per-pixel variances.
+    let se = (out
+        .variance
+        .pixels
+        .iter()
+        .flatten()
+        .map(|&v| v as f64)
+        .sum::<f64>()
+        / out.stats.image_spp as f64)
+        .sqrt()
+        / n;
+    let z = (mean - 1.0) / se;
+    assert!(
+        z.abs() < 5.0,
+        "image mean {mean}, {z:.2} standard errors from 1"
+    );
+}
