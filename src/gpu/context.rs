@@ -287,27 +287,6 @@ impl GpuContext {
         let (physical, info) = choose(enumerate(&instance)?, options.device.as_deref())?;
         let queue_family = info.queue_family.ok_or(Error::NoDevice)?;
 
-        let validation_errors = Box::new(AtomicU32::new(0));
-        let messenger = if validation && has_debug_utils {
-            let loader = ext::debug_utils::Instance::new(entry, &instance);
-            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-                .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
-                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
-                )
-                .message_type(
-                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-                )
-                .pfn_user_callback(Some(debug_callback))
-                .user_data(&*validation_errors as *const AtomicU32 as *mut c_void);
-            let m = unsafe { loader.create_debug_utils_messenger(&info, None)? };
-            Some((loader, m))
-        } else {
-            None
-        };
-
         let priorities = [1.0f32];
         let queue_info = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(queue_family)
@@ -358,6 +337,33 @@ impl GpuContext {
                 return Err(e);
             }
         };
+        let validation_errors = Box::new(AtomicU32::new(0));
+        // Created last, so that no failure above leaves it behind.
+        let messenger = if validation && has_debug_utils {
+            let loader = ext::debug_utils::Instance::new(entry, &instance);
+            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+                .message_severity(
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
+                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                )
+                .message_type(
+                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+                )
+                .pfn_user_callback(Some(debug_callback))
+                .user_data(&*validation_errors as *const AtomicU32 as *mut c_void);
+            match unsafe { loader.create_debug_utils_messenger(&info, None) } {
+                Ok(m) => Some((loader, m)),
+                Err(e) => {
+                    log::warn!("validation messages unavailable: {e}");
+                    None
+                }
+            }
+        } else {
+            None
+        };
+
         log::info!(
             "using Vulkan device {} ({}, {})",
             info.name,
