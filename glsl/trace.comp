@@ -13,6 +13,15 @@ layout(push_constant) uniform Push { PassParams params; };
 
 #ifdef METHOD_SARSA
 #include "guide.glsl"
+
+// Records the target of the bounce that just landed, if it left from a volume,
+// and adds its squared TD error to the path's loss.
+void learn_bounce(uint volume, uint sector, float target, inout float td_sq_sum, inout uint td_count) {
+    if (volume != NO_VOLUME) {
+        td_sq_sum += sarsa_record(volume, sector, target);
+        td_count += 1u;
+    }
+}
 #endif
 layout(std430, set = 0, binding = B_LIGHTS) readonly buffer Lights { Light lights[]; };
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
@@ -88,9 +97,8 @@ void main() {
         if (hit.triangle == NO_HIT) {
             radiance += throughput * params.environment.rgb;
 #ifdef METHOD_SARSA
-            if (learn && prev_volume != NO_VOLUME) {
-                td_sq_sum += sarsa_record(prev_volume, prev_sector, luminance(params.environment.rgb));
-                td_count += 1u;
+            if (learn) {
+                learn_bounce(prev_volume, prev_sector, luminance(params.environment.rgb), td_sq_sum, td_count);
             }
 #endif
             break;
@@ -112,10 +120,9 @@ void main() {
                 radiance += throughput * mat.emission.rgb * weight;
             }
 #ifdef METHOD_SARSA
-            if (learn && prev_volume != NO_VOLUME) {
+            if (learn) {
                 float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
-                td_sq_sum += sarsa_record(prev_volume, prev_sector, le);
-                td_count += 1u;
+                learn_bounce(prev_volume, prev_sector, le, td_sq_sum, td_count);
             }
 #endif
             break;
@@ -127,9 +134,9 @@ void main() {
         vec3 albedo = mat.albedo.rgb;
 #ifdef METHOD_SARSA
         uint volume = nearest_volume(position, ns);
-        if (learn && prev_volume != NO_VOLUME) {
-            td_sq_sum += sarsa_record(prev_volume, prev_sector, sarsa_surface_target(volume, luminance(albedo)));
-            td_count += 1u;
+        if (learn) {
+            float target = sarsa_surface_target(volume, luminance(albedo));
+            learn_bounce(prev_volume, prev_sector, target, td_sq_sum, td_count);
         }
 #endif
         if (depth >= params.max_depth) {
