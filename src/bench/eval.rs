@@ -141,6 +141,10 @@ fn scene_key(path: &Path, scene: &Scene, plan: &EvalPlan, max_depth: u32) -> u64
     let mut h = 0xcbf2_9ce4_8422_2325;
     h = fnv1a(&std::fs::read(path).unwrap_or_default(), h);
     h = fnv1a(bytemuck::cast_slice(&scene.triangles), h);
+    // Materials come from the MTL, which the scene file does not contain.
+    for m in &scene.materials {
+        h = fnv1a(bytemuck::cast_slice(&[m.albedo.to_array(), m.emission.to_array()]), h);
+    }
     let settings = format!(
         "{}x{} spp{} depth{} seed{} v{}",
         plan.width,
