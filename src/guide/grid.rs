@@ -68,8 +68,14 @@ fn dmax2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
 }
 
 /// Calls `f` with every volume (k-d tree order) whose squared distance to the
-/// box [lo, hi] is at most `r2`.
-fn within_box_distance(volumes: &[Volume], lo: Vec3, hi: Vec3, r2: f32, f: &mut dyn FnMut(u32)) {
+/// box [lo, hi] is at most `r2`, until `f` returns false.
+fn within_box_distance(
+    volumes: &[Volume],
+    lo: Vec3,
+    hi: Vec3,
+    r2: f32,
+    f: &mut dyn FnMut(u32) -> bool,
+) {
     let mut stack = vec![(0usize, volumes.len())];
     while let Some((a, b)) = stack.pop() {
         if a >= b {
@@ -78,8 +84,8 @@ fn within_box_distance(volumes: &[Volume], lo: Vec3, hi: Vec3, r2: f32, f: &mut 
         let m = (a + b) / 2;
         let v = &volumes[m];
         let p = Vec3::from(v.position);
-        if dmin2(lo, hi, p) <= r2 {
-            f(m as u32);
+        if dmin2(lo, hi, p) <= r2 && !f(m as u32) {
+            return;
         }
         if v.axis == KD_LEAF {
             continue;
@@ -117,6 +123,18 @@ impl LookupGrid {
         let spacing = (area / volumes.len().max(1) as f64).sqrt() as f32;
         let size = hi - lo;
         let cell = (0.5 * spacing).max(size.max_element() / 64.0).max(1e-6);
+        if cell > 2.0 * spacing {
+            // Cells wider than a few volumes would mostly overflow their lists:
+            // with this many volumes the k-d tree serves every lookup.
+            return Self {
+                origin: lo,
+                cell,
+                dims: UVec3::ZERO,
+                ranges: Vec::new(),
+                items: Vec::new(),
+                touched_classes: 0,
+            };
+        }
         let dims = (size / cell).ceil().as_uvec3().max(UVec3::ONE);
         let cells = (dims.x * dims.y * dims.z) as usize;
 
@@ -153,9 +171,13 @@ impl LookupGrid {
             let g = generators(c);
             let always = |v: &Volume| g.iter().all(|d| Vec3::from(v.normal).dot(*d) > 0.0);
             let maybe = |v: &Volume| g.iter().any(|d| Vec3::from(v.normal).dot(*d) > 0.0);
-            if !volumes.iter().any(always) {
+            // The always-facing volumes in a k-d tree of their own, so the
+            // bound below is a plain nearest-neighbour query.
+            let mut bounders: Vec<Volume> = volumes.iter().filter(|v| always(v)).copied().collect();
+            if bounders.is_empty() {
                 continue; // no bound: this class always uses the k-d tree
             }
+            super::volumes::build_kd_tree(&mut bounders);
             for z in 0..dims.z {
                 for y in 0..dims.y {
                     for x in 0..dims.x {
@@ -168,18 +190,18 @@ impl LookupGrid {
                         let clo = lo + Vec3::new(x as f32, y as f32, z as f32) * cell - slack;
                         let chi = clo + Vec3::splat(cell) + 2.0 * slack;
                         let centre = 0.5 * (clo + chi);
-                        let Some(i) = nearest_where(volumes, centre, always) else {
+                        let Some(i) = nearest_where(&bounders, centre, |_| true) else {
                             continue;
                         };
-                        let bound2 = dmax2(clo, chi, Vec3::from(volumes[i as usize].position));
+                        let bound2 = dmax2(clo, chi, Vec3::from(bounders[i as usize].position));
                         let start = items.len();
                         let mut overflow = false;
                         within_box_distance(volumes, clo, chi, bound2, &mut |j| {
-                            let v = &volumes[j as usize];
-                            if !overflow && maybe(v) {
+                            if maybe(&volumes[j as usize]) {
                                 items.push(j);
                                 overflow = items.len() - start > GRID_MAX_LIST as usize;
                             }
+                            !overflow
                         });
                         if overflow {
                             items.truncate(start);
@@ -238,7 +260,10 @@ impl LookupGrid {
     /// (the shader's search, on the CPU).
     pub fn nearest(&self, volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
         let g = (p - self.origin) / self.cell;
-        if g.cmpge(Vec3::ZERO).all() && g.cmplt(self.dims.as_vec3()).all() {
+        if self.dims != UVec3::ZERO
+            && g.cmpge(Vec3::ZERO).all()
+            && g.cmplt(self.dims.as_vec3()).all()
+        {
             let c = g.as_uvec3();
             let index =
                 (c.x + self.dims.x * (c.y + self.dims.y * c.z)) * NORMAL_CLASSES + normal_class(n);
