@@ -443,6 +443,13 @@ fn bad_sarsa_options() {
         &[],
         &["reset"],
     );
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--sarsa-volumes", "4000000"],
+        &[],
+        &["fewer volumes"],
+    );
 }
 
 #[test]
