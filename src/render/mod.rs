@@ -31,7 +31,6 @@ pub struct GpuScene {
     pub triangles: Buffer,
     pub materials: Buffer,
     pub lights: Buffer,
-    pub light_count: u32,
 }
 
 impl GpuScene {
@@ -49,7 +48,6 @@ impl GpuScene {
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
             lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
-            light_count: scene.lights.len() as u32,
         })
     }
 
@@ -143,13 +141,13 @@ pub struct Renderer {
     guide: Option<SarsaGuide>,
 }
 
-/// The trace kernel for a method on this device.
+/// SPIR-V of the trace kernel for a method on this device.
 fn trace_variant(
     ctx: &GpuContext,
     settings: &RenderSettings,
-) -> Result<(&'static str, &'static [u8]), RenderError> {
+) -> Result<&'static [u8], RenderError> {
     Ok(match settings.method {
-        Method::Pt => ("trace", spirv::TRACE_PT),
+        Method::Pt => spirv::TRACE_PT,
         Method::Sarsa => match (settings.sarsa.atomics, ctx.info().float_atomics) {
             (Atomics::Float, false) => return Err(gpu::Error::MissingFeature {
                 device: ctx.info().name.clone(),
@@ -158,8 +156,8 @@ fn trace_variant(
                         .into(),
             }
             .into()),
-            (Atomics::Cas, _) | (Atomics::Auto, false) => ("trace", spirv::TRACE_SARSA_CAS),
-            _ => ("trace", spirv::TRACE_SARSA),
+            (Atomics::Cas, _) | (Atomics::Auto, false) => spirv::TRACE_SARSA_CAS,
+            _ => spirv::TRACE_SARSA,
         },
     })
 }
@@ -213,8 +211,7 @@ impl Renderer {
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
         let stats = Buffer::readback(ctx, "pass stats", size_of::<PassStats>() as u64)?;
         let push = size_of::<PassParams>() as u32;
-        let (trace_name, trace_spirv) = trace_variant(ctx, &settings)?;
-        let trace = ComputePipeline::new(ctx, trace_name, trace_spirv, push)?;
+        let trace = ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?;
         let guide = match settings.method {
             Method::Pt => None,
             Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
