@@ -47,8 +47,10 @@ struct RenderArgs {
     /// Render for this many seconds instead of a fixed sample count.
     #[arg(long)]
     time: Option<f64>,
+    /// Image width in pixels (default: the scene's, else 256).
     #[arg(long)]
     width: Option<u32>,
+    /// Image height in pixels (default: the scene's, else 256).
     #[arg(long)]
     height: Option<u32>,
     /// Most bounces a path may take.
@@ -146,6 +148,7 @@ impl RenderArgs {
 enum Command {
     /// Render a scene to OpenEXR (and optionally PNG and stats JSON).
     Render {
+        /// Scene file (TOML).
         scene: PathBuf,
         #[command(flatten)]
         args: RenderArgs,
@@ -165,14 +168,22 @@ enum Command {
         device: DeviceArgs,
     },
     /// Error metrics of an image against a reference (MSE, relMSE, MAPE).
-    Compare { image: PathBuf, reference: PathBuf },
+    Compare {
+        /// Image to measure (OpenEXR).
+        image: PathBuf,
+        /// Reference image (OpenEXR) of the same size.
+        reference: PathBuf,
+    },
     /// List Vulkan devices and the features qtrace uses.
     Devices,
     /// Triangles, lights, BVH statistics of a scene.
-    Inspect { scene: PathBuf },
-    /// Evaluate methods (SPEC §6): images, error vs spp and vs time, per-pass
-    /// statistics, pictures of what was learned, charts, CSV/JSON and an HTML page.
-    /// With --speed, print only a speed table (samples/s, rays/s, GPU ms per pass).
+    Inspect {
+        /// Scene file (TOML).
+        scene: PathBuf,
+    },
+    /// Compare methods: images, error vs spp and vs time, per-pass statistics,
+    /// pictures of what was learned, charts, CSV/JSON and an HTML page
+    /// (with --speed: only a table of samples/s, rays/s and GPU ms per pass).
     Bench {
         /// Scenes to evaluate.
         #[arg(default_values = ["scenes/cornell-box.toml"])]
