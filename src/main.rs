@@ -194,9 +194,10 @@ enum Command {
         /// Sample counts at which images and errors are kept.
         #[arg(long, value_delimiter = ',', default_values = ["1", "16", "32", "64", "128", "256"])]
         spp_list: Vec<u32>,
-        /// Image size (default 256x256; 64x64 with --quick).
+        /// Image width (default 256; 64 with --quick).
         #[arg(long)]
         width: Option<u32>,
+        /// Image height (default 256; 64 with --quick).
         #[arg(long)]
         height: Option<u32>,
         /// Reference image (single scene only); otherwise pt+nee renders one, cached.
@@ -208,16 +209,19 @@ enum Command {
         /// Report directory.
         #[arg(long, default_value = "bench-report")]
         out: PathBuf,
-        /// Small images and few samples (spp 1,4,16,32 at 64x64): about two minutes.
+        /// Small images and few samples (spp 1,4,16,32 at 64x64): seconds per scene.
         #[arg(long)]
         quick: bool,
+        /// Random seed of the methods' renders.
         #[arg(long, default_value_t = 1)]
         seed: u32,
         /// Only the speed table: each method at --spp, fastest of --repeats runs.
         #[arg(long)]
         speed: bool,
+        /// Samples per pixel of each --speed run.
         #[arg(long, default_value_t = 32)]
         spp: u32,
+        /// Runs per method with --speed; the fastest counts.
         #[arg(long, default_value_t = 2)]
         repeats: u32,
         /// Speed table as JSON here.
