@@ -76,6 +76,9 @@ struct SarsaArgs {
     /// Radiance volumes placed over the surfaces (uniformly by area).
     #[arg(long, default_value_t = SarsaSettings::default().volumes)]
     sarsa_volumes: u32,
+    /// Volumes per unit² of surface instead of a count (the thesis used 1000).
+    #[arg(long)]
+    sarsa_density: Option<f64>,
     /// Device-memory budget for the guide in MiB (caps the volume count).
     #[arg(long)]
     sarsa_memory_mib: Option<f64>,
@@ -115,6 +118,7 @@ impl SarsaArgs {
     fn settings(&self) -> SarsaSettings {
         SarsaSettings {
             volumes: self.sarsa_volumes,
+            density: self.sarsa_density,
             memory_mib: self.sarsa_memory_mib,
             grid: self.sarsa_sectors,
             epsilon: self.sarsa_epsilon,

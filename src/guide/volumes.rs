@@ -22,6 +22,16 @@ impl SplitMix {
     }
 }
 
+/// Area of the surfaces volumes are placed on: every non-emitting triangle.
+pub fn placement_area(scene: &Scene) -> f64 {
+    scene
+        .triangles
+        .iter()
+        .filter(|t| t.light_pdf == 0.0)
+        .map(|t| t.area as f64)
+        .sum()
+}
+
 /// `count` volumes on the scene's non-emitting triangles, uniform by area.
 pub fn place(scene: &Scene, count: usize, seed: u64) -> Vec<Volume> {
     let candidates: Vec<usize> = (0..scene.triangles.len())

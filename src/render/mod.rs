@@ -190,12 +190,13 @@ impl Renderer {
         if settings.method == Method::Sarsa {
             // Checked before placing volumes, which takes a while for huge counts.
             let s = &settings.sarsa;
-            let bytes = s.volume_count() as u64 * s.sectors() as u64 * 4;
+            let count = s.volume_count(crate::guide::volumes::placement_area(scene));
+            let bytes = count as u64 * s.sectors() as u64 * 4;
             let limit = ctx.info().max_storage_buffer_range;
             if bytes > limit {
                 return Err(SettingsError(format!(
                     "{} sarsa volumes of {} sectors need {} MiB per guide buffer; device '{}' allows {} MiB: use fewer volumes or sectors, or --sarsa-memory-mib",
-                    s.volume_count(),
+                    count,
                     s.sectors(),
                     bytes >> 20,
                     ctx.info().name,
