@@ -100,11 +100,16 @@ impl SarsaSettings {
                 "sarsa sector grid {a}x{b} must lie within 1x1..64x64"
             ));
         }
-        if self.volumes == 0 || self.volumes > 1 << 22 {
+        if self.volumes == 0 || self.volumes > MAX_VOLUMES {
             return Err(format!(
-                "sarsa volumes {} must lie in 1..=4194304",
+                "sarsa volumes {} must lie in 1..={MAX_VOLUMES}",
                 self.volumes
             ));
+        }
+        if let Some(d) = self.density {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(format!("sarsa volume density {d} must be positive"));
+            }
         }
         if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
             return Err(format!(
