@@ -116,6 +116,9 @@ pub struct SceneReport {
     pub reference: String,
     pub reference_spp: Option<u32>,
     pub equal_time_seconds: f64,
+    /// Where the crops look (fractions of width and height): the region where
+    /// the first method's final image is farthest from the reference.
+    pub crop_centre: [f64; 2],
     pub runs: Vec<RunReport>,
     pub summary: Summary,
 }
@@ -175,6 +178,32 @@ fn short_name(path: &Path) -> String {
                 .collect()
         })
         .unwrap_or_else(|| "scene".into())
+}
+
+/// Centre (fractions) of the 16×16-pixel block with the largest squared error.
+fn worst_block(image: &Image, reference: &Image) -> [f64; 2] {
+    let b = 16usize.min(image.width).min(image.height).max(1);
+    let mut best = (f64::NEG_INFINITY, [0.5, 0.5]);
+    for by in (0..image.height).step_by(b) {
+        for bx in (0..image.width).step_by(b) {
+            let mut e = 0.0f64;
+            for y in by..(by + b).min(image.height) {
+                for x in bx..(bx + b).min(image.width) {
+                    let (p, q) = (
+                        image.pixels[y * image.width + x],
+                        reference.pixels[y * image.width + x],
+                    );
+                    e += (0..3).map(|c| ((p[c] - q[c]) as f64).powi(2)).sum::<f64>();
+                }
+            }
+            if e > best.0 {
+                let cx = (bx as f64 + b as f64 / 2.0) / image.width as f64;
+                let cy = (by as f64 + b as f64 / 2.0) / image.height as f64;
+                best = (e, [cx, cy]);
+            }
+        }
+    }
+    best.1
 }
 
 /// Error at time `t` by log-log interpolation between checkpoints.
@@ -345,6 +374,7 @@ pub fn evaluate(
         write_image(&reference, &dir, "reference", &plan.out)?;
 
         let mut runs = Vec::new();
+        let mut crop_centre = [0.5, 0.5];
         for config in &plan.configs {
             let label = config.label();
             let run_dir = dir.join(&label);
@@ -402,6 +432,9 @@ pub fn evaluate(
             done = start + max_spp as u64;
             if let Some(e) = failure {
                 return Err(e);
+            }
+            if runs.is_empty() {
+                crop_centre = worst_block(&out.image, &reference);
             }
             let learned = match renderer.guide() {
                 Some(guide) => {
@@ -479,6 +512,7 @@ pub fn evaluate(
             reference: reference_label,
             reference_spp,
             equal_time_seconds: equal_time,
+            crop_centre,
             runs,
             summary,
         });

@@ -228,13 +228,14 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
 .crop{width:192px;height:192px;border:1px solid #999;background-repeat:no-repeat;image-rendering:pixelated}
 .win{font-weight:bold;color:#075}";
 
-/// An enlarged crop of an image: the region around (fx, fy) (fractions), zoomed 3×.
-fn crop(src: &str, width: u32, height: u32) -> String {
+/// An enlarged crop of an image: the region around `centre` (fractions of
+/// width and height), zoomed 3×.
+fn crop(src: &str, width: u32, height: u32, centre: [f64; 2]) -> String {
     let zoom = 3.0 * 192.0 / width.max(height) as f64;
     let (w, h) = (width as f64 * zoom, height as f64 * zoom);
-    // The centre of the image's upper half, where the scenes' lights and their
-    // first bounces are.
-    let (cx, cy) = (0.5 * w, 0.35 * h);
+    // Keep the 192-pixel window inside the enlarged image.
+    let cx = (centre[0] * w).clamp(96.0, (w - 96.0).max(96.0));
+    let cy = (centre[1] * h).clamp(96.0, (h - 96.0).max(96.0));
     format!(
         "<div class=\"crop\" style=\"background-image:url('{}');background-size:{w:.0}px {h:.0}px;background-position:{:.0}px {:.0}px\"></div>",
         esc(src),
@@ -351,7 +352,7 @@ fn write_html(
                             esc(png),
                             c.error.rel_mse,
                             c.error.mape,
-                            crop(png, s.width, s.height)
+                            crop(png, s.width, s.height, s.crop_centre)
                         );
                     }
                     None => h += "<td></td>",
@@ -365,7 +366,7 @@ fn write_html(
                     spps.len(),
                     esc(&reference),
                     s.reference_spp.map_or("given".to_string(), |n| format!("pt+nee, {n} spp")),
-                    crop(&reference, s.width, s.height)
+                    crop(&reference, s.width, s.height, s.crop_centre)
                 );
             }
             h += "</tr>";
