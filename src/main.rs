@@ -649,8 +649,17 @@ fn main() {
     };
     if let Err(e) = run(cli) {
         // One line: the outermost context, then its causes.
-        let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
-        eprintln!("error: {}", chain.join(": "));
+        // Causes already quoted by the message before them are not repeated.
+        let mut line = String::new();
+        for cause in e.chain().map(|c| c.to_string()) {
+            if !line.contains(&cause) {
+                if !line.is_empty() {
+                    line.push_str(": ");
+                }
+                line.push_str(&cause);
+            }
+        }
+        eprintln!("error: {line}");
         std::process::exit(1);
     }
 }
