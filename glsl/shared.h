@@ -43,8 +43,9 @@
 #define PROBE_GUIDE_SAMPLE 3
 #define PROBE_SARSA_UPDATE 4
 
-// Volume.axis of a k-d tree node without children; also "no volume".
+// Volume.axis of a k-d tree node without children.
 #define KD_LEAF 3
+// What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
 // Entries of the k-d search stack: depth + 1 for the 2^22 volumes allowed.
 #define KD_STACK_SIZE 24

@@ -6,9 +6,10 @@ use glam::Vec3;
 
 const BINS: usize = 16;
 const MAX_LEAF: usize = 4;
-/// Past this depth nodes split at the median, which bounds the depth (and so the
-/// GPU traversal stack) whatever the geometry.
-const MEDIAN_DEPTH: u32 = BVH_STACK_SIZE - 24;
+/// Past this depth nodes split at the median, which halves them: 32 more levels
+/// hold 2^32 triangles, so the depth (and the GPU traversal stack) stays below
+/// BVH_STACK_SIZE whatever the geometry.
+const MEDIAN_DEPTH: u32 = BVH_STACK_SIZE - 33;
 
 #[derive(Clone, Copy)]
 struct Aabb {
