@@ -137,4 +137,18 @@ fn cornell_box_pt_and_nee_converge_to_the_same_image() {
     common::assert_same_expectation("cornell-pt-vs-nee", &plain, &nee);
     // And NEE must actually help: fewer zero-contribution paths.
     assert!(nee.stats.zero_contribution_fraction < plain.stats.zero_contribution_fraction);
+
+    // Every pixel on its own, at a size where each gets enough light hits
+    // for its mean to be close to normal.
+    let tiny = |nee, seed| Overrides {
+        spp: Some(if nee { 1024 } else { 8192 }),
+        width: Some(12),
+        height: Some(12),
+        nee,
+        seed: Some(seed),
+        ..Default::default()
+    };
+    let plain = common::render_with(&ctx, &scene, tiny(false, 3));
+    let nee = common::render_with(&ctx, &scene, tiny(true, 4));
+    common::assert_same_expectation_binned("cornell-pt-vs-nee-per-pixel", &plain, &nee, 1);
 }

@@ -122,11 +122,16 @@ pub fn z_scores(a: &RenderOutput, b: &RenderOutput, bin: usize) -> Vec<f64> {
     z
 }
 
-/// Two renders estimate the same image: per pixel binned 4 x 4, few z-scores
+/// Two renders estimate the same image: per pixel binned 4 × 4, few z-scores
 /// beyond 4 sigma and a spread close to N(0, 1); over the whole image, |z| < 4.
 /// On failure, writes both images and their difference to target/test-output.
 pub fn assert_same_expectation(name: &str, a: &RenderOutput, b: &RenderOutput) {
-    let z = z_scores(a, b, 4);
+    assert_same_expectation_binned(name, a, b, 4);
+}
+
+/// [`assert_same_expectation`] with `bin` × `bin` pixel bins (1: every pixel on its own).
+pub fn assert_same_expectation_binned(name: &str, a: &RenderOutput, b: &RenderOutput, bin: usize) {
+    let z = z_scores(a, b, bin);
     let n = z.len() as f64;
     let outliers = z.iter().filter(|v| v.abs() > 4.0).count();
     let rms_z = (z.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
