@@ -8,7 +8,7 @@ layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_SAMPLES) readonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
-layout(std430, set = 0, binding = B_STATS) buffer Stats { PassStats stats; };
+layout(std430, set = 0, binding = B_STATS) buffer Stats { PassStats pass_stats[]; };
 
 // One global atomic per counter per workgroup instead of one per pixel.
 shared uint s_paths;
@@ -64,17 +64,18 @@ void main() {
     }
 
     if (gl_LocalInvocationIndex == 0u) {
-        atomicAdd(stats.paths, s_paths);
-        atomicAdd(stats.zero_paths, s_zero);
-        atomicAdd(stats.length_sum, s_length);
-        atomicAdd(stats.rays, s_rays);
-        atomicAdd(stats.nan_paths, s_nan);
-        atomicAdd(stats.td_count, s_td_count);
+        uint slot = params.pass_index % MAX_BATCH;
+        atomicAdd(pass_stats[slot].paths, s_paths);
+        atomicAdd(pass_stats[slot].zero_paths, s_zero);
+        atomicAdd(pass_stats[slot].length_sum, s_length);
+        atomicAdd(pass_stats[slot].rays, s_rays);
+        atomicAdd(pass_stats[slot].nan_paths, s_nan);
+        atomicAdd(pass_stats[slot].td_count, s_td_count);
         if (s_td[0] != 0.0) {
             // One float add per workgroup, by compare-and-swap on its bits.
-            uint seen = stats.td_sq_bits;
+            uint seen = pass_stats[slot].td_sq_bits;
             while (true) {
-                uint found = atomicCompSwap(stats.td_sq_bits, seen, floatBitsToUint(uintBitsToFloat(seen) + s_td[0]));
+                uint found = atomicCompSwap(pass_stats[slot].td_sq_bits, seen, floatBitsToUint(uintBitsToFloat(seen) + s_td[0]));
                 if (found == seen) {
                     break;
                 }

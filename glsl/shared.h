@@ -55,6 +55,10 @@
 #define GRID_FALLBACK 0xffffffffu
 #define GRID_MAX_LIST 96
 
+// Most sample passes recorded into one submit; each has its PassStats slot
+// (pass_index % MAX_BATCH).
+#define MAX_BATCH 16
+
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
 // Longest BVH traversal stack the builder may produce.

@@ -210,7 +210,11 @@ impl Renderer {
         let samples =
             Buffer::gpu_only(ctx, "path samples", pixels * size_of::<PathSample>() as u64)?;
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
-        let stats = Buffer::readback(ctx, "pass stats", size_of::<PassStats>() as u64)?;
+        let stats = Buffer::readback(
+            ctx,
+            "pass stats",
+            shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
+        )?;
         let push = size_of::<PassParams>() as u32;
         let trace = ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?;
         let guide = match settings.method {
@@ -249,45 +253,53 @@ impl Renderer {
     }
 
     /// Runs one sample pass and returns its totals.
-    fn pass(&mut self, index: u32) -> Result<PassStats, RenderError> {
-        self.stats.write(&[PassStats::default()]);
-        let mut params = self.params;
-        params.pass_index = index;
-        let learn = self.settings.sarsa.learns_in_pass(index);
-        if let Some(guide) = &self.guide {
-            guide.set_params(&mut params, learn);
-        }
-        let push = bytemuck::bytes_of(&params);
+    /// Runs sample passes `first .. first + count` (count <= MAX_BATCH) in one
+    /// submit and returns each pass's totals.
+    fn passes(&mut self, first: u32, count: u32) -> Result<Vec<PassStats>, RenderError> {
+        debug_assert!((1..=shaders::MAX_BATCH).contains(&count));
+        self.stats
+            .write(&[PassStats::default(); shaders::MAX_BATCH as usize]);
         let g = groups(self.settings.width, self.settings.height);
         let (trace, trace_set) = (&self.trace, &self.trace_set);
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
         let guide = self.guide.as_ref();
-        let reset = guide.is_some() && self.settings.sarsa.reset_after == Some(index);
-        let accum = &self.accum;
+        let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         self.ctx.submit(Some(&mut self.profiler), |rec| {
-            if reset {
-                rec.fill(accum, 0);
-            }
-            rec.dispatch(Pass {
-                name: "trace",
-                pipeline: trace,
-                set: trace_set,
-                push,
-                groups: g,
-            });
-            rec.dispatch(Pass {
-                name: "accumulate",
-                pipeline: accumulate,
-                set: accumulate_set,
-                push,
-                groups: g,
-            });
-            // The next pass samples from what this one learned.
-            if let (Some(guide), true) = (guide, learn) {
-                guide.record_update(rec, &params);
+            for index in first..first + count {
+                let mut params = base;
+                params.pass_index = index;
+                let learn = settings.sarsa.learns_in_pass(index);
+                if let Some(guide) = guide {
+                    guide.set_params(&mut params, learn);
+                    if settings.sarsa.reset_after == Some(index) {
+                        rec.fill(accum, 0);
+                    }
+                }
+                let push = bytemuck::bytes_of(&params);
+                rec.dispatch(Pass {
+                    name: "trace",
+                    pipeline: trace,
+                    set: trace_set,
+                    push,
+                    groups: g,
+                });
+                rec.dispatch(Pass {
+                    name: "accumulate",
+                    pipeline: accumulate,
+                    set: accumulate_set,
+                    push,
+                    groups: g,
+                });
+                // The next pass samples from what this one learned.
+                if let (Some(guide), true) = (guide, learn) {
+                    guide.record_update(rec, &params);
+                }
             }
         })?;
-        Ok(self.stats.read::<PassStats>()[0])
+        let slots = self.stats.read::<PassStats>();
+        Ok((first..first + count)
+            .map(|i| slots[(i % shaders::MAX_BATCH) as usize])
+            .collect())
     }
 
     /// Renders until the budget is spent, reporting progress after each pass.
@@ -342,25 +354,49 @@ impl Renderer {
         let (mut paths, mut rays, mut zero, mut length, mut invalid) =
             (0u64, 0u64, 0u64, 0u64, 0u64);
         let mut done = 0u32;
+        // Seconds per pass, measured, to size batches under a time budget.
+        let mut pass_seconds = 0.0f64;
         loop {
-            let s = self.pass(done)?;
-            done += 1;
-            paths += s.paths as u64;
-            rays += s.rays as u64;
-            zero += s.zero_paths as u64;
-            length += s.length_sum as u64;
-            invalid += s.nan_paths as u64;
-            let n = s.paths.max(1) as f64;
-            records.push(PassRecord {
-                pass: done - 1,
-                zero_contribution_fraction: s.zero_paths as f64 / n,
-                mean_path_length: s.length_sum as f64 / n,
-                rays: s.rays as u64,
-                loss: self
-                    .guide
-                    .as_ref()
-                    .map(|_| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
-            });
+            // A batch never runs past the budget or the next checkpoint, and
+            // stays short enough (~0.1 s) for progress and time budgets.
+            let mut count = shaders::MAX_BATCH;
+            if let Budget::Samples(n) = self.settings.budget {
+                count = count.min(n - done);
+            }
+            if let Some(&next) = checkpoints.iter().filter(|&&c| c > done).min() {
+                count = count.min(next - done);
+            }
+            if pass_seconds > 0.0 {
+                let mut seconds = 0.1f64;
+                if let Budget::Seconds(t) = self.settings.budget {
+                    seconds = seconds.min(t - (start.elapsed().as_secs_f64() - paused));
+                }
+                count = count.min((seconds / pass_seconds).ceil().max(1.0) as u32);
+            } else {
+                count = 1; // the first pass measures the cost of one
+            }
+            let batch_start = Instant::now();
+            let batch = self.passes(done, count)?;
+            pass_seconds = batch_start.elapsed().as_secs_f64() / count as f64;
+            for s in &batch {
+                done += 1;
+                paths += s.paths as u64;
+                rays += s.rays as u64;
+                zero += s.zero_paths as u64;
+                length += s.length_sum as u64;
+                invalid += s.nan_paths as u64;
+                let n = s.paths.max(1) as f64;
+                records.push(PassRecord {
+                    pass: done - 1,
+                    zero_contribution_fraction: s.zero_paths as f64 / n,
+                    mean_path_length: s.length_sum as f64 / n,
+                    rays: s.rays as u64,
+                    loss: self
+                        .guide
+                        .as_ref()
+                        .map(|_| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
+                });
+            }
             let mut elapsed = start.elapsed().as_secs_f64() - paused;
             if checkpoints.contains(&done) {
                 let (image, _) = self.images()?;
