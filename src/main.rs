@@ -507,7 +507,7 @@ fn cmd_evaluate(mut plan: EvalPlan, device: &DeviceArgs) -> Result<()> {
             qtrace::render::settings::MAX_SPP
         );
     }
-    if plan.spp_list.is_empty() || plan.methods_empty() {
+    if plan.spp_list.is_empty() || plan.configs.is_empty() {
         bail!("bench needs at least one method and one sample count");
     }
     if plan.reference.is_some() && plan.scenes.len() != 1 {

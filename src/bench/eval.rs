@@ -27,11 +27,7 @@ pub struct EvalPlan {
 }
 
 impl EvalPlan {
-    pub fn methods_empty(&self) -> bool {
-        self.configs.is_empty()
-    }
-
-    /// Small images and few samples: the whole shipped set in about two minutes on lavapipe.
+    /// Small images and few samples: seconds per scene on lavapipe.
     pub fn quick(scenes: Vec<PathBuf>, configs: Vec<Config>, out: PathBuf) -> Self {
         Self {
             scenes,

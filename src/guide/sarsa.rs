@@ -3,7 +3,9 @@
 
 use super::grid::LookupGrid;
 use super::volumes;
-use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
+use crate::gpu::{
+    self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
+};
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, GridHeader, PassParams, Volume};
 use serde::{Deserialize, Serialize};
@@ -145,6 +147,21 @@ impl SarsaSettings {
         match self.memory_mib {
             Some(m) => wanted.min(((m * 1024.0 * 1024.0) as u64 / per) as u32),
             None => wanted,
+        }
+    }
+
+    /// Whether to add targets with float atomics on `device` (else the CAS
+    /// fallback); an error where `--sarsa-atomics float` asks for what it lacks.
+    pub fn use_float_atomics(&self, device: &DeviceInfo) -> gpu::Result<bool> {
+        match (self.atomics, device.float_atomics) {
+            (Atomics::Float, false) => Err(gpu::Error::MissingFeature {
+                device: device.name.clone(),
+                feature:
+                    "float atomics (VK_EXT_shader_atomic_float), needed by --sarsa-atomics float"
+                        .into(),
+            }),
+            (Atomics::Cas, _) | (Atomics::Auto, false) => Ok(false),
+            _ => Ok(true),
         }
     }
 

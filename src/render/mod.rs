@@ -9,7 +9,6 @@ pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, Settings
 pub use stats::{PassRecord, RenderStats};
 
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
-use crate::guide::sarsa::Atomics;
 use crate::guide::SarsaGuide;
 use crate::image::Image;
 use crate::scene::Scene;
@@ -148,17 +147,13 @@ fn trace_variant(
 ) -> Result<&'static [u8], RenderError> {
     Ok(match settings.method {
         Method::Pt => spirv::TRACE_PT,
-        Method::Sarsa => match (settings.sarsa.atomics, ctx.info().float_atomics) {
-            (Atomics::Float, false) => return Err(gpu::Error::MissingFeature {
-                device: ctx.info().name.clone(),
-                feature:
-                    "float atomics (VK_EXT_shader_atomic_float), needed by --sarsa-atomics float"
-                        .into(),
+        Method::Sarsa => {
+            if settings.sarsa.use_float_atomics(ctx.info())? {
+                spirv::TRACE_SARSA
+            } else {
+                spirv::TRACE_SARSA_CAS
             }
-            .into()),
-            (Atomics::Cas, _) | (Atomics::Auto, false) => spirv::TRACE_SARSA_CAS,
-            _ => spirv::TRACE_SARSA,
-        },
+        }
     })
 }
 

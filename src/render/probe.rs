@@ -3,7 +3,6 @@
 
 use super::{pass_params, GpuScene, RenderError, RenderSettings};
 use crate::gpu::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass};
-use crate::guide::sarsa::Atomics;
 use crate::guide::SarsaGuide;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
@@ -30,8 +29,11 @@ fn run(
             &empty
         }
     };
-    let cas = guide.settings.atomics == Atomics::Cas || !ctx.info().float_atomics;
-    let spirv = if cas { spirv::PROBE_CAS } else { spirv::PROBE };
+    let spirv = if guide.settings.use_float_atomics(ctx.info())? {
+        spirv::PROBE
+    } else {
+        spirv::PROBE_CAS
+    };
     let pipeline = ComputePipeline::new(ctx, "probe", spirv, size_of::<PassParams>() as u32)?;
     let mut bindings = gpu_scene.bindings().to_vec();
     bindings.extend([
