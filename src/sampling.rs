@@ -2,7 +2,7 @@
 //! map that the guides' sector grids are built on.
 
 use glam::{Vec2, Vec3};
-use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+use std::f32::consts::{FRAC_PI_2, FRAC_PI_4};
 
 /// Orthonormal basis (t, b) around the unit normal n (Duff et al. 2017).
 pub fn make_frame(n: Vec3) -> (Vec3, Vec3) {
@@ -73,14 +73,10 @@ pub fn sample_cosine(u: Vec2) -> Vec3 {
     Vec3::new(d.x, d.y, (1.0 - d.length_squared()).max(0.0).sqrt())
 }
 
-/// Solid angle of each of the n sectors of the equal-area grid.
-pub fn sector_solid_angle(sectors: u32) -> f32 {
-    2.0 * PI / sectors as f32
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f32::consts::PI;
 
     fn grid(n: usize) -> impl Iterator<Item = Vec2> {
         (0..n).flat_map(move |i| {

@@ -167,10 +167,6 @@ impl Buffer {
     pub fn size(&self) -> u64 {
         self.size
     }
-
-    pub fn name(&self) -> &str {
-        &self.name
-    }
 }
 
 impl Drop for Buffer {

@@ -63,11 +63,6 @@ impl Profiler {
         })
     }
 
-    /// Whether this device can time passes at all.
-    pub fn enabled(&self) -> bool {
-        self.pool.is_some()
-    }
-
     pub(super) fn reset(&mut self, cmd: vk::CommandBuffer) {
         self.pending.clear();
         if let Some(pool) = self.pool {
