@@ -7,7 +7,6 @@
 #extension GL_EXT_shader_atomic_float : require
 #endif
 
-layout(std430, set = 0, binding = B_VOLUMES) readonly buffer Volumes { Volume volumes[]; };
 layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_CDF) readonly buffer Cdf { float cdf[]; };
 layout(std430, set = 0, binding = B_IRRADIANCE) readonly buffer Irradiance { float irradiance[]; };
@@ -17,12 +16,11 @@ layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[];
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint target_sum_bits[]; };
 #endif
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
-layout(std430, set = 0, binding = B_GRID) readonly buffer Grid {
-    GridHeader grid;
-    uvec2 grid_ranges[];
-};
+// The per-triangle lookup tables of src/guide/lookup.rs.
+layout(std430, set = 0, binding = B_LOOKUP_TRIANGLES) readonly buffer LookupTriangles { uvec2 lookup_triangles[]; };
+layout(std430, set = 0, binding = B_LOOKUP_CELLS) readonly buffer LookupCells { uvec2 lookup_cells[]; };
 // (volume position, volume index bits) per list entry.
-layout(std430, set = 0, binding = B_GRID_ITEMS) readonly buffer GridItems { vec4 grid_items[]; };
+layout(std430, set = 0, binding = B_LOOKUP_ITEMS) readonly buffer LookupItems { vec4 lookup_items[]; };
 
 uint grid_a() {
     return params.sector_grid & 0xffffu;
@@ -36,88 +34,43 @@ uint sector_count() {
     return grid_a() * grid_b();
 }
 
-// Class of a query normal: 2 * dominant axis + (component < 0); ties go to
-// the lower axis, as in src/guide/grid.rs.
-uint normal_class(vec3 n) {
-    vec3 a = abs(n);
-    uint axis = (a.x >= a.y && a.x >= a.z) ? 0u : (a.y >= a.z ? 1u : 2u);
-    return 2u * axis + (n[axis] < 0.0 ? 1u : 0u);
-}
-
-// The k-d tree search: exact everywhere, used where the grid has no list.
-uint nearest_volume_kd(vec3 p, vec3 n) {
+// Exact nearest volume to p, a point shading the front (or back) side of
+// triangle `index`, among the volumes facing that side; NO_VOLUME if none.
+// The triangle's cell holds the answer, or a short list that does.
+uint nearest_volume(uint index, Triangle tri, vec3 p, bool front) {
+    uvec2 t = lookup_triangles[index];
+    uint nu = t.y & 0xffffu;
+    uint nv = t.y >> 16;
+    uint cell = t.x + (front ? 0u : nu * nv);
+    if (nu * nv > 1u) {
+        // Barycentric coordinates of p; its offset along the normal drops out.
+        vec3 q = p - tri.v0;
+        float d00 = dot(tri.e1, tri.e1);
+        float d01 = dot(tri.e1, tri.e2);
+        float d11 = dot(tri.e2, tri.e2);
+        float d20 = dot(q, tri.e1);
+        float d21 = dot(q, tri.e2);
+        float inv = 1.0 / (d00 * d11 - d01 * d01);
+        vec2 uv = vec2(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv;
+        uvec2 c = uvec2(clamp(uv * vec2(nu, nv), vec2(0.0), vec2(nu - 1u, nv - 1u)));
+        cell += c.x + nu * c.y;
+    }
+    uvec2 entry = lookup_cells[cell];
+    if (entry.y == 0u) {
+        return entry.x;
+    }
     uint best = NO_VOLUME;
     float best_d2 = FAR;
-    uint stack_lo[KD_STACK_SIZE];
-    uint stack_hi[KD_STACK_SIZE];
-    float stack_d2[KD_STACK_SIZE];
-    uint top = 0u;
-    if (params.volume_count > 0u) {
-        stack_lo[0] = 0u;
-        stack_hi[0] = params.volume_count;
-        stack_d2[0] = 0.0;
-        top = 1u;
-    }
-    while (top > 0u) {
-        --top;
-        uint lo = stack_lo[top];
-        uint hi = stack_hi[top];
-        if (lo >= hi || stack_d2[top] >= best_d2) {
-            continue;
-        }
-        uint m = (lo + hi) / 2u;
-        Volume v = volumes[m];
-        vec3 d = v.position - p;
+    for (uint i = entry.x; i < entry.x + entry.y; ++i) {
+        vec4 item = lookup_items[i];
+        vec3 d = item.xyz - p;
         float d2 = dot(d, d);
-        if (d2 < best_d2 && dot(v.normal, n) > 0.0) {
-            best = m;
+        if (d2 < best_d2) {
+            best = floatBitsToUint(item.w);
             best_d2 = d2;
         }
-        if (v.axis == KD_LEAF) {
-            continue;
-        }
-        float diff = p[v.axis] - v.position[v.axis];
-        // Far side first, so the near side is searched next.
-        stack_lo[top] = diff < 0.0 ? m + 1u : lo;
-        stack_hi[top] = diff < 0.0 ? hi : m;
-        stack_d2[top] = diff * diff;
-        stack_lo[top + 1u] = diff < 0.0 ? lo : m + 1u;
-        stack_hi[top + 1u] = diff < 0.0 ? m : hi;
-        stack_d2[top + 1u] = 0.0;
-        top += 2u;
     }
     return best;
-}
-
-// Exact nearest volume to p among those facing the same way as n (so a point
-// never uses a volume on the other side of a thin wall); NO_VOLUME if none.
-// The grid's list for p's cell and n's class holds the answer when it exists.
-uint nearest_volume(vec3 p, vec3 n) {
-    vec3 g = (p - grid.origin) * grid.inv_cell;
-    if (all(greaterThanEqual(g, vec3(0.0))) && all(lessThan(g, vec3(grid.dims)))) {
-        uvec3 c = min(uvec3(g), grid.dims - 1u);
-        uint cell = c.x + grid.dims.x * (c.y + grid.dims.y * c.z);
-        uvec2 range = grid_ranges[cell * NORMAL_CLASSES + normal_class(n)];
-        if (range.y != GRID_FALLBACK) {
-            uint best = NO_VOLUME;
-            float best_d2 = FAR;
-            for (uint i = range.x; i < range.x + range.y; ++i) {
-                vec4 item = grid_items[i];
-                vec3 d = item.xyz - p;
-                float d2 = dot(d, d);
-                // The normal is read only for a candidate that would win.
-                if (d2 < best_d2) {
-                    uint j = floatBitsToUint(item.w);
-                    if (dot(volumes[j].normal, n) > 0.0) {
-                        best = j;
-                        best_d2 = d2;
-                    }
-                }
-            }
-            return best;
-        }
-    }
-    return nearest_volume_kd(p, n);
 }
 
 // P(sector k) of volume v's distribution (the CDF is inclusive).
@@ -126,18 +79,16 @@ float sector_probability(uint v, uint k) {
     return cdf[base + k] - (k > 0u ? cdf[base + k - 1u] : 0.0);
 }
 
-// First sector whose inclusive CDF exceeds u.
+// First sector whose inclusive CDF exceeds u. The loop runs the same
+// ceil(log2 n) steps in every invocation, so SIMD lanes never diverge.
 uint pick_sector(uint v, float u) {
     uint base = v * sector_count();
     uint lo = 0u;
-    uint hi = sector_count() - 1u;
-    while (lo < hi) {
-        uint mid = (lo + hi) / 2u;
-        if (cdf[base + mid] > u) {
-            hi = mid;
-        } else {
-            lo = mid + 1u;
-        }
+    uint n = sector_count();
+    while (n > 1u) {
+        uint half_n = n / 2u;
+        lo = cdf[base + lo + half_n - 1u] <= u ? lo + half_n : lo;
+        n -= half_n;
     }
     return lo;
 }
@@ -162,26 +113,34 @@ float guide_pdf(uint v, vec3 local) {
 }
 
 // A local direction from the mixture, and the sector it lies in; u = three
-// uniform numbers.
+// uniform numbers. Both branches go through one concentric map, so SIMD lanes
+// that took different branches share its cost.
 vec3 guide_sample(uint v, vec3 u, out uint sector) {
-    if (v == NO_VOLUME || u.z < params.guide_epsilon) {
-        vec3 w = sample_cosine(u.xy);
-        sector = hemisphere_sector(w, grid_a(), grid_b());
-        return w;
-    }
-    // Reuse u.z, rescaled, to pick the sector.
-    float us = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon);
-    uint k = pick_sector(v, min(us, 0.99999994));
+    bool guided = v != NO_VOLUME && u.z >= params.guide_epsilon;
     uint a = grid_a();
-    uint i = k % a;
-    uint j = k / a;
-    // Keep clear of the cell's edges: rounding in the map must not move the
-    // direction into a neighbouring sector, so that k is the sector guide_pdf
-    // finds for it. (The strip left out is 2e-5 of the cell.)
-    vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
-    vec2 cell = vec2((float(i) + inner.x) / float(a), (float(j) + inner.y) / float(grid_b()));
-    sector = k;
-    return square_to_hemisphere(cell);
+    vec2 s = u.xy;
+    if (guided) {
+        // Reuse u.z, rescaled, to pick the sector.
+        float us = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon);
+        uint k = pick_sector(v, min(us, 0.99999994));
+        // Keep clear of the cell's edges: rounding in the map must not move the
+        // direction into a neighbouring sector, so that k is the sector guide_pdf
+        // finds for it. (The strip left out is 2e-5 of the cell.)
+        vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
+        s = vec2((float(k % a) + inner.x) / float(a), (float(k / a) + inner.y) / float(grid_b()));
+        sector = k;
+    }
+    vec2 d = square_to_disk(s);
+    float r2 = dot(d, d);
+    if (guided) {
+        return vec3(d * sqrt(max(0.0, 2.0 - r2)), 1.0 - r2);
+    }
+    // Cosine sample (Malley). The concentric map keeps the angle, so its
+    // equal-area square point is the disk's square point scaled by
+    // 1 / sqrt(1 + z): the sector needs no inverse map.
+    float z = sqrt(max(0.0, 1.0 - r2));
+    sector = square_sector(0.5 + (u.xy - 0.5) / sqrt(1.0 + z), a, grid_b());
+    return vec3(d, z);
 }
 
 // Expected Sarsa target for a bounce that reached a surface y with volume vy:

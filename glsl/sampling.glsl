@@ -63,12 +63,16 @@ vec2 hemisphere_to_square(vec3 w) {
     return disk_to_square(w.xy / sqrt(1.0 + z));
 }
 
+// Sector of a point of the unit square in an a x b grid.
+uint square_sector(vec2 u, uint a, uint b) {
+    uint i = min(uint(max(u.x, 0.0) * float(a)), a - 1u);
+    uint j = min(uint(max(u.y, 0.0) * float(b)), b - 1u);
+    return i + a * j;
+}
+
 // Sector of a local direction in an a x b grid over the square.
 uint hemisphere_sector(vec3 w, uint a, uint b) {
-    vec2 u = hemisphere_to_square(w);
-    uint i = min(uint(u.x * float(a)), a - 1u);
-    uint j = min(uint(u.y * float(b)), b - 1u);
-    return i + a * j;
+    return square_sector(hemisphere_to_square(w), a, b);
 }
 
 // Cosine-weighted direction (Malley's method on the concentric disk).

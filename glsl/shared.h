@@ -18,15 +18,15 @@
 #define B_STATS 6
 #define B_PROBE_IN 7
 #define B_PROBE_OUT 8
-#define B_VOLUMES 9
-#define B_Q 10
-#define B_CDF 11
-#define B_SUM 12
-#define B_VISITS 13
-#define B_VISITS_TOTAL 14
-#define B_IRRADIANCE 15
-#define B_GRID 16
-#define B_GRID_ITEMS 17
+#define B_Q 9
+#define B_CDF 10
+#define B_SUM 11
+#define B_VISITS 12
+#define B_VISITS_TOTAL 13
+#define B_IRRADIANCE 14
+#define B_LOOKUP_TRIANGLES 15
+#define B_LOOKUP_CELLS 16
+#define B_LOOKUP_ITEMS 17
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -47,13 +47,6 @@
 #define KD_LEAF 3
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
-// Entries of the k-d search stack: depth + 1 for the 2^22 volumes allowed.
-#define KD_STACK_SIZE 24
-// Lookup grid (src/guide/grid.rs): classes of query normals, the list length
-// that means "use the k-d tree", and the longest list kept.
-#define NORMAL_CLASSES 6
-#define GRID_FALLBACK 0xffffffffu
-#define GRID_MAX_LIST 96
 
 // Most sample passes recorded into one submit; each has its PassStats slot
 // (pass_index % MAX_BATCH).
@@ -74,7 +67,6 @@
 #define SIZEOF_PASS_STATS 32
 #define SIZEOF_PASS_PARAMS 128
 #define SIZEOF_VOLUME 32
-#define SIZEOF_GRID_HEADER 32
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -165,14 +157,6 @@ struct Volume {
     uint axis;         // splitting coordinate, or KD_LEAF
     vec3 normal;
     float pad;
-};
-
-// Start of the lookup-grid buffer; the (start, count) ranges follow it.
-struct GridHeader {
-    vec3 origin;
-    float inv_cell;
-    uvec3 dims;
-    uint pad;
 };
 
 #endif

@@ -133,7 +133,7 @@ void main() {
         vec3 position = origin + hit.t * dir + ns * eps;
         vec3 albedo = mat.albedo.rgb;
 #ifdef METHOD_SARSA
-        uint volume = nearest_volume(position, ns);
+        uint volume = nearest_volume(hit.triangle, tri, position, cos_out > 0.0);
         if (learn) {
             float target = sarsa_surface_target(volume, luminance(albedo));
             learn_bounce(prev_volume, prev_sector, target, td_sq_sum, td_count);

@@ -114,16 +114,6 @@ pub struct Volume {
     pub pad: f32,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
-pub struct GridHeader {
-    pub origin: [f32; 3],
-    pub inv_cell: f32,
-    pub dims: [u32; 3],
-    pub pad: u32,
-}
-
-const _: () = assert!(size_of::<GridHeader>() == SIZEOF_GRID_HEADER as usize);
 const _: () = assert!(size_of::<BvhNode>() == SIZEOF_BVH_NODE as usize);
 const _: () = assert!(size_of::<Triangle>() == SIZEOF_TRIANGLE as usize);
 const _: () = assert!(size_of::<Material>() == SIZEOF_MATERIAL as usize);

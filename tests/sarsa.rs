@@ -6,41 +6,47 @@ mod common;
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
+use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
-use qtrace::render::probe::{self, Transition};
+use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
 use std::f64::consts::PI;
 
-/// Queries where the renderer makes them (on surfaces, just off them along
-/// either side's normal, with the normal of that side or a random one) and
-/// anywhere in the scene's box (where the grid falls back to the k-d tree).
-fn lookup_queries(scene: &qtrace::Scene, count: usize, rng: &mut Lcg) -> Vec<(Vec3, Vec3)> {
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for t in &scene.triangles {
-        lo = lo.min(Vec3::from(t.v0));
-        hi = hi.max(Vec3::from(t.v0));
-    }
+/// Points where the renderer looks volumes up: on random triangles, one ray
+/// offset off either side; a third of them on or just past an edge or corner,
+/// where rounding decides the cell.
+fn lookup_queries(scene: &qtrace::Scene, count: usize, rng: &mut Lcg) -> Vec<SurfacePoint> {
+    let surfaces: Vec<u32> = (0..scene.triangles.len() as u32)
+        .filter(|&i| scene.triangles[i as usize].light_pdf == 0.0)
+        .collect();
     (0..count)
         .map(|i| {
-            let random_normal = (Vec3::new(rng.next(), rng.next(), rng.next()) - 0.5).normalize();
-            if i % 4 == 3 {
-                let u = Vec3::new(rng.next(), rng.next(), rng.next());
-                return (lo + u * (hi - lo), random_normal);
-            }
-            let t = &scene.triangles[rng.below(scene.triangles.len() as u32) as usize];
+            let triangle = surfaces[rng.below(surfaces.len() as u32) as usize];
+            let t = &scene.triangles[triangle as usize];
             let (mut a, mut b) = (rng.next(), rng.next());
             if a + b > 1.0 {
                 (a, b) = (1.0 - a, 1.0 - b);
             }
+            match i % 6 {
+                0 => a = -1e-6 * rng.next(),
+                1 => b = 1.0 - a + 1e-6 * rng.next(),
+                2 => (a, b) = ([0.0, 1.0, 0.0][i % 3], [0.0, 0.0, 1.0][i % 3]),
+                _ => {}
+            }
             let n = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize();
-            let side = if rng.next() < 0.5 { n } else { -n };
-            let p = Vec3::from(t.v0)
+            let front = rng.next() < 0.5;
+            let side = if front { n } else { -n };
+            let position = Vec3::from(t.v0)
                 + a * Vec3::from(t.e1)
                 + b * Vec3::from(t.e2)
-                + side * 1e-5 * scene.extent;
-            (p, if i % 4 == 2 { random_normal } else { side })
+                + side * scene.ray_offset();
+            SurfacePoint {
+                position,
+                triangle,
+                front,
+            }
         })
         .collect()
 }
@@ -53,37 +59,37 @@ fn check_lookup(scene_name: &str, volumes_count: u32, queries: usize) {
         ..Default::default()
     };
     let guide = SarsaGuide::new(&ctx, &scene, &s, 3).unwrap();
-    let grid = qtrace::guide::grid::LookupGrid::build(&scene, &guide.volumes);
-    assert!(grid.coverage() > 0.0, "the grid serves no cell");
+    let lookup = VolumeLookup::build(&scene, &guide.volumes);
     let mut rng = Lcg(5);
     let queries = lookup_queries(&scene, queries, &mut rng);
     let gpu = probe::nearest_volumes(&ctx, &scene, &guide, &queries).unwrap();
     common::assert_no_validation_errors(&ctx);
     let vols = &guide.volumes;
     let dist = |i: u32, p: Vec3| Vec3::from(vols[i as usize].position).distance(p);
-    for ((p, n), g) in queries.iter().zip(&gpu) {
-        let b = volumes::nearest_brute(vols, *p, *n);
-        let c = grid.nearest(vols, *p, *n);
+    for (q, g) in queries.iter().zip(&gpu) {
+        let t = &scene.triangles[q.triangle as usize];
+        let n = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize();
+        let side = if q.front { n } else { -n };
+        let p = q.position;
+        let b = volumes::nearest_brute(vols, p, side);
+        let c = lookup.nearest(&scene, vols, q.triangle, q.front, p);
         match (b, *g, c) {
             (None, None, None) => {}
             (Some(b), Some(g), Some(c)) => {
-                let db = dist(b, *p);
+                let db = dist(b, p);
+                // Equal up to float rounding of near ties.
+                for (who, d) in [("GPU", dist(g, p)), ("CPU lookup", dist(c, p))] {
+                    assert!(
+                        (d - db).abs() <= 1e-5 * db,
+                        "{scene_name} {q:?}: {who} found {d}, brute force {db}"
+                    );
+                }
                 assert!(
-                    (dist(g, *p) - db).abs() <= 1e-3 * db.max(1.0),
-                    "{scene_name} query {p} {n}: GPU {} vs brute force {db}",
-                    dist(g, *p)
-                );
-                assert_eq!(
-                    dist(c, *p),
-                    db,
-                    "{scene_name} query {p} {n}: CPU grid disagrees"
-                );
-                assert!(
-                    volumes::faces_same_way(&vols[g as usize], *n),
+                    volumes::faces_same_way(&vols[g as usize], side),
                     "GPU used a volume facing away"
                 );
             }
-            other => panic!("{scene_name} query {p} {n}: brute force, GPU, grid = {other:?}"),
+            other => panic!("{scene_name} {q:?}: brute force, GPU, CPU lookup = {other:?}"),
         }
     }
 }

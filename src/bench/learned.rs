@@ -4,7 +4,8 @@
 use crate::gpu::GpuContext;
 use crate::guide::SarsaGuide;
 use crate::image::Image;
-use crate::render::{probe, RenderError};
+use crate::render::probe::{self, SurfacePoint};
+use crate::render::RenderError;
 use crate::sampling;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
@@ -48,13 +49,24 @@ pub fn voronoi(
     let mut shade = Vec::new();
     for ((o, d), (hit, _)) in rays.iter().zip(&hits) {
         if let Some((t, tri)) = hit {
-            let tri = &scene.triangles[*tri as usize];
-            let n = Vec3::from(tri.e1).cross(Vec3::from(tri.e2)).normalize();
-            let n = if n.dot(*d) < 0.0 { n } else { -n };
-            queries.push((*o + *d * *t + n * 1e-5 * scene.extent, n));
+            let triangle = &scene.triangles[*tri as usize];
+            let n = Vec3::from(triangle.e1)
+                .cross(Vec3::from(triangle.e2))
+                .normalize();
+            let front = n.dot(*d) < 0.0;
+            let n = if front { n } else { -n };
+            queries.push(SurfacePoint {
+                position: *o + *d * *t + n * scene.ray_offset(),
+                triangle: *tri,
+                front,
+            });
             shade.push(0.35 + 0.65 * n.dot(-*d).abs());
         } else {
-            queries.push((Vec3::ZERO, Vec3::ZERO));
+            queries.push(SurfacePoint {
+                position: Vec3::ZERO,
+                triangle: 0,
+                front: true,
+            });
             shade.push(0.0);
         }
     }

@@ -1,7 +1,7 @@
 //! Learned guides: where light comes from, learned while rendering, used to
 //! importance-sample bounce directions.
 
-pub mod grid;
+pub mod lookup;
 pub mod sarsa;
 pub mod volumes;
 

@@ -1,13 +1,13 @@
 //! Expected Sarsa guiding (SPEC §4.2): Q-values in radiance volumes, updated
 //! by atomic accumulation during a sample pass and folded between passes.
 
-use super::grid::LookupGrid;
+use super::lookup::VolumeLookup;
 use super::volumes;
 use crate::gpu::{
     self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
 };
 use crate::scene::Scene;
-use crate::shaders::{self, spirv, GridHeader, PassParams, Volume};
+use crate::shaders::{self, spirv, PassParams, Volume};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -80,13 +80,20 @@ impl Default for SarsaSettings {
     }
 }
 
-/// Most volumes a guide may hold (the k-d search stack is sized for it).
+/// Most volumes a guide may hold.
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
-/// Device bytes per volume for an n-sector grid: the volume itself, Q, CDF,
-/// target sums, new and total visit counts per sector, and one irradiance value.
+/// Device bytes per volume for an n-sector grid: Q, CDF, target sums, new and
+/// total visit counts per sector, and one irradiance value.
+fn table_bytes_per_volume(sectors: u32) -> u64 {
+    5 * 4 * sectors as u64 + 4
+}
+
+/// What the memory budget counts per volume: its tables and about 16 lookup
+/// cells (cells are half the volume spacing; small triangles add their own,
+/// which `SarsaGuide::bytes` reports).
 pub fn bytes_per_volume(sectors: u32) -> u64 {
-    size_of::<Volume>() as u64 + 5 * 4 * sectors as u64 + 4
+    table_bytes_per_volume(sectors) + 16 * 8
 }
 
 impl SarsaSettings {
@@ -175,16 +182,16 @@ impl SarsaSettings {
 pub struct SarsaGuide {
     pub volumes: Vec<Volume>,
     pub settings: SarsaSettings,
-    volume_buf: Buffer,
     q: Buffer,
     cdf: Buffer,
     sum: Buffer,
     visits: Buffer,
     visits_total: Buffer,
     irradiance: Buffer,
-    grid_buf: Buffer,
-    grid_items: Buffer,
-    grid_bytes: u64,
+    lookup_triangles: Buffer,
+    lookup_cells: Buffer,
+    lookup_items: Buffer,
+    lookup_bytes: u64,
     fold: ComputePipeline,
     build: ComputePipeline,
     fold_set: DescriptorSet,
@@ -203,60 +210,59 @@ impl SarsaGuide {
         let mut vols = volumes::place(scene, count as usize, seed as u64);
         volumes::build_kd_tree(&mut vols);
         let start = std::time::Instant::now();
-        let grid = LookupGrid::build(scene, &vols);
+        let lookup = VolumeLookup::build(scene, &vols);
         log::info!(
-            "lookup grid {}x{}x{}: {:.1}% of cell classes listed, mean list {:.1}, built in {:.2} s",
-            grid.dims.x,
-            grid.dims.y,
-            grid.dims.z,
-            100.0 * grid.coverage(),
-            grid.mean_list_length(),
+            "volume lookup: {} cells, {:.2} volumes per cell, {:.1} MiB, built in {:.2} s",
+            lookup.cells.len(),
+            lookup.mean_candidates(),
+            lookup.bytes() as f64 / (1024.0 * 1024.0),
             start.elapsed().as_secs_f64()
         );
-        Self::from_volumes(ctx, vols, Some(&grid), settings)
+        Self::from_volumes(ctx, vols, Some(&lookup), settings)
     }
 
-    /// A guide over given volumes (already in k-d tree order); without a grid
-    /// every lookup searches the k-d tree.
+    /// A guide over given volumes (already in k-d tree order); without a
+    /// lookup, kernels must not look volumes up.
     pub fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
-        grid: Option<&LookupGrid>,
+        lookup: Option<&VolumeLookup>,
         settings: &SarsaSettings,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
         let cells = vols.len() as u64 * n;
         let initial = vec![settings.initial_q; cells as usize];
         let push = size_of::<PassParams>() as u32;
-        let volume_buf = Buffer::gpu_only_with(ctx, "radiance volumes", &vols)?;
         let q = Buffer::gpu_only_with(ctx, "sarsa Q", &initial)?;
         let cdf = Buffer::gpu_only(ctx, "sarsa CDF", cells * 4)?;
         let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
         let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
-        let mut grid_words: Vec<u32> = Vec::new();
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
-        let mut grid_items: Vec<[f32; 4]> = Vec::new();
-        match grid {
-            Some(g) => {
-                grid_words.extend_from_slice(bytemuck::cast_slice(&[g.header()]));
-                grid_words.extend(g.ranges.iter().flatten());
-                grid_items.extend(g.items.iter().map(|&j| {
-                    let p = vols[j as usize].position;
-                    [p[0], p[1], p[2], f32::from_bits(j)]
-                }));
-            }
-            None => grid_words.extend_from_slice(bytemuck::cast_slice(&[GridHeader::default()])),
-        }
-        let grid_bytes = 4 * grid_words.len() as u64 + 16 * grid_items.len() as u64;
-        let grid_buf = Buffer::gpu_only_with(ctx, "volume lookup grid", &grid_words)?;
-        let grid_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &grid_items)?;
+        let empty = VolumeLookup {
+            triangles: vec![[0, 1 | (1 << 16)]],
+            cells: vec![[shaders::NO_VOLUME, 0]; 2],
+            items: Vec::new(),
+        };
+        let lookup = lookup.unwrap_or(&empty);
+        let items: Vec<[f32; 4]> = lookup
+            .items
+            .iter()
+            .map(|&j| {
+                let p = vols[j as usize].position;
+                [p[0], p[1], p[2], f32::from_bits(j)]
+            })
+            .collect();
+        let lookup_bytes = lookup.bytes();
+        let lookup_triangles =
+            Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
+        let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
+        let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
         let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
         let bindings = [
-            (shaders::B_VOLUMES, &volume_buf),
             (shaders::B_Q, &q),
             (shaders::B_CDF, &cdf),
             (shaders::B_SUM, &sum),
@@ -269,16 +275,16 @@ impl SarsaGuide {
         let guide = Self {
             volumes: vols,
             settings: settings.clone(),
-            volume_buf,
             q,
             cdf,
             sum,
             visits,
             visits_total,
             irradiance,
-            grid_buf,
-            grid_items,
-            grid_bytes,
+            lookup_triangles,
+            lookup_cells,
+            lookup_items,
+            lookup_bytes,
             fold,
             build,
             fold_set,
@@ -298,15 +304,15 @@ impl SarsaGuide {
     /// Buffers every kernel that reads or updates the guide binds.
     pub fn bindings(&self) -> [(u32, &Buffer); 9] {
         [
-            (shaders::B_VOLUMES, &self.volume_buf),
             (shaders::B_Q, &self.q),
             (shaders::B_CDF, &self.cdf),
             (shaders::B_SUM, &self.sum),
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
             (shaders::B_IRRADIANCE, &self.irradiance),
-            (shaders::B_GRID, &self.grid_buf),
-            (shaders::B_GRID_ITEMS, &self.grid_items),
+            (shaders::B_LOOKUP_TRIANGLES, &self.lookup_triangles),
+            (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
+            (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
         ]
     }
 
@@ -368,7 +374,8 @@ impl SarsaGuide {
 
     /// Device memory the guide holds.
     pub fn bytes(&self) -> u64 {
-        self.volumes.len() as u64 * bytes_per_volume(self.settings.sectors()) + self.grid_bytes
+        self.volumes.len() as u64 * table_bytes_per_volume(self.settings.sectors())
+            + self.lookup_bytes
     }
 
     /// Current Q-values, volume-major.

@@ -149,6 +149,45 @@ pub fn nearest_where(volumes: &[Volume], p: Vec3, accept: impl Fn(&Volume) -> bo
     best.map(|(_, i)| i)
 }
 
+fn dmin2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
+    (lo - p).max(p - hi).max(Vec3::ZERO).length_squared()
+}
+
+/// Calls `f` with every volume (k-d tree order) whose squared distance to the
+/// box [lo, hi] is at most `r2`, until `f` returns false.
+pub fn within_box_distance(
+    volumes: &[Volume],
+    lo: Vec3,
+    hi: Vec3,
+    r2: f32,
+    f: &mut dyn FnMut(u32) -> bool,
+) {
+    let mut stack = vec![(0usize, volumes.len())];
+    while let Some((a, b)) = stack.pop() {
+        if a >= b {
+            continue;
+        }
+        let m = (a + b) / 2;
+        let v = &volumes[m];
+        let p = Vec3::from(v.position);
+        if dmin2(lo, hi, p) <= r2 && !f(m as u32) {
+            return;
+        }
+        if v.axis == KD_LEAF {
+            continue;
+        }
+        let axis = v.axis as usize;
+        let r = r2.sqrt();
+        // Left subtree holds coordinates <= the split, right >= it.
+        if lo[axis] - r <= p[axis] {
+            stack.push((a, m));
+        }
+        if hi[axis] + r >= p[axis] {
+            stack.push((m + 1, b));
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -74,8 +74,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         flags |= shaders::FLAG_UNIFORM;
     }
     PassParams {
-        // Ray offset: small against the scene, large against float error.
-        cam_pos: c.position.extend(scene.extent * 1e-5).into(),
+        cam_pos: c.position.extend(scene.ray_offset()).into(),
         cam_right: (c.right * t * aspect).extend(0.0).into(),
         cam_up: (c.up * t).extend(0.0).into(),
         cam_forward: c.forward.extend(0.0).into(),

@@ -109,16 +109,30 @@ pub fn hemisphere(
     Ok(out.iter().map(|v| (v.truncate(), v.w as u32)).collect())
 }
 
-/// GPU nearest volume (facing the same way) for each (point, normal).
+/// A point shading one side of a triangle, where the renderer looks a volume up.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    pub position: Vec3,
+    pub triangle: u32,
+    pub front: bool,
+}
+
+/// GPU nearest volume (facing the shaded side) for each surface point.
 pub fn nearest_volumes(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     guide: &SarsaGuide,
-    queries: &[(Vec3, Vec3)],
+    queries: &[SurfacePoint],
 ) -> Result<Vec<Option<u32>>, RenderError> {
     let input: Vec<Vec4> = queries
         .iter()
-        .flat_map(|(p, n)| [p.extend(0.0), n.extend(0.0)])
+        .flat_map(|q| {
+            let side = if q.front { 1.0 } else { 0.0 };
+            [
+                q.position.extend(0.0),
+                Vec4::new(f32::from_bits(q.triangle), side, 0.0, 0.0),
+            ]
+        })
         .collect();
     let out = run(
         ctx,

@@ -138,6 +138,12 @@ fn check_color(path: &Path, what: &str, c: [f32; 3]) -> Result<Vec3, SceneError>
 }
 
 impl Scene {
+    /// How far rays start off the surface they leave: small against the
+    /// scene, large against float error.
+    pub fn ray_offset(&self) -> f32 {
+        self.extent * 1e-5
+    }
+
     /// Loads and validates a scene file and everything it names.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SceneError> {
         let path = path.as_ref();

@@ -1,0 +1,268 @@
+//! Exact nearest-volume lookup for points on surfaces.
+//!
+//! The renderer looks a volume up only where a ray hit a triangle, and it
+//! shades one known side of that triangle, so the volumes a point may use
+//! (those facing that side) are fixed per (triangle, side). Each triangle gets
+//! a grid over its barycentric parallelogram, with cells about half the volume
+//! spacing; each cell of each side stores the one volume that is nearest
+//! everywhere in it, or else a short list of the volumes that can be nearest
+//! somewhere in it. The shader finds the cell from the hit's barycentric
+//! coordinates and scans at most that list: no normal tests, no tree walk.
+
+use super::volumes::{faces_same_way, nearest_where, within_box_distance};
+use crate::scene::Scene;
+use crate::shaders::{Triangle, Volume, NO_VOLUME};
+use glam::{Vec2, Vec3};
+
+/// Most cells along one edge of a triangle.
+const MAX_CELLS_PER_EDGE: f32 = 64.0;
+
+pub struct VolumeLookup {
+    /// Per triangle: its front side's first cell (the back side's follow)
+    /// and `nu | nv << 16`, the cells along e1 and e2.
+    pub triangles: Vec<[u32; 2]>,
+    /// Per cell: `[volume, 0]` (possibly NO_VOLUME), or `[first item, count]`
+    /// with count ≥ 2.
+    pub cells: Vec<[u32; 2]>,
+    /// Volume indices of the lists.
+    pub items: Vec<u32>,
+}
+
+/// The cells of one triangle: `nu × nv` for the front, then as many for the back.
+struct TriangleCells {
+    dims: [u32; 2],
+    cells: Vec<[u32; 2]>,
+    items: Vec<u32>,
+}
+
+impl VolumeLookup {
+    /// Tables for `volumes` (in k-d tree order) over the triangles of `scene`.
+    pub fn build(scene: &Scene, volumes: &[Volume]) -> Self {
+        let spacing = (super::volumes::placement_area(scene) / volumes.len().max(1) as f64).sqrt();
+        let cell = (0.5 * spacing) as f32;
+        let tolerance = scene.ray_offset();
+        let triangles = &scene.triangles;
+        // The triangles split into one contiguous share per core.
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let chunk = triangles.len().div_ceil(threads).max(1);
+        let parts: Vec<Vec<TriangleCells>> = std::thread::scope(|s| {
+            let handles: Vec<_> = triangles
+                .chunks(chunk)
+                .map(|part| {
+                    s.spawn(move || {
+                        part.iter()
+                            .map(|t| triangle_cells(t, volumes, cell, tolerance))
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("lookup build thread panicked"))
+                .collect()
+        });
+        let mut lookup = Self {
+            triangles: Vec::with_capacity(triangles.len()),
+            cells: Vec::new(),
+            items: Vec::new(),
+        };
+        for t in parts.into_iter().flatten() {
+            lookup
+                .triangles
+                .push([lookup.cells.len() as u32, t.dims[0] | (t.dims[1] << 16)]);
+            let base = lookup.items.len() as u32;
+            lookup.cells.extend(t.cells.iter().map(|&[a, count]| {
+                if count == 0 {
+                    [a, 0]
+                } else {
+                    [a + base, count]
+                }
+            }));
+            lookup.items.extend(t.items);
+        }
+        lookup
+    }
+
+    /// The shader's search on the CPU: the volume for point `p` shading the
+    /// front (or back) side of triangle `index`.
+    pub fn nearest(
+        &self,
+        scene: &Scene,
+        volumes: &[Volume],
+        index: u32,
+        front: bool,
+        p: Vec3,
+    ) -> Option<u32> {
+        let [first, dims] = self.triangles[index as usize];
+        let (nu, nv) = (dims & 0xffff, dims >> 16);
+        let mut cell = first + if front { 0 } else { nu * nv };
+        if nu * nv > 1 {
+            let uv = barycentric(&scene.triangles[index as usize], p);
+            let c = (uv * Vec2::new(nu as f32, nv as f32))
+                .clamp(Vec2::ZERO, Vec2::new((nu - 1) as f32, (nv - 1) as f32))
+                .as_uvec2();
+            cell += c.x + nu * c.y;
+        }
+        let [a, count] = self.cells[cell as usize];
+        if count == 0 {
+            return Some(a).filter(|&v| v != NO_VOLUME);
+        }
+        self.items[a as usize..(a + count) as usize]
+            .iter()
+            .copied()
+            .min_by(|&i, &j| {
+                let di = Vec3::from(volumes[i as usize].position).distance_squared(p);
+                let dj = Vec3::from(volumes[j as usize].position).distance_squared(p);
+                di.total_cmp(&dj)
+            })
+    }
+
+    /// Mean number of volumes a cell holds (1 for a cell with one answer).
+    pub fn mean_candidates(&self) -> f64 {
+        let total: u64 = self.cells.iter().map(|c| c[1].max(1) as u64).sum();
+        total as f64 / self.cells.len().max(1) as f64
+    }
+
+    /// Bytes of the three tables on the device.
+    pub fn bytes(&self) -> u64 {
+        8 * (self.triangles.len() + self.cells.len()) as u64 + 16 * self.items.len() as u64
+    }
+}
+
+/// Barycentric coordinates (along e1, e2) of the projection of `p` onto the
+/// triangle's plane; the shader computes them the same way.
+pub fn barycentric(t: &Triangle, p: Vec3) -> Vec2 {
+    let (e1, e2) = (Vec3::from(t.e1), Vec3::from(t.e2));
+    let q = p - Vec3::from(t.v0);
+    let (d00, d01, d11) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d20, d21) = (q.dot(e1), q.dot(e2));
+    let inv = 1.0 / (d00 * d11 - d01 * d01);
+    Vec2::new(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv
+}
+
+fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> TriangleCells {
+    let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
+    let n = e1.cross(e2).normalize();
+    let mut out = TriangleCells {
+        dims: [1, 1],
+        cells: Vec::new(),
+        items: Vec::new(),
+    };
+    if t.light_pdf > 0.0 {
+        // Paths end on emitters: nothing looks a volume up there.
+        out.cells = vec![[NO_VOLUME, 0]; 2];
+        return out;
+    }
+    let along = |e: Vec3| (e.length() / cell).ceil().clamp(1.0, MAX_CELLS_PER_EDGE) as u32;
+    let [nu, nv] = [along(e1), along(e2)];
+    out.dims = [nu, nv];
+    for side in [n, -n] {
+        // Query points sit one ray offset off the surface, on the shaded side.
+        let origin = v0 + side * offset;
+        for iv in 0..nv {
+            for iu in 0..nu {
+                let (u0, u1) = (iu as f32 / nu as f32, (iu + 1) as f32 / nu as f32);
+                let (w0, w1) = (iv as f32 / nv as f32, (iv + 1) as f32 / nv as f32);
+                let region: Vec<Vec3> = clip_to_triangle([
+                    Vec2::new(u0, w0),
+                    Vec2::new(u1, w0),
+                    Vec2::new(u1, w1),
+                    Vec2::new(u0, w1),
+                ])
+                .iter()
+                .map(|uv| origin + uv.x * e1 + uv.y * e2)
+                .collect();
+                // Rounding in the hit point and its barycentric coordinates
+                // stays well inside this margin.
+                let margin = 1e-3 * cell + offset;
+                let found = candidates(volumes, &region, margin, |v| faces_same_way(v, side));
+                match found.as_slice() {
+                    [] => out.cells.push([NO_VOLUME, 0]),
+                    [only] => out.cells.push([*only, 0]),
+                    list => {
+                        out.cells.push([out.items.len() as u32, list.len() as u32]);
+                        out.items.extend_from_slice(list);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The part of the cell `quad` (barycentric corners, counter-clockwise) on
+/// the triangle, u + v ≤ 1; a cell beyond the triangle keeps its corner
+/// nearest to it, where rounding can still send a query.
+fn clip_to_triangle(quad: [Vec2; 4]) -> Vec<Vec2> {
+    let inside = |p: Vec2| p.x + p.y <= 1.0;
+    let mut out = Vec::with_capacity(5);
+    for k in 0..4 {
+        let (a, b) = (quad[k], quad[(k + 1) % 4]);
+        if inside(a) {
+            out.push(a);
+        }
+        if inside(a) != inside(b) {
+            let s = (1.0 - a.x - a.y) / ((b.x - a.x) + (b.y - a.y));
+            out.push(a + s * (b - a));
+        }
+    }
+    if out.is_empty() {
+        out.push(quad[0]);
+    }
+    out
+}
+
+/// Volumes `accept` lets through that can be nearest to some point within
+/// `margin` of the convex polygon `region`, nearest to its centre first.
+fn candidates(
+    volumes: &[Volume],
+    region: &[Vec3],
+    margin: f32,
+    accept: impl Fn(&Volume) -> bool + Copy,
+) -> Vec<u32> {
+    let centre = region.iter().copied().sum::<Vec3>() / region.len() as f32;
+    let Some(first) = nearest_where(volumes, centre, accept) else {
+        return Vec::new();
+    };
+    let position = |i: u32| Vec3::from(volumes[i as usize].position);
+    // Every point of the region has a volume no farther than `first` is.
+    let p0 = position(first);
+    let bound = region.iter().map(|q| q.distance(p0)).fold(0.0f32, f32::max) + margin;
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for &q in region {
+        lo = lo.min(q);
+        hi = hi.max(q);
+    }
+    let mut found = Vec::new();
+    within_box_distance(
+        volumes,
+        lo - Vec3::splat(margin),
+        hi + Vec3::splat(margin),
+        bound * bound,
+        &mut |j| {
+            if accept(&volumes[j as usize]) {
+                found.push(j);
+            }
+            true
+        },
+    );
+    found.sort_by(|&a, &b| {
+        centre
+            .distance_squared(position(a))
+            .total_cmp(&centre.distance_squared(position(b)))
+    });
+    // Drop j when some i is nearer at every point within `margin` of the
+    // region: the region's vertices lie more than `margin` inside i's side of
+    // the bisector plane, so all of it does.
+    let dominated = |j: u32| {
+        let pj = position(j);
+        found.iter().any(|&i| {
+            let pi = position(i);
+            let d = pj - pi;
+            let mid = 0.5 * (pi + pj);
+            let limit = -margin * d.length() * (1.0 + 1e-4);
+            i != j && d != Vec3::ZERO && region.iter().all(|&q| (q - mid).dot(d) < limit)
+        })
+    };
+    found.iter().copied().filter(|&j| !dominated(j)).collect()
+}
