@@ -87,6 +87,9 @@ void main() {
     uint prev_volume = NO_VOLUME;
     uint prev_sector = 0u;
     bool learn = (params.flags & FLAG_LEARN) != 0u;
+    // The guide's estimate of the radiance this path's first hit sends to the
+    // camera: the scale Russian roulette compares a path's prospects with.
+    float path_estimate = 0.0;
 #endif
     uint td_count = 0u;
     float td_sq_sum = 0.0;
@@ -134,9 +137,12 @@ void main() {
         vec3 albedo = mat.albedo.rgb;
 #ifdef METHOD_SARSA
         uint volume = nearest_volume(hit.triangle, tri, position, cos_out > 0.0);
+        float outgoing = sarsa_surface_target(volume, luminance(albedo));
+        if (depth == 0u) {
+            path_estimate = outgoing;
+        }
         if (learn) {
-            float target = sarsa_surface_target(volume, luminance(albedo));
-            learn_bounce(prev_volume, prev_sector, target, td_sq_sum, td_count);
+            learn_bounce(prev_volume, prev_sector, outgoing, td_sq_sum, td_count);
         }
 #endif
         if (depth >= params.max_depth) {
@@ -200,6 +206,17 @@ void main() {
 
         if (depth + 1u >= RR_START_DEPTH) {
             float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
+#ifdef METHOD_SARSA
+            // Guided paths toward light carry small weights because their pdf
+            // is high, so throughput alone would end exactly the paths the guide
+            // chose. Survival follows what the path is expected to bring instead:
+            // throughput times the radiance Q expects from the sampled sector,
+            // against the estimate for the whole path (weight window at 1).
+            if (volume != NO_VOLUME && path_estimate > 0.0) {
+                float expected = luminance(throughput) * q_values[volume * sector_count() + prev_sector];
+                q = clamp(expected / path_estimate, 0.1, 0.95);
+            }
+#endif
             if (rng_next(rng) >= q) {
                 break;
             }
