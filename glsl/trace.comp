@@ -209,12 +209,14 @@ void main() {
 #ifdef METHOD_SARSA
             // Guided paths toward light carry small weights because their pdf
             // is high, so throughput alone would end exactly the paths the guide
-            // chose. Survival follows what the path is expected to bring instead:
+            // chose. They also survive by what they are expected to bring:
             // throughput times the radiance Q expects from the sampled sector,
             // against the estimate for the whole path (weight window at 1).
+            // Never below the throughput rule, so a Q that underestimates ends
+            // no more paths than pt would.
             if (volume != NO_VOLUME && path_estimate > 0.0) {
                 float expected = luminance(throughput) * q_values[volume * sector_count() + prev_sector];
-                q = clamp(expected / path_estimate, 0.1, 0.95);
+                q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
             }
 #endif
             if (rng_next(rng) >= q) {
