@@ -8,7 +8,7 @@
 #endif
 
 layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
-layout(std430, set = 0, binding = B_CDF) readonly buffer Cdf { float cdf[]; };
+layout(std430, set = 0, binding = B_SECTORS) readonly buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_IRRADIANCE) readonly buffer Irradiance { float irradiance[]; };
 #ifdef FLOAT_ATOMICS
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
@@ -73,30 +73,15 @@ uint nearest_volume(uint index, Triangle tri, vec3 p, bool front) {
     return best;
 }
 
-// P(sector k) of volume v's distribution (the CDF is inclusive).
+// P(sector k) of volume v's distribution.
 float sector_probability(uint v, uint k) {
-    uint base = v * sector_count();
-    return cdf[base + k] - (k > 0u ? cdf[base + k - 1u] : 0.0);
-}
-
-// First sector whose inclusive CDF exceeds u. The loop runs the same
-// ceil(log2 n) steps in every invocation, so SIMD lanes never diverge.
-uint pick_sector(uint v, float u) {
-    uint base = v * sector_count();
-    uint lo = 0u;
-    uint n = sector_count();
-    while (n > 1u) {
-        uint half_n = n / 2u;
-        lo = cdf[base + lo + half_n - 1u] <= u ? lo + half_n : lo;
-        n -= half_n;
-    }
-    return lo;
+    return sectors[v * sector_count() + k].p;
 }
 
 // Solid-angle pdf of the one-sample mixture epsilon * cosine + (1 - epsilon) * guide
-// for a local direction with cos(theta) = cos_theta lying in sector k; the
-// guide's density in sector k is P(k) * n / (2 pi).
-float guide_pdf_in_sector(uint v, uint k, float cos_theta) {
+// for a local direction with cos(theta) = cos_theta lying in a sector of
+// probability p_sector; the guide's density there is p_sector * n / (2 pi).
+float mixture_pdf(uint v, float p_sector, float cos_theta) {
     if (cos_theta <= 0.0) {
         return 0.0;
     }
@@ -104,25 +89,33 @@ float guide_pdf_in_sector(uint v, uint k, float cos_theta) {
     if (v == NO_VOLUME) {
         return cosine;
     }
-    float guided = sector_probability(v, k) * float(sector_count()) * 0.5 * INV_PI;
+    float guided = p_sector * float(sector_count()) * 0.5 * INV_PI;
     return params.guide_epsilon * cosine + (1.0 - params.guide_epsilon) * guided;
 }
 
 float guide_pdf(uint v, vec3 local) {
-    return guide_pdf_in_sector(v, hemisphere_sector(local, grid_a(), grid_b()), local.z);
+    float p = v == NO_VOLUME ? 0.0 : sector_probability(v, hemisphere_sector(local, grid_a(), grid_b()));
+    return mixture_pdf(v, p, local.z);
 }
 
-// A local direction from the mixture, and the sector it lies in; u = three
-// uniform numbers. Both branches go through one concentric map, so SIMD lanes
-// that took different branches share its cost.
-vec3 guide_sample(uint v, vec3 u, out uint sector) {
+// A local direction from the mixture, the sector it lies in and that
+// sector's probability; u = three uniform numbers. Both branches go through
+// one concentric map, so SIMD lanes that took different branches share it.
+vec3 guide_sample(uint v, vec3 u, out uint sector, out float p_sector) {
     bool guided = v != NO_VOLUME && u.z >= params.guide_epsilon;
+    uint n = sector_count();
     uint a = grid_a();
     vec2 s = u.xy;
+    p_sector = 0.0;
     if (guided) {
-        // Reuse u.z, rescaled, to pick the sector.
-        float us = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon);
-        uint k = pick_sector(v, min(us, 0.99999994));
+        // Alias method: u.z, rescaled to [0, n), picks a column; its fraction
+        // decides between the column's sector and its alias.
+        float x = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon) * float(n);
+        uint k = min(uint(x), n - 1u);
+        SectorEntry e = sectors[v * n + k];
+        bool keep = x - float(k) < e.threshold;
+        k = keep ? k : e.alias;
+        p_sector = keep ? e.p : e.p_alias;
         // Keep clear of the cell's edges: rounding in the map must not move the
         // direction into a neighbouring sector, so that k is the sector guide_pdf
         // finds for it. (The strip left out is 2e-5 of the cell.)
@@ -140,6 +133,9 @@ vec3 guide_sample(uint v, vec3 u, out uint sector) {
     // 1 / sqrt(1 + z): the sector needs no inverse map.
     float z = sqrt(max(0.0, 1.0 - r2));
     sector = square_sector(0.5 + (u.xy - 0.5) / sqrt(1.0 + z), a, grid_b());
+    if (v != NO_VOLUME) {
+        p_sector = sector_probability(v, sector);
+    }
     return vec3(d, z);
 }
 

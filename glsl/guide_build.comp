@@ -1,7 +1,8 @@
 #version 460
 // Per volume: the irradiance-like sum the Sarsa target needs,
-// (2 pi / n) sum_j Q_j cos(theta_j), and the sampling CDF over sectors
-// (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION).
+// (2 pi / n) sum_j Q_j cos(theta_j), and the sampling distribution over
+// sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
+// as an alias table, so a sample costs one read instead of a CDF search.
 
 #include "shared.h"
 #include "sampling.glsl"
@@ -10,8 +11,17 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
-layout(std430, set = 0, binding = B_CDF) buffer Cdf { float cdf[]; };
+layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_IRRADIANCE) writeonly buffer Irradiance { float irradiance[]; };
+
+// First index from `from` on whose column is short of (or, with `large`, at
+// least) one sector's worth, n if none.
+uint next_column(uint base, uint from, uint n, bool large) {
+    while (from < n && (sectors[base + from].threshold >= 1.0) != large) {
+        ++from;
+    }
+    return from;
+}
 
 void main() {
     uint v = gl_GlobalInvocationID.x;
@@ -30,13 +40,43 @@ void main() {
         float cos_k = square_to_hemisphere(centre).z;
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;
-        total += cos_weighted ? q * cos_k : q;
-        cdf[base + k] = total;
+        float w = cos_weighted ? q * cos_k : q;
+        total += w;
+        sectors[base + k].p = w;
     }
     irradiance[v] = weighted * 2.0 * PI / float(n);
     for (uint k = 0u; k < n; ++k) {
         // An all-zero volume samples sectors uniformly.
-        cdf[base + k] = total > 0.0 ? cdf[base + k] / total : float(k + 1u) / float(n);
+        float p = total > 0.0 ? sectors[base + k].p / total : 1.0 / float(n);
+        sectors[base + k] = SectorEntry(p * float(n), k, p, p);
     }
-    cdf[base + n - 1u] = 1.0;
+
+    // Vose's alias construction as one sweep without work lists: short
+    // columns are filled in index order, each from the current tall column l,
+    // which moves on once it has become short itself. A column that becomes
+    // short behind the sweep is filled next; one ahead of it, when reached.
+    uint s = next_column(base, 0u, n, false);
+    uint l = next_column(base, 0u, n, true);
+    uint short_column = s;
+    while (short_column < n && l < n) {
+        float missing = 1.0 - sectors[base + short_column].threshold;
+        sectors[base + short_column].alias = l;
+        float left = sectors[base + l].threshold - missing;
+        sectors[base + l].threshold = left;
+        if (left < 1.0) {
+            uint now_short = l;
+            l = next_column(base, l + 1u, n, true);
+            if (now_short < s) {
+                short_column = now_short;
+                continue;
+            }
+        }
+        s = next_column(base, s + 1u, n, false);
+        short_column = s;
+    }
+    // Columns left over hold one sector's worth up to rounding: they keep
+    // themselves (alias k) or, at threshold >= 1, always do.
+    for (uint k = 0u; k < n; ++k) {
+        sectors[base + k].p_alias = sectors[base + sectors[base + k].alias].p;
+    }
 }

@@ -44,8 +44,9 @@ void main() {
         vec4 q = probe_in[i];
         uint v = floatBitsToUint(q.x);
         uint sector;
-        vec3 w = guide_sample(v, q.yzw, sector);
-        probe_out[i] = vec4(w, guide_pdf_in_sector(v, sector, w.z));
+        float p_sector;
+        vec3 w = guide_sample(v, q.yzw, sector, p_sector);
+        probe_out[i] = vec4(w, mixture_pdf(v, p_sector, w.z));
     } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
         // in = (volume bits, sector bits, next volume bits, albedo or -emitted);
         // out.x = the target recorded

@@ -19,7 +19,7 @@
 #define B_PROBE_IN 7
 #define B_PROBE_OUT 8
 #define B_Q 9
-#define B_CDF 10
+#define B_SECTORS 10
 #define B_SUM 11
 #define B_VISITS 12
 #define B_VISITS_TOTAL 13
@@ -67,6 +67,7 @@
 #define SIZEOF_PASS_STATS 32
 #define SIZEOF_PASS_PARAMS 128
 #define SIZEOF_VOLUME 32
+#define SIZEOF_SECTOR_ENTRY 16
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -157,6 +158,16 @@ struct Volume {
     uint axis;         // splitting coordinate, or KD_LEAF
     vec3 normal;
     float pad;
+};
+
+// One sector of a volume's sampling distribution, as an alias table (Walker):
+// column k keeps itself with probability `threshold`, else gives `alias`;
+// p and p_alias are the two sectors' probabilities, for the pdf.
+struct SectorEntry {
+    float threshold;
+    uint alias;
+    float p;
+    float p_alias;
 };
 
 #endif

@@ -186,8 +186,9 @@ void main() {
 #ifdef METHOD_SARSA
         // Guided sampling: the mixture of cosine and the volume's sector distribution.
         uint sector;
-        vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)), sector);
-        float pdf = guide_pdf_in_sector(volume, sector, local.z);
+        float p_sector;
+        vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+        float pdf = mixture_pdf(volume, p_sector, local.z);
         prev_volume = volume;
         prev_sector = sector;
 #else

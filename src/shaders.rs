@@ -123,6 +123,17 @@ const _: () = assert!(size_of::<Accum>() == SIZEOF_ACCUM as usize);
 const _: () = assert!(size_of::<PassStats>() == SIZEOF_PASS_STATS as usize);
 const _: () = assert!(size_of::<PassParams>() == SIZEOF_PASS_PARAMS as usize);
 const _: () = assert!(size_of::<Volume>() == SIZEOF_VOLUME as usize);
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct SectorEntry {
+    pub threshold: f32,
+    pub alias: u32,
+    pub p: f32,
+    pub p_alias: f32,
+}
+
+const _: () = assert!(size_of::<SectorEntry>() == SIZEOF_SECTOR_ENTRY as usize);
 const _: () = assert!(std::mem::offset_of!(PassParams, width) == 80);
 const _: () = assert!(std::mem::offset_of!(Triangle, e2) == 32);
 // Push constants must fit the 128 bytes every device guarantees.

@@ -104,12 +104,9 @@ fn gpu_nearest_volume_equals_brute_force_on_curved_geometry() {
     check_lookup("complex-direct", 3000, 4000);
 }
 
-/// Sector probabilities of volume `v` from its inclusive CDF.
-fn probabilities(cdf: &[f32], v: usize, n: usize) -> Vec<f64> {
-    let c = &cdf[v * n..(v + 1) * n];
-    (0..n)
-        .map(|k| c[k] as f64 - if k > 0 { c[k - 1] as f64 } else { 0.0 })
-        .collect()
+/// Sector probabilities of volume `v`.
+fn probabilities(p: &[f32], v: usize, n: usize) -> Vec<f64> {
+    p[v * n..(v + 1) * n].iter().map(|&x| x as f64).collect()
 }
 
 /// Regularised upper incomplete gamma Q(a, x) by series/continued fraction
@@ -185,9 +182,9 @@ fn guided_sampler_matches_its_pdf() {
         })
         .collect();
     guide.upload_q(&ctx, &q).unwrap();
-    let cdf = guide.download_cdf().unwrap();
+    let probs = guide.download_probabilities().unwrap();
     let v = 2usize;
-    let p = probabilities(&cdf, v, n);
+    let p = probabilities(&probs, v, n);
 
     let draws = 1_000_000;
     let uniforms: Vec<Vec3> = (0..draws)
@@ -374,11 +371,11 @@ fn check_update(atomics: Atomics) {
         }
         // And the distribution is Q·cos θ_k normalised (the default).
         let cos = sector_cosines(n, s.grid);
-        let cdf = guide.download_cdf().unwrap();
+        let probs = guide.download_probabilities().unwrap();
         for v in 0..6 {
             let w = |k: usize| q[v * n + k] as f64 * cos[k];
             let total: f64 = (0..n).map(w).sum();
-            for (k, pk) in probabilities(&cdf, v, n).iter().enumerate() {
+            for (k, pk) in probabilities(&probs, v, n).iter().enumerate() {
                 let want = w(k) / total;
                 assert!(
                     (pk - want).abs() < 1e-5,

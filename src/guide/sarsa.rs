@@ -7,7 +7,7 @@ use crate::gpu::{
     self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
 };
 use crate::scene::Scene;
-use crate::shaders::{self, spirv, PassParams, Volume};
+use crate::shaders::{self, spirv, PassParams, SectorEntry, Volume};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -83,10 +83,10 @@ impl Default for SarsaSettings {
 /// Most volumes a guide may hold.
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
-/// Device bytes per volume for an n-sector grid: Q, CDF, target sums, new and
-/// total visit counts per sector, and one irradiance value.
+/// Device bytes per volume for an n-sector grid: Q, the alias table, target
+/// sums, new and total visit counts per sector, and one irradiance value.
 fn table_bytes_per_volume(sectors: u32) -> u64 {
-    5 * 4 * sectors as u64 + 4
+    (4 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 4
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
@@ -183,7 +183,7 @@ pub struct SarsaGuide {
     pub volumes: Vec<Volume>,
     pub settings: SarsaSettings,
     q: Buffer,
-    cdf: Buffer,
+    sectors: Buffer,
     sum: Buffer,
     visits: Buffer,
     visits_total: Buffer,
@@ -234,7 +234,11 @@ impl SarsaGuide {
         let initial = vec![settings.initial_q; cells as usize];
         let push = size_of::<PassParams>() as u32;
         let q = Buffer::gpu_only_with(ctx, "sarsa Q", &initial)?;
-        let cdf = Buffer::gpu_only(ctx, "sarsa CDF", cells * 4)?;
+        let sectors = Buffer::gpu_only(
+            ctx,
+            "sarsa sector tables",
+            cells * size_of::<SectorEntry>() as u64,
+        )?;
         let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
@@ -264,7 +268,7 @@ impl SarsaGuide {
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
         let bindings = [
             (shaders::B_Q, &q),
-            (shaders::B_CDF, &cdf),
+            (shaders::B_SECTORS, &sectors),
             (shaders::B_SUM, &sum),
             (shaders::B_VISITS, &visits),
             (shaders::B_VISITS_TOTAL, &visits_total),
@@ -276,7 +280,7 @@ impl SarsaGuide {
             volumes: vols,
             settings: settings.clone(),
             q,
-            cdf,
+            sectors,
             sum,
             visits,
             visits_total,
@@ -305,7 +309,7 @@ impl SarsaGuide {
     pub fn bindings(&self) -> [(u32, &Buffer); 9] {
         [
             (shaders::B_Q, &self.q),
-            (shaders::B_CDF, &self.cdf),
+            (shaders::B_SECTORS, &self.sectors),
             (shaders::B_SUM, &self.sum),
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
@@ -385,11 +389,11 @@ impl SarsaGuide {
         Ok(q)
     }
 
-    /// Current inclusive CDFs, volume-major.
-    pub fn download_cdf(&self) -> gpu::Result<Vec<f32>> {
-        let mut c: Vec<f32> = self.cdf.download()?;
-        c.truncate(self.volumes.len() * self.settings.sectors() as usize);
-        Ok(c)
+    /// Current sector probabilities P(k), volume-major.
+    pub fn download_probabilities(&self) -> gpu::Result<Vec<f32>> {
+        let entries: Vec<SectorEntry> = self.sectors.download()?;
+        let cells = self.volumes.len() * self.settings.sectors() as usize;
+        Ok(entries[..cells].iter().map(|e| e.p).collect())
     }
 
     /// Overwrites Q (tests and tools), then rebuilds the distributions.
