@@ -17,7 +17,6 @@ layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint target_sum_bit
 #endif
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 // The per-triangle lookup tables of src/guide/lookup.rs.
-layout(std430, set = 0, binding = B_LOOKUP_TRIANGLES) readonly buffer LookupTriangles { uvec2 lookup_triangles[]; };
 layout(std430, set = 0, binding = B_LOOKUP_CELLS) readonly buffer LookupCells { uvec2 lookup_cells[]; };
 // (volume position, volume index bits) per list entry.
 layout(std430, set = 0, binding = B_LOOKUP_ITEMS) readonly buffer LookupItems { vec4 lookup_items[]; };
@@ -35,10 +34,13 @@ uint sector_count() {
 }
 
 // Exact nearest volume to p, a point shading the front (or back) side of
-// triangle `index`, among the volumes facing that side; NO_VOLUME if none.
-// The triangle's cell holds the answer, or a short list that does.
-uint nearest_volume(uint index, Triangle tri, vec3 p, bool front) {
-    uvec2 t = lookup_triangles[index];
+// triangle `tri`, among the volumes facing that side; NO_VOLUME if none.
+// The triangle or its cell holds the answer, or a short list that does.
+uint nearest_volume(Triangle tri, vec3 p, bool front) {
+    uvec4 t = tri.lookup;
+    if (t.y == 0u) {
+        return front ? t.z : t.w;
+    }
     uint nu = t.y & 0xffffu;
     uint nv = t.y >> 16;
     uint cell = t.x + (front ? 0u : nu * nv);

@@ -24,9 +24,8 @@
 #define B_VISITS 12
 #define B_VISITS_TOTAL 13
 #define B_IRRADIANCE 14
-#define B_LOOKUP_TRIANGLES 15
-#define B_LOOKUP_CELLS 16
-#define B_LOOKUP_ITEMS 17
+#define B_LOOKUP_CELLS 15
+#define B_LOOKUP_ITEMS 16
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -86,7 +85,7 @@ struct Triangle {
     float light_pdf;   // P(choose this light) / area; 0 for non-emitters
     vec3 e2;
     float area;
-    vec4 pad;
+    uvec4 lookup;      // guides: where this triangle's volume lookup starts
 };
 
 struct Material {

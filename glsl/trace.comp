@@ -136,7 +136,7 @@ void main() {
         vec3 position = origin + hit.t * dir + ns * eps;
         vec3 albedo = mat.albedo.rgb;
 #ifdef METHOD_SARSA
-        uint volume = nearest_volume(hit.triangle, tri, position, cos_out > 0.0);
+        uint volume = nearest_volume(tri, position, cos_out > 0.0);
         float outgoing = sarsa_surface_target(volume, luminance(albedo));
         if (depth == 0u) {
             path_estimate = outgoing;

@@ -32,7 +32,9 @@ pub struct Triangle {
     pub light_pdf: f32,
     pub e2: [f32; 3],
     pub area: f32,
-    pub pad: [f32; 4],
+    /// Guides: where this triangle's volume lookup starts (see
+    /// `guide::lookup`); zero without a guide.
+    pub lookup: [u32; 4],
 }
 
 #[repr(C)]

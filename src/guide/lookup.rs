@@ -6,8 +6,10 @@
 //! a grid over its barycentric parallelogram, with cells about half the volume
 //! spacing; each cell of each side stores the one volume that is nearest
 //! everywhere in it, or else a short list of the volumes that can be nearest
-//! somewhere in it. The shader finds the cell from the hit's barycentric
-//! coordinates and scans at most that list: no normal tests, no tree walk.
+//! somewhere in it. A triangle small enough for one cell with one volume per
+//! side carries both answers itself. The shader finds the cell from the hit's
+//! barycentric coordinates and scans at most that list: no normal tests, no
+//! tree walk.
 
 use super::volumes::{faces_same_way, nearest_where, within_box_distance};
 use crate::scene::Scene;
@@ -18,9 +20,11 @@ use glam::{Vec2, Vec3};
 const MAX_CELLS_PER_EDGE: f32 = 64.0;
 
 pub struct VolumeLookup {
-    /// Per triangle: its front side's first cell (the back side's follow)
-    /// and `nu | nv << 16`, the cells along e1 and e2.
-    pub triangles: Vec<[u32; 2]>,
+    /// Per triangle (its `Triangle::lookup`): its front side's first cell
+    /// (the back side's follow) and `nu | nv << 16`, the cells along e1 and
+    /// e2; or, with that word 0, no cells and the front and back sides'
+    /// volumes in the last two words.
+    pub triangles: Vec<[u32; 4]>,
     /// Per cell: `[volume, 0]` (possibly NO_VOLUME), or `[first item, count]`
     /// with count ≥ 2.
     pub cells: Vec<[u32; 2]>,
@@ -67,9 +71,16 @@ impl VolumeLookup {
             items: Vec::new(),
         };
         for t in parts.into_iter().flatten() {
-            lookup
-                .triangles
-                .push([lookup.cells.len() as u32, t.dims[0] | (t.dims[1] << 16)]);
+            if let [[front, 0], [back, 0]] = t.cells[..] {
+                lookup.triangles.push([0, 0, front, back]);
+                continue;
+            }
+            lookup.triangles.push([
+                lookup.cells.len() as u32,
+                t.dims[0] | (t.dims[1] << 16),
+                0,
+                0,
+            ]);
             let base = lookup.items.len() as u32;
             lookup.cells.extend(t.cells.iter().map(|&[a, count]| {
                 if count == 0 {
@@ -93,7 +104,11 @@ impl VolumeLookup {
         front: bool,
         p: Vec3,
     ) -> Option<u32> {
-        let [first, dims] = self.triangles[index as usize];
+        let [first, dims, front_volume, back_volume] = self.triangles[index as usize];
+        if dims == 0 {
+            let v = if front { front_volume } else { back_volume };
+            return Some(v).filter(|&v| v != NO_VOLUME);
+        }
         let (nu, nv) = (dims & 0xffff, dims >> 16);
         let mut cell = first + if front { 0 } else { nu * nv };
         if nu * nv > 1 {
@@ -117,15 +132,30 @@ impl VolumeLookup {
             })
     }
 
+    /// `triangles` with their lookup words filled in.
+    pub fn stamp(&self, triangles: &[Triangle]) -> Vec<Triangle> {
+        triangles
+            .iter()
+            .zip(&self.triangles)
+            .map(|(t, &lookup)| Triangle { lookup, ..*t })
+            .collect()
+    }
+
     /// Mean number of volumes a cell holds (1 for a cell with one answer).
     pub fn mean_candidates(&self) -> f64 {
         let total: u64 = self.cells.iter().map(|c| c[1].max(1) as u64).sum();
         total as f64 / self.cells.len().max(1) as f64
     }
 
-    /// Bytes of the three tables on the device.
+    /// Triangles that carry their answers themselves.
+    pub fn direct_triangles(&self) -> usize {
+        self.triangles.iter().filter(|t| t[1] == 0).count()
+    }
+
+    /// Bytes of the cell and list tables on the device (the per-triangle
+    /// words live in the triangles' own padding).
     pub fn bytes(&self) -> u64 {
-        8 * (self.triangles.len() + self.cells.len()) as u64 + 16 * self.items.len() as u64
+        8 * self.cells.len() as u64 + 16 * self.items.len() as u64
     }
 }
 

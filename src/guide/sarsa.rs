@@ -188,10 +188,9 @@ pub struct SarsaGuide {
     visits: Buffer,
     visits_total: Buffer,
     irradiance: Buffer,
-    lookup_triangles: Buffer,
+    lookup: Option<VolumeLookup>,
     lookup_cells: Buffer,
     lookup_items: Buffer,
-    lookup_bytes: u64,
     fold: ComputePipeline,
     build: ComputePipeline,
     fold_set: DescriptorSet,
@@ -212,13 +211,15 @@ impl SarsaGuide {
         let start = std::time::Instant::now();
         let lookup = VolumeLookup::build(scene, &vols);
         log::info!(
-            "volume lookup: {} cells, {:.2} volumes per cell, {:.1} MiB, built in {:.2} s",
+            "volume lookup: {} of {} triangles direct, {} cells, {:.2} volumes per cell, {:.1} MiB, built in {:.2} s",
+            lookup.direct_triangles(),
+            lookup.triangles.len(),
             lookup.cells.len(),
             lookup.mean_candidates(),
             lookup.bytes() as f64 / (1024.0 * 1024.0),
             start.elapsed().as_secs_f64()
         );
-        Self::from_volumes(ctx, vols, Some(&lookup), settings)
+        Self::from_volumes(ctx, vols, Some(lookup), settings)
     }
 
     /// A guide over given volumes (already in k-d tree order); without a
@@ -226,7 +227,7 @@ impl SarsaGuide {
     pub fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
-        lookup: Option<&VolumeLookup>,
+        lookup: Option<VolumeLookup>,
         settings: &SarsaSettings,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
@@ -245,24 +246,17 @@ impl SarsaGuide {
         let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
-        let empty = VolumeLookup {
-            triangles: vec![[0, 1 | (1 << 16)]],
-            cells: vec![[shaders::NO_VOLUME, 0]; 2],
-            items: Vec::new(),
-        };
-        let lookup = lookup.unwrap_or(&empty);
         let items: Vec<[f32; 4]> = lookup
-            .items
             .iter()
+            .flat_map(|l| &l.items)
             .map(|&j| {
                 let p = vols[j as usize].position;
                 [p[0], p[1], p[2], f32::from_bits(j)]
             })
             .collect();
-        let lookup_bytes = lookup.bytes();
-        let lookup_triangles =
-            Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
-        let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
+        let no_cells = [[shaders::NO_VOLUME, 0]];
+        let cells = lookup.as_ref().map_or(&no_cells[..], |l| &l.cells[..]);
+        let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", cells)?;
         let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
         let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
@@ -285,10 +279,9 @@ impl SarsaGuide {
             visits,
             visits_total,
             irradiance,
-            lookup_triangles,
+            lookup,
             lookup_cells,
             lookup_items,
-            lookup_bytes,
             fold,
             build,
             fold_set,
@@ -306,7 +299,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 9] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 8] {
         [
             (shaders::B_Q, &self.q),
             (shaders::B_SECTORS, &self.sectors),
@@ -314,7 +307,6 @@ impl SarsaGuide {
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
             (shaders::B_IRRADIANCE, &self.irradiance),
-            (shaders::B_LOOKUP_TRIANGLES, &self.lookup_triangles),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
         ]
@@ -376,10 +368,15 @@ impl SarsaGuide {
         ctx.submit(None, |rec| self.record_update(rec, &params))
     }
 
+    /// The volume lookup, which `GpuScene::upload` stamps into the triangles.
+    pub fn lookup(&self) -> Option<&VolumeLookup> {
+        self.lookup.as_ref()
+    }
+
     /// Device memory the guide holds.
     pub fn bytes(&self) -> u64 {
         self.volumes.len() as u64 * table_bytes_per_volume(self.settings.sectors())
-            + self.lookup_bytes
+            + self.lookup.as_ref().map_or(0, |l| l.bytes())
     }
 
     /// Current Q-values, volume-major.

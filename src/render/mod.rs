@@ -9,6 +9,7 @@ pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, Settings
 pub use stats::{PassRecord, RenderStats};
 
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
+use crate::guide::lookup::VolumeLookup;
 use crate::guide::SarsaGuide;
 use crate::image::Image;
 use crate::scene::Scene;
@@ -33,7 +34,12 @@ pub struct GpuScene {
 }
 
 impl GpuScene {
-    pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> gpu::Result<Self> {
+    /// Uploads the scene; a guide's lookup goes into its triangles.
+    pub fn upload(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        lookup: Option<&VolumeLookup>,
+    ) -> gpu::Result<Self> {
         let materials: Vec<shaders::Material> = scene
             .materials
             .iter()
@@ -44,7 +50,10 @@ impl GpuScene {
             .collect();
         Ok(Self {
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
-            triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
+            triangles: match lookup {
+                Some(l) => Buffer::gpu_only_with(ctx, "triangles", &l.stamp(&scene.triangles))?,
+                None => Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
+            },
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
             lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
         })
@@ -199,7 +208,11 @@ impl Renderer {
                 .into());
             }
         }
-        let gpu_scene = GpuScene::upload(ctx, scene)?;
+        let guide = match settings.method {
+            Method::Pt => None,
+            Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
+        };
+        let gpu_scene = GpuScene::upload(ctx, scene, guide.as_ref().and_then(|g| g.lookup()))?;
         let pixels = settings.width as u64 * settings.height as u64;
         let samples =
             Buffer::gpu_only(ctx, "path samples", pixels * size_of::<PathSample>() as u64)?;
@@ -211,10 +224,6 @@ impl Renderer {
         )?;
         let push = size_of::<PassParams>() as u32;
         let trace = ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?;
-        let guide = match settings.method {
-            Method::Pt => None,
-            Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
-        };
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([

@@ -17,7 +17,7 @@ fn run(
     input: &[Vec4],
     count: usize,
 ) -> Result<Vec<Vec4>, RenderError> {
-    let gpu_scene = GpuScene::upload(ctx, scene)?;
+    let gpu_scene = GpuScene::upload(ctx, scene, guide.and_then(|g| g.lookup()))?;
     let input_buf = Buffer::gpu_only_with(ctx, "probe input", input)?;
     let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
     // The probe reads guide buffers in some modes; an empty guide fills the bindings.

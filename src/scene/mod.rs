@@ -251,7 +251,7 @@ impl Scene {
                     light_pdf: 0.0,
                     e2: e2.into(),
                     area: 0.5 * e1.cross(e2).length(),
-                    pad: [0.0; 4],
+                    lookup: [0; 4],
                 }
             })
             .collect();
