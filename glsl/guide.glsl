@@ -7,9 +7,10 @@
 #extension GL_EXT_shader_atomic_float : require
 #endif
 
-layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_SECTORS) readonly buffer Sectors { SectorEntry sectors[]; };
-layout(std430, set = 0, binding = B_IRRADIANCE) readonly buffer Irradiance { float irradiance[]; };
+// Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), total weight of
+// its sector distribution); see guide_build.comp.
+layout(std430, set = 0, binding = B_VOLUME_SUMS) readonly buffer VolumeSums { vec2 volume_sums[]; };
 #ifdef FLOAT_ATOMICS
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
 #else
@@ -141,15 +142,27 @@ vec3 guide_sample(uint v, vec3 u, out uint sector, out float p_sector) {
     return vec3(d, z);
 }
 
-// Expected Sarsa target for a bounce that reached a surface y with volume vy:
-// (2 pi / n) sum_j Q(vy, j) f_s cos(theta_j) = albedo / pi * irradiance[vy].
-float sarsa_surface_target(uint vy, float albedo) {
-    return vy == NO_VOLUME ? 0.0 : albedo * INV_PI * irradiance[vy];
+// A volume's sums, zero for NO_VOLUME.
+vec2 volume_sums_of(uint v) {
+    return v == NO_VOLUME ? vec2(0.0) : volume_sums[v];
 }
 
-// Adds one target for (v, k); the fold pass turns sums and counts into means.
-// Returns the squared temporal-difference error against the current Q.
-float sarsa_record(uint v, uint k, float target) {
+// Expected Sarsa target for a bounce that reached a surface y whose volume
+// has sums `sums`: (2 pi / n) sum_j Q(vy, j) f_s cos(theta_j) = albedo / pi * irradiance.
+float sarsa_surface_target(vec2 sums, float albedo) {
+    return albedo * INV_PI * sums.x;
+}
+
+// Q(v, k), given back from P(k) = w_k / total with w_k = Q_k (cos theta_k
+// for the Q cos distribution): no read of Q in the trace kernel.
+float sector_q(vec2 sums, uint k, float p_sector) {
+    float w = p_sector * sums.y;
+    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
+}
+
+// Adds one target for (v, k), whose Q was q; the fold pass turns sums and
+// counts into means. Returns the squared temporal-difference error.
+float sarsa_record(uint v, uint k, float target, float q) {
     uint index = v * sector_count() + k;
 #ifdef FLOAT_ATOMICS
     atomicAdd(target_sum[index], target);
@@ -166,7 +179,7 @@ float sarsa_record(uint v, uint k, float target) {
     }
 #endif
     atomicAdd(visits[index], 1u);
-    float td = target - q_values[index];
+    float td = target - q;
     return td * td;
 }
 

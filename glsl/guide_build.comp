@@ -1,6 +1,7 @@
 #version 460
 // Per volume: the irradiance-like sum the Sarsa target needs,
-// (2 pi / n) sum_j Q_j cos(theta_j), and the sampling distribution over
+// (2 pi / n) sum_j Q_j cos(theta_j), the total weight of its distribution
+// (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
 // sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
 // as an alias table, so a sample costs one read instead of a CDF search.
 
@@ -12,7 +13,7 @@ layout(local_size_x = LINEAR_GROUP) in;
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
-layout(std430, set = 0, binding = B_IRRADIANCE) writeonly buffer Irradiance { float irradiance[]; };
+layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec2 volume_sums[]; };
 
 // First index from `from` on whose column is short of (or, with `large`, at
 // least) one sector's worth, n if none.
@@ -36,15 +37,14 @@ void main() {
     float weighted = 0.0;
     float total = 0.0;
     for (uint k = 0u; k < n; ++k) {
-        vec2 centre = vec2((float(k % a) + 0.5) / float(a), (float(k / a) + 0.5) / float(b));
-        float cos_k = square_to_hemisphere(centre).z;
+        float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;
         float w = cos_weighted ? q * cos_k : q;
         total += w;
         sectors[base + k].p = w;
     }
-    irradiance[v] = weighted * 2.0 * PI / float(n);
+    volume_sums[v] = vec2(weighted * 2.0 * PI / float(n), total);
     for (uint k = 0u; k < n; ++k) {
         // An all-zero volume samples sectors uniformly.
         float p = total > 0.0 ? sectors[base + k].p / total : 1.0 / float(n);

@@ -54,8 +54,8 @@ void main() {
         uint v = floatBitsToUint(q.x);
         uint k = floatBitsToUint(q.y);
         uint vy = floatBitsToUint(q.z);
-        float target = q.w < 0.0 ? -q.w : sarsa_surface_target(vy, q.w);
-        sarsa_record(v, k, target);
+        float target = q.w < 0.0 ? -q.w : sarsa_surface_target(volume_sums_of(vy), q.w);
+        sarsa_record(v, k, target, 0.0);
         probe_out[i] = vec4(target, 0.0, 0.0, 0.0);
     }
 }

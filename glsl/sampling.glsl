@@ -63,6 +63,15 @@ vec2 hemisphere_to_square(vec3 w) {
     return disk_to_square(w.xy / sqrt(1.0 + z));
 }
 
+// cos(theta) at the centre of sector k of an a x b grid: the concentric map
+// sends the centre to disk radius max(|x|, |y|) of its [-1, 1]^2 point, and
+// the lift gives z = 1 - r^2.
+float sector_cos(uint k, uint a, uint b) {
+    vec2 o = 2.0 * vec2((float(k % a) + 0.5) / float(a), (float(k / a) + 0.5) / float(b)) - 1.0;
+    float r = max(abs(o.x), abs(o.y));
+    return 1.0 - r * r;
+}
+
 // Sector of a point of the unit square in an a x b grid.
 uint square_sector(vec2 u, uint a, uint b) {
     uint i = min(uint(max(u.x, 0.0) * float(a)), a - 1u);

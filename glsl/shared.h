@@ -23,7 +23,7 @@
 #define B_SUM 11
 #define B_VISITS 12
 #define B_VISITS_TOTAL 13
-#define B_IRRADIANCE 14
+#define B_VOLUME_SUMS 14
 #define B_LOOKUP_CELLS 15
 #define B_LOOKUP_ITEMS 16
 

@@ -16,9 +16,9 @@ layout(push_constant) uniform Push { PassParams params; };
 
 // Records the target of the bounce that just landed, if it left from a volume,
 // and adds its squared TD error to the path's loss.
-void learn_bounce(uint volume, uint sector, float target, inout float td_sq_sum, inout uint td_count) {
+void learn_bounce(uint volume, uint sector, float q, float target, inout float td_sq_sum, inout uint td_count) {
     if (volume != NO_VOLUME) {
-        td_sq_sum += sarsa_record(volume, sector, target);
+        td_sq_sum += sarsa_record(volume, sector, target, q);
         td_count += 1u;
     }
 }
@@ -86,6 +86,7 @@ void main() {
     // The previous bounce's (volume, sector), to update once its ray lands.
     uint prev_volume = NO_VOLUME;
     uint prev_sector = 0u;
+    float prev_q = 0.0;
     bool learn = (params.flags & FLAG_LEARN) != 0u;
     // The guide's estimate of the radiance this path's first hit sends to the
     // camera: the scale Russian roulette compares a path's prospects with.
@@ -101,7 +102,7 @@ void main() {
             radiance += throughput * params.environment.rgb;
 #ifdef METHOD_SARSA
             if (learn) {
-                learn_bounce(prev_volume, prev_sector, luminance(params.environment.rgb), td_sq_sum, td_count);
+                learn_bounce(prev_volume, prev_sector, prev_q, luminance(params.environment.rgb), td_sq_sum, td_count);
             }
 #endif
             break;
@@ -125,7 +126,7 @@ void main() {
 #ifdef METHOD_SARSA
             if (learn) {
                 float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
-                learn_bounce(prev_volume, prev_sector, le, td_sq_sum, td_count);
+                learn_bounce(prev_volume, prev_sector, prev_q, le, td_sq_sum, td_count);
             }
 #endif
             break;
@@ -137,12 +138,13 @@ void main() {
         vec3 albedo = mat.albedo.rgb;
 #ifdef METHOD_SARSA
         uint volume = nearest_volume(tri, position, cos_out > 0.0);
-        float outgoing = sarsa_surface_target(volume, luminance(albedo));
+        vec2 sums = volume_sums_of(volume);
+        float outgoing = sarsa_surface_target(sums, luminance(albedo));
         if (depth == 0u) {
             path_estimate = outgoing;
         }
         if (learn) {
-            learn_bounce(prev_volume, prev_sector, outgoing, td_sq_sum, td_count);
+            learn_bounce(prev_volume, prev_sector, prev_q, outgoing, td_sq_sum, td_count);
         }
 #endif
         if (depth >= params.max_depth) {
@@ -191,6 +193,7 @@ void main() {
         float pdf = mixture_pdf(volume, p_sector, local.z);
         prev_volume = volume;
         prev_sector = sector;
+        prev_q = sector_q(sums, sector, p_sector);
 #else
         // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
         vec2 u = rng_next2(rng);
@@ -216,7 +219,7 @@ void main() {
             // Never below the throughput rule, so a Q that underestimates ends
             // no more paths than pt would.
             if (volume != NO_VOLUME && path_estimate > 0.0) {
-                float expected = luminance(throughput) * q_values[volume * sector_count() + prev_sector];
+                float expected = luminance(throughput) * prev_q;
                 q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
             }
 #endif

@@ -84,9 +84,9 @@ impl Default for SarsaSettings {
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
 /// Device bytes per volume for an n-sector grid: Q, the alias table, target
-/// sums, new and total visit counts per sector, and one irradiance value.
+/// sums, new and total visit counts per sector, and two sums per volume.
 fn table_bytes_per_volume(sectors: u32) -> u64 {
-    (4 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 4
+    (4 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
@@ -187,7 +187,7 @@ pub struct SarsaGuide {
     sum: Buffer,
     visits: Buffer,
     visits_total: Buffer,
-    irradiance: Buffer,
+    volume_sums: Buffer,
     lookup: Option<VolumeLookup>,
     lookup_cells: Buffer,
     lookup_items: Buffer,
@@ -243,7 +243,7 @@ impl SarsaGuide {
         let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
-        let irradiance = Buffer::gpu_only(ctx, "sarsa irradiance", vols.len() as u64 * 4)?;
+        let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 8)?;
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
         let items: Vec<[f32; 4]> = lookup
@@ -266,7 +266,7 @@ impl SarsaGuide {
             (shaders::B_SUM, &sum),
             (shaders::B_VISITS, &visits),
             (shaders::B_VISITS_TOTAL, &visits_total),
-            (shaders::B_IRRADIANCE, &irradiance),
+            (shaders::B_VOLUME_SUMS, &volume_sums),
         ];
         let fold_set = DescriptorSet::new(ctx, &fold, &bindings)?;
         let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
@@ -278,7 +278,7 @@ impl SarsaGuide {
             sum,
             visits,
             visits_total,
-            irradiance,
+            volume_sums,
             lookup,
             lookup_cells,
             lookup_items,
@@ -306,7 +306,7 @@ impl SarsaGuide {
             (shaders::B_SUM, &self.sum),
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
-            (shaders::B_IRRADIANCE, &self.irradiance),
+            (shaders::B_VOLUME_SUMS, &self.volume_sums),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
         ]
