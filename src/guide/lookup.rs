@@ -18,6 +18,9 @@ use glam::{Vec2, Vec3};
 
 /// Most cells along one edge of a triangle.
 const MAX_CELLS_PER_EDGE: f32 = 64.0;
+/// Most cells in all, both sides counted: 64 MiB, half the storage-buffer
+/// range every Vulkan device offers.
+const MAX_CELLS: f64 = (8 << 20) as f64;
 
 pub struct VolumeLookup {
     /// Per triangle (its `Triangle::lookup`): its front side's first cell
@@ -43,7 +46,19 @@ impl VolumeLookup {
     /// Tables for `volumes` (in k-d tree order) over the triangles of `scene`.
     pub fn build(scene: &Scene, volumes: &[Volume]) -> Self {
         let spacing = (super::volumes::placement_area(scene) / volumes.len().max(1) as f64).sqrt();
-        let cell = (0.5 * spacing) as f32;
+        let mut cell = (0.5 * spacing) as f32;
+        // Many large triangles would need too many cells: coarser ones only
+        // make the lists longer.
+        let total = |cell: f32| -> f64 {
+            let cells = |t: &Triangle| {
+                cells_along(Vec3::from(t.e1), cell) as f64
+                    * cells_along(Vec3::from(t.e2), cell) as f64
+            };
+            scene.triangles.iter().map(|t| 2.0 * cells(t)).sum()
+        };
+        while total(cell) > MAX_CELLS && cell < scene.extent {
+            cell *= 1.25;
+        }
         let tolerance = scene.ray_offset();
         let triangles = &scene.triangles;
         // The triangles split into one contiguous share per core.
@@ -170,6 +185,11 @@ pub fn barycentric(t: &Triangle, p: Vec3) -> Vec2 {
     Vec2::new(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv
 }
 
+/// Cells along an edge for cells about `cell` wide.
+fn cells_along(e: Vec3, cell: f32) -> u32 {
+    (e.length() / cell).ceil().clamp(1.0, MAX_CELLS_PER_EDGE) as u32
+}
+
 fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> TriangleCells {
     let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
     let n = e1.cross(e2).normalize();
@@ -183,8 +203,7 @@ fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> T
         out.cells = vec![[NO_VOLUME, 0]; 2];
         return out;
     }
-    let along = |e: Vec3| (e.length() / cell).ceil().clamp(1.0, MAX_CELLS_PER_EDGE) as u32;
-    let [nu, nv] = [along(e1), along(e2)];
+    let [nu, nv] = [cells_along(e1, cell), cells_along(e2, cell)];
     out.dims = [nu, nv];
     for side in [n, -n] {
         // Query points sit one ray offset off the surface, on the shaded side.

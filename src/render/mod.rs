@@ -194,7 +194,9 @@ impl Renderer {
             // Checked before placing volumes, which takes a while for huge counts.
             let s = &settings.sarsa;
             let count = s.volume_count(crate::guide::volumes::placement_area(scene));
-            let bytes = count as u64 * s.sectors() as u64 * 4;
+            // The largest per-sector buffer is the alias table.
+            let bytes =
+                count as u64 * s.sectors() as u64 * size_of::<shaders::SectorEntry>() as u64;
             let limit = ctx.info().max_storage_buffer_range;
             if bytes > limit {
                 return Err(SettingsError(format!(
