@@ -461,8 +461,18 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
     let ctx = open_device(device)?;
     println!("device: {} ({})", ctx.info().name, ctx.info().driver);
     println!(
-        "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>7}  per pass (ms)",
-        "scene", "config", "spp", "wall s", "samples/s", "Mrays/s", "pass ms", "cost", "zero %"
+        "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>6} {:>8} {:>7}  per pass (ms)",
+        "scene",
+        "config",
+        "spp",
+        "wall s",
+        "samples/s",
+        "Mrays/s",
+        "pass ms",
+        "cost",
+        "length",
+        "cost/hit",
+        "zero %"
     );
     let rows = bench::speed(&ctx, plan, &mut |r| {
         let breakdown: Vec<String> = r
@@ -471,7 +481,7 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
             .map(|(n, ms)| format!("{n} {ms:.2}"))
             .collect();
         println!(
-            "{:<28} {:<10} {:>5} {:>9.3} {:>11.0} {:>9.3} {:>9.3} {:>5.2}x {:>7.2}  {}",
+            "{:<28} {:<10} {:>5} {:>9.3} {:>11.0} {:>9.3} {:>9.3} {:>5.2}x {:>6.2} {:>7.2}x {:>7.2}  {}",
             r.scene.display().to_string(),
             r.config,
             r.spp,
@@ -480,6 +490,8 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
             r.rays_per_second / 1e6,
             r.pass_ms,
             r.pass_cost_ratio,
+            r.mean_path_length,
+            r.vertex_cost_ratio,
             100.0 * r.zero_contribution_fraction,
             breakdown.join(", ")
         );

@@ -189,3 +189,79 @@ fn bench_rejects_a_reference_for_several_scenes() {
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(stderr.contains("--reference"), "{stderr}");
 }
+
+#[test]
+fn speed_table_reports_every_pass_and_cost() {
+    let json = common::repo("target/test-scratch/speed.json");
+    let _ = std::fs::remove_file(&json);
+    let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+        .args([
+            "bench",
+            "--speed",
+            "scenes/cornell-box.toml",
+            "--methods",
+            "pt,sarsa+nee",
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "--spp",
+            "4",
+            "--repeats",
+            "1",
+            "--json",
+        ])
+        .arg(&json)
+        .env("QTRACE_VALIDATION", "1")
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "bench --speed failed: {stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        stdout.contains("cost/hit"),
+        "no per-hit cost column: {stdout}"
+    );
+    let rows: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    let field =
+        |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
+    for r in rows {
+        for k in [
+            "samples_per_second",
+            "rays_per_second",
+            "pass_ms",
+            "mean_path_length",
+        ] {
+            assert!(field(r, k) > 0.0, "{k} = {} in {r}", field(r, k));
+        }
+        let names: Vec<&str> = r["pass_breakdown_ms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p[0].as_str().unwrap())
+            .collect();
+        let want: &[&str] = if r["config"] == "pt" {
+            &["trace", "accumulate"]
+        } else {
+            &["trace", "accumulate", "guide fold", "distribution build"]
+        };
+        assert_eq!(names, want, "passes of {}", r["config"]);
+    }
+    assert_eq!(field(&rows[0], "pass_cost_ratio"), 1.0);
+    let (pass, vertex) = (
+        field(&rows[1], "pass_cost_ratio"),
+        field(&rows[1], "vertex_cost_ratio"),
+    );
+    let lengths = field(&rows[1], "mean_path_length") / field(&rows[0], "mean_path_length");
+    assert!(
+        (pass - vertex * lengths).abs() < 1e-9 * pass,
+        "per-hit cost {vertex} does not account for path lengths ({lengths}) in {pass}"
+    );
+}

@@ -76,6 +76,9 @@ pub struct SpeedRow {
     pub pass_breakdown_ms: Vec<(String, f64)>,
     /// `pass_ms` over the first configuration's on the same scene.
     pub pass_cost_ratio: f64,
+    /// The same per path vertex (surface hit): what a pass costs apart from
+    /// how long its paths are.
+    pub vertex_cost_ratio: f64,
     pub zero_contribution_fraction: f64,
     pub mean_path_length: f64,
 }
@@ -131,6 +134,7 @@ pub fn speed(
                     pass_ms,
                     pass_breakdown_ms: breakdown,
                     pass_cost_ratio: 1.0,
+                    vertex_cost_ratio: 1.0,
                     zero_contribution_fraction: s.zero_contribution_fraction,
                     mean_path_length: s.mean_path_length,
                 };
@@ -139,8 +143,11 @@ pub fn speed(
                 }
             }
             let mut row = best.expect("at least one repeat");
-            let base = *baseline.get_or_insert(row.pass_ms);
-            row.pass_cost_ratio = row.pass_ms / base;
+            let (base_ms, base_length) =
+                *baseline.get_or_insert((row.pass_ms, row.mean_path_length));
+            row.pass_cost_ratio = row.pass_ms / base_ms;
+            row.vertex_cost_ratio =
+                row.pass_cost_ratio * base_length / row.mean_path_length.max(1e-9);
             progress(&row);
             rows.push(row);
         }
