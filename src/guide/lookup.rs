@@ -46,7 +46,7 @@ impl VolumeLookup {
     /// Tables for `volumes` (in k-d tree order) over the triangles of `scene`.
     pub fn build(scene: &Scene, volumes: &[Volume]) -> Self {
         let spacing = (super::volumes::placement_area(scene) / volumes.len().max(1) as f64).sqrt();
-        let mut cell = (0.5 * spacing) as f32;
+        let mut cell = ((0.5 * spacing) as f32).max(1e-6 * scene.extent);
         // Many large triangles would need too many cells: coarser ones only
         // make the lists longer.
         let total = |cell: f32| -> f64 {
@@ -59,7 +59,7 @@ impl VolumeLookup {
         while total(cell) > MAX_CELLS && cell < scene.extent {
             cell *= 1.25;
         }
-        let tolerance = scene.ray_offset();
+        let offset = scene.ray_offset();
         let triangles = &scene.triangles;
         // The triangles split into one contiguous share per core.
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -70,7 +70,7 @@ impl VolumeLookup {
                 .map(|part| {
                     s.spawn(move || {
                         part.iter()
-                            .map(|t| triangle_cells(t, volumes, cell, tolerance))
+                            .map(|t| triangle_cells(t, volumes, cell, offset))
                             .collect::<Vec<_>>()
                     })
                 })
@@ -292,7 +292,6 @@ fn candidates(
             if accept(&volumes[j as usize]) {
                 found.push(j);
             }
-            true
         },
     );
     found.sort_by(|&a, &b| {

@@ -114,7 +114,7 @@ pub fn nearest_brute(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
         .map(|(i, _)| i as u32)
 }
 
-/// The same search through the k-d tree (what the shader does).
+/// The same search through the k-d tree.
 pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
     nearest_where(volumes, p, |v| faces_same_way(v, n))
 }
@@ -154,13 +154,13 @@ fn dmin2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
 }
 
 /// Calls `f` with every volume (k-d tree order) whose squared distance to the
-/// box [lo, hi] is at most `r2`, until `f` returns false.
+/// box [lo, hi] is at most `r2`.
 pub fn within_box_distance(
     volumes: &[Volume],
     lo: Vec3,
     hi: Vec3,
     r2: f32,
-    f: &mut dyn FnMut(u32) -> bool,
+    f: &mut dyn FnMut(u32),
 ) {
     let mut stack = vec![(0usize, volumes.len())];
     while let Some((a, b)) = stack.pop() {
@@ -170,8 +170,8 @@ pub fn within_box_distance(
         let m = (a + b) / 2;
         let v = &volumes[m];
         let p = Vec3::from(v.position);
-        if dmin2(lo, hi, p) <= r2 && !f(m as u32) {
-            return;
+        if dmin2(lo, hi, p) <= r2 {
+            f(m as u32);
         }
         if v.axis == KD_LEAF {
             continue;
