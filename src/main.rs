@@ -73,9 +73,10 @@ struct RenderArgs {
 #[derive(clap::Args, Clone)]
 #[command(next_help_heading = "Sarsa guide (--method sarsa)")]
 struct SarsaArgs {
-    /// Radiance volumes placed over the surfaces (uniformly by area).
-    #[arg(long, default_value_t = SarsaSettings::default().volumes)]
-    sarsa_volumes: u32,
+    /// Radiance volumes placed over the surfaces (uniformly by area); default
+    /// one per 64 pixels of the image (1024 at 256×256), at least 64.
+    #[arg(long)]
+    sarsa_volumes: Option<u32>,
     /// Volumes per unit² of surface instead of a count (the thesis used 1000).
     #[arg(long)]
     sarsa_density: Option<f64>,

@@ -55,7 +55,7 @@ fn check_lookup(scene_name: &str, volumes_count: u32, queries: usize) {
     let ctx = common::gpu();
     let scene = common::scene(scene_name);
     let s = SarsaSettings {
-        volumes: volumes_count,
+        volumes: Some(volumes_count),
         ..Default::default()
     };
     let guide = SarsaGuide::new(&ctx, &scene, &s, 3).unwrap();
@@ -165,7 +165,7 @@ fn guided_sampler_matches_its_pdf() {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let s = SarsaSettings {
-        volumes: 4,
+        volumes: Some(4),
         epsilon: 0.25,
         ..Default::default()
     };
@@ -332,7 +332,7 @@ fn check_update(atomics: Atomics) {
     }
     let scene = common::scene("cornell-box");
     let s = SarsaSettings {
-        volumes: 6,
+        volumes: Some(6),
         grid: [4, 3],
         atomics,
         ..Default::default()
@@ -424,7 +424,7 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after
             nee,
             seed: Some(200),
             sarsa: SarsaSettings {
-                volumes: 512,
+                volumes: Some(512),
                 atomics,
                 reset_after,
                 ..Default::default()
@@ -487,7 +487,7 @@ fn sarsa_matches_the_white_furnace() {
             method: Some(Method::Sarsa),
             spp: Some(256),
             sarsa: SarsaSettings {
-                volumes: 256,
+                volumes: Some(256),
                 ..Default::default()
             },
             ..Default::default()

@@ -38,8 +38,10 @@ pub enum Atomics {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SarsaSettings {
-    /// Radiance volumes to place (fewer if the memory budget says so).
-    pub volumes: u32,
+    /// Radiance volumes to place (fewer if the memory budget says so); None:
+    /// one per PIXELS_PER_VOLUME pixels of the image in a render, else
+    /// DEFAULT_VOLUMES.
+    pub volumes: Option<u32>,
     /// Volumes per unit² of (non-emitting) surface; replaces `volumes` when set.
     pub density: Option<f64>,
     /// Upper bound on the guide's device memory, MiB.
@@ -62,7 +64,7 @@ pub struct SarsaSettings {
 impl Default for SarsaSettings {
     fn default() -> Self {
         Self {
-            volumes: 1024,
+            volumes: None,
             density: None,
             memory_mib: None,
             grid: [12, 12],
@@ -79,6 +81,17 @@ impl Default for SarsaSettings {
         }
     }
 }
+
+/// Pixels per radiance volume when neither a count nor a density is given:
+/// each pass then brings every volume about the same number of paths at any
+/// image size. Measured at 256 spp: at 128×128, 256 volumes beat 1024 on
+/// four scenes (relMSE 0.014 vs 0.016 on the Cornell box, 0.039 vs 0.044 on
+/// the door ajar); at 256×256, 1024 beat 256 and 512 on the indirectly lit room.
+pub const PIXELS_PER_VOLUME: u64 = 64;
+/// Fewest volumes that default gives.
+pub const MIN_DEFAULT_VOLUMES: u32 = 64;
+/// Volumes of a guide made outside a render.
+pub const DEFAULT_VOLUMES: u32 = 1024;
 
 /// Most volumes a guide may hold.
 pub const MAX_VOLUMES: u32 = 1 << 22;
@@ -109,11 +122,8 @@ impl SarsaSettings {
                 "sarsa sector grid {a}x{b} must lie within 1x1..64x64"
             ));
         }
-        if self.volumes == 0 || self.volumes > MAX_VOLUMES {
-            return Err(format!(
-                "sarsa volumes {} must lie in 1..={MAX_VOLUMES}",
-                self.volumes
-            ));
+        if let Some(v) = self.volumes.filter(|&v| v == 0 || v > MAX_VOLUMES) {
+            return Err(format!("sarsa volumes {v} must lie in 1..={MAX_VOLUMES}"));
         }
         if let Some(d) = self.density {
             if !(d.is_finite() && d > 0.0) {
@@ -143,12 +153,24 @@ impl SarsaSettings {
         Ok(())
     }
 
+    /// The default volume count for a `width` × `height` image, where neither
+    /// a count nor a density is given.
+    pub fn for_image(&self, width: u32, height: u32) -> Self {
+        let mut s = self.clone();
+        if s.volumes.is_none() && s.density.is_none() {
+            let count = (width as u64 * height as u64 / PIXELS_PER_VOLUME)
+                .clamp(MIN_DEFAULT_VOLUMES as u64, MAX_VOLUMES as u64);
+            s.volumes = Some(count as u32);
+        }
+        s
+    }
+
     /// Volumes actually placed on `surface_area` units² of surface: the
     /// requested count (or density × area) within the memory budget.
     pub fn volume_count(&self, surface_area: f64) -> u32 {
         let wanted = match self.density {
             Some(d) => (d * surface_area).ceil().clamp(1.0, MAX_VOLUMES as f64) as u32,
-            None => self.volumes,
+            None => self.volumes.unwrap_or(DEFAULT_VOLUMES),
         };
         let per = bytes_per_volume(self.sectors());
         match self.memory_mib {
@@ -409,6 +431,25 @@ impl SarsaGuide {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn default_volume_count_follows_the_image() {
+        let s = SarsaSettings::default();
+        assert_eq!(s.for_image(256, 256).volumes, Some(1024));
+        assert_eq!(s.for_image(128, 128).volumes, Some(256));
+        assert_eq!(s.for_image(8, 8).volumes, Some(MIN_DEFAULT_VOLUMES));
+        // A count or a density the user gives stays.
+        let counted = SarsaSettings {
+            volumes: Some(7),
+            ..Default::default()
+        };
+        assert_eq!(counted.for_image(256, 256).volumes, Some(7));
+        let dense = SarsaSettings {
+            density: Some(0.5),
+            ..Default::default()
+        };
+        assert_eq!(dense.for_image(256, 256).volumes, None);
+    }
 
     #[test]
     fn volume_count_follows_count_density_and_budget() {

@@ -134,7 +134,7 @@ impl RenderSettings {
             nee: o.nee,
             seed: o.seed.unwrap_or(0),
             sampling: o.sampling.unwrap_or_default(),
-            sarsa: o.sarsa.clone(),
+            sarsa: o.sarsa.for_image(width, height),
         })
     }
 }
