@@ -17,6 +17,14 @@ layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[];
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint target_sum_bits[]; };
 #endif
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
+// With NEE: per (volume, sector), the part of this pass's emitter targets
+// that NEE already carries (Le times one minus the scattering MIS weight).
+#ifdef FLOAT_ATOMICS
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
+#else
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint direct_sum_bits[]; };
+#endif
+layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
 // The per-triangle lookup tables of src/guide/lookup.rs.
 layout(std430, set = 0, binding = B_LOOKUP_CELLS) readonly buffer LookupCells { uvec2 lookup_cells[]; };
 // (volume position, volume index bits) per list entry.
@@ -160,27 +168,40 @@ float sector_q(vec2 sums, uint k, float p_sector) {
     return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
 }
 
+#ifdef FLOAT_ATOMICS
+#define ADD_FLOAT(tally, bits, value) atomicAdd(tally, value)
+#else
+// Compare-and-swap fallback for devices without float atomics: `bits` is the
+// tally seen as uint.
+#define ADD_FLOAT(tally, bits, value)                                       \
+    {                                                                       \
+        uint seen = bits;                                                   \
+        while (true) {                                                      \
+            uint wanted = floatBitsToUint(uintBitsToFloat(seen) + (value)); \
+            uint found = atomicCompSwap(bits, seen, wanted);                \
+            if (found == seen) {                                            \
+                break;                                                      \
+            }                                                               \
+            seen = found;                                                   \
+        }                                                                   \
+    }
+#endif
+
 // Adds one target for (v, k), whose Q was q; the fold pass turns sums and
 // counts into means. Returns the squared temporal-difference error.
 float sarsa_record(uint v, uint k, float target, float q) {
     uint index = v * sector_count() + k;
-#ifdef FLOAT_ATOMICS
-    atomicAdd(target_sum[index], target);
-#else
-    // Compare-and-swap fallback for devices without float atomics.
-    uint seen = target_sum_bits[index];
-    while (true) {
-        uint wanted = floatBitsToUint(uintBitsToFloat(seen) + target);
-        uint found = atomicCompSwap(target_sum_bits[index], seen, wanted);
-        if (found == seen) {
-            break;
-        }
-        seen = found;
-    }
-#endif
+    ADD_FLOAT(target_sum[index], target_sum_bits[index], target);
     atomicAdd(visits[index], 1u);
     float td = target - q;
     return td * td;
+}
+
+// With NEE: records the part of an emitter target for (v, k) that NEE
+// already carries, so sampling can leave it to NEE.
+void sarsa_record_direct(uint v, uint k, float excess) {
+    uint index = v * sector_count() + k;
+    ADD_FLOAT(direct_sum[index], direct_sum_bits[index], excess);
 }
 
 #endif

@@ -12,6 +12,7 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
+layout(std430, set = 0, binding = B_Q_DIRECT) readonly buffer QDirect { float q_direct[]; };
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec2 volume_sums[]; };
 
@@ -34,13 +35,16 @@ void main() {
     uint n = a * b;
     uint base = v * n;
     bool cos_weighted = (params.flags & FLAG_COS_DISTRIBUTION) != 0u;
+    bool nee = (params.flags & FLAG_NEE) != 0u;
     float weighted = 0.0;
     float total = 0.0;
     for (uint k = 0u; k < n; ++k) {
         float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;
-        float w = cos_weighted ? q * cos_k : q;
+        // With NEE, scattering should find what NEE does not already carry.
+        float qs = nee ? max(q - q_direct[base + k], 0.0) : q;
+        float w = cos_weighted ? qs * cos_k : qs;
         total += w;
         sectors[base + k].p = w;
     }

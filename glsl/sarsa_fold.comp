@@ -12,6 +12,9 @@ layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
+// The part of the targets NEE carries (see guide.glsl), and its running mean.
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
+layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
 
 void main() {
     // Grid-stride loop: volumes x sectors may exceed one dispatch dimension.
@@ -23,6 +26,8 @@ void main() {
         }
         uint seen = visits_total[i];
         q_values[i] = (q_values[i] * float(seen) + target_sum[i]) / float(seen + count);
+        q_direct[i] = (q_direct[i] * float(seen) + direct_sum[i]) / float(seen + count);
+        direct_sum[i] = 0.0;
         visits_total[i] = seen + count;
         target_sum[i] = 0.0;
         visits[i] = 0u;

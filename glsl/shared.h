@@ -26,6 +26,8 @@
 #define B_VOLUME_SUMS 14
 #define B_LOOKUP_CELLS 15
 #define B_LOOKUP_ITEMS 16
+#define B_DIRECT_SUM 17
+#define B_Q_DIRECT 18
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

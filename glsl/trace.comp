@@ -18,6 +18,11 @@ layout(push_constant) uniform Push { PassParams params; };
 // and adds its squared TD error to the path's loss.
 void learn_bounce(uint volume, uint sector, float q, float target, inout float td_sq_sum, inout uint td_count) {
     if (volume != NO_VOLUME) {
+        // With NEE, q is the sampling table's Q, short of what NEE carries;
+        // the loss compares with Q itself.
+        if ((params.flags & FLAG_NEE) != 0u) {
+            q = q_values[volume * sector_count() + sector];
+        }
         td_sq_sum += sarsa_record(volume, sector, target, q);
         td_count += 1u;
     }
@@ -115,8 +120,8 @@ void main() {
 
         if (tri.light_pdf > 0.0) {
             // Emitters end the path; they emit on their front side only.
+            float weight = 1.0;
             if (cos_out > 0.0) {
-                float weight = 1.0;
                 if (nee && prev_bsdf_pdf > 0.0) {
                     float light_pdf = tri.light_pdf * hit.t * hit.t / cos_out;
                     weight = power_heuristic(prev_bsdf_pdf, light_pdf);
@@ -127,6 +132,9 @@ void main() {
             if (learn) {
                 float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
                 learn_bounce(prev_volume, prev_sector, prev_q, le, td_sq_sum, td_count);
+                if (nee && prev_volume != NO_VOLUME) {
+                    sarsa_record_direct(prev_volume, prev_sector, le * (1.0 - weight));
+                }
             }
 #endif
             break;

@@ -97,9 +97,10 @@ pub const DEFAULT_VOLUMES: u32 = 1024;
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
 /// Device bytes per volume for an n-sector grid: Q, the alias table, target
-/// sums, new and total visit counts per sector, and two sums per volume.
+/// sums, new and total visit counts, and the NEE share's sums and mean per
+/// sector, and two sums per volume.
 fn table_bytes_per_volume(sectors: u32) -> u64 {
-    (4 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
+    (6 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
@@ -209,6 +210,8 @@ pub struct SarsaGuide {
     sum: Buffer,
     visits: Buffer,
     visits_total: Buffer,
+    direct_sum: Buffer,
+    q_direct: Buffer,
     volume_sums: Buffer,
     lookup: Option<VolumeLookup>,
     lookup_cells: Buffer,
@@ -265,6 +268,8 @@ impl SarsaGuide {
         let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
+        let direct_sum = Buffer::gpu_only(ctx, "sarsa direct sums", cells * 4)?;
+        let q_direct = Buffer::gpu_only(ctx, "sarsa Q carried by NEE", cells * 4)?;
         let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 8)?;
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
@@ -289,6 +294,8 @@ impl SarsaGuide {
             (shaders::B_VISITS, &visits),
             (shaders::B_VISITS_TOTAL, &visits_total),
             (shaders::B_VOLUME_SUMS, &volume_sums),
+            (shaders::B_DIRECT_SUM, &direct_sum),
+            (shaders::B_Q_DIRECT, &q_direct),
         ];
         let fold_set = DescriptorSet::new(ctx, &fold, &bindings)?;
         let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
@@ -300,6 +307,8 @@ impl SarsaGuide {
             sum,
             visits,
             visits_total,
+            direct_sum,
+            q_direct,
             volume_sums,
             lookup,
             lookup_cells,
@@ -312,7 +321,13 @@ impl SarsaGuide {
         let mut params = PassParams::default();
         guide.set_params(&mut params, false);
         ctx.submit(None, |rec| {
-            for b in [&guide.sum, &guide.visits, &guide.visits_total] {
+            for b in [
+                &guide.sum,
+                &guide.visits,
+                &guide.visits_total,
+                &guide.direct_sum,
+                &guide.q_direct,
+            ] {
                 rec.fill(b, 0);
             }
             guide.record_build(rec, bytemuck::bytes_of(&params));
@@ -321,7 +336,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 8] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 10] {
         [
             (shaders::B_Q, &self.q),
             (shaders::B_SECTORS, &self.sectors),
@@ -329,6 +344,8 @@ impl SarsaGuide {
             (shaders::B_VISITS, &self.visits),
             (shaders::B_VISITS_TOTAL, &self.visits_total),
             (shaders::B_VOLUME_SUMS, &self.volume_sums),
+            (shaders::B_DIRECT_SUM, &self.direct_sum),
+            (shaders::B_Q_DIRECT, &self.q_direct),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
         ]
