@@ -54,7 +54,9 @@ uint nearest_volume(Triangle tri, vec3 p, bool front) {
     uint nv = t.y >> 16;
     uint cell = t.x + (front ? 0u : nu * nv);
     if (nu * nv > 1u) {
-        // Barycentric coordinates of p; its offset along the normal drops out.
+        // Barycentric coordinates of p: its offset is along the triangle's
+        // normal, so it drops out. (Triangles with a small angle at v0, where
+        // these lose precision, have one cell; see src/guide/lookup.rs.)
         vec3 q = p - tri.v0;
         float d00 = dot(tri.e1, tri.e1);
         float d01 = dot(tri.e1, tri.e2);
@@ -161,8 +163,9 @@ float sarsa_surface_target(vec2 sums, float albedo) {
     return albedo * INV_PI * sums.x;
 }
 
-// Q(v, k), given back from P(k) = w_k / total with w_k = Q_k (cos theta_k
-// for the Q cos distribution): no read of Q in the trace kernel.
+// Q(v, k) of the sampling table (clamped at 0, and with NEE less NEE's
+// share), given back from P(k) = w_k / total with w_k = Q_k (cos theta_k for
+// the Q cos distribution): no read of Q in the trace kernel.
 float sector_q(vec2 sums, uint k, float p_sector) {
     float w = p_sector * sums.y;
     return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;

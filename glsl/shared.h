@@ -87,7 +87,7 @@ struct Triangle {
     float light_pdf;   // P(choose this light) / area; 0 for non-emitters
     vec3 e2;
     float area;
-    uvec4 lookup;      // guides: where this triangle's volume lookup starts
+    uvec4 lookup;      // guides: its lookup cells, or its two sides' volumes (src/guide/lookup.rs)
 };
 
 struct Material {

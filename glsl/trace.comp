@@ -88,7 +88,8 @@ void main() {
     uint rays = 0u;
     float prev_bsdf_pdf = 0.0; // 0 marks the camera ray: no MIS for what it hits
 #ifdef METHOD_SARSA
-    // The previous bounce's (volume, sector), to update once its ray lands.
+    // The previous bounce's (volume, sector) and the Q its sampling table
+    // gave it, to update once its ray lands.
     uint prev_volume = NO_VOLUME;
     uint prev_sector = 0u;
     float prev_q = 0.0;
@@ -225,7 +226,7 @@ void main() {
             // throughput times the radiance Q expects from the sampled sector,
             // against the estimate for the whole path (weight window at 1).
             // Never below the throughput rule, so a Q that underestimates ends
-            // no more paths than pt would.
+            // no more of a path's continuations than that rule would.
             if (volume != NO_VOLUME && path_estimate > 0.0) {
                 float expected = luminance(throughput) * prev_q;
                 q = max(q, clamp(expected / path_estimate, 0.1, 0.95));

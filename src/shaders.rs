@@ -32,8 +32,8 @@ pub struct Triangle {
     pub light_pdf: f32,
     pub e2: [f32; 3],
     pub area: f32,
-    /// Guides: where this triangle's volume lookup starts (see
-    /// `guide::lookup`); zero without a guide.
+    /// Guides: where this triangle's lookup cells start and their grid, or
+    /// its two sides' volumes (see `guide::lookup`).
     pub lookup: [u32; 4],
 }
 

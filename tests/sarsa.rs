@@ -15,7 +15,7 @@ use qtrace::sampling;
 use std::f64::consts::PI;
 
 /// Points where the renderer looks volumes up: on random triangles, one ray
-/// offset off either side; a third of them on or just past an edge or corner,
+/// offset off either side; half of them on or just past an edge or a corner,
 /// where rounding decides the cell.
 fn lookup_queries(scene: &qtrace::Scene, count: usize, rng: &mut Lcg) -> Vec<SurfacePoint> {
     let surfaces: Vec<u32> = (0..scene.triangles.len() as u32)
@@ -29,10 +29,11 @@ fn lookup_queries(scene: &qtrace::Scene, count: usize, rng: &mut Lcg) -> Vec<Sur
             if a + b > 1.0 {
                 (a, b) = (1.0 - a, 1.0 - b);
             }
-            match i % 6 {
+            match i % 8 {
                 0 => a = -1e-6 * rng.next(),
-                1 => b = 1.0 - a + 1e-6 * rng.next(),
-                2 => (a, b) = ([0.0, 1.0, 0.0][i % 3], [0.0, 0.0, 1.0][i % 3]),
+                1 => b = -1e-6 * rng.next(),
+                2 => b = 1.0 - a + 1e-6 * rng.next(),
+                3 => (a, b) = ([0.0, 1.0, 0.0][i / 8 % 3], [0.0, 0.0, 1.0][i / 8 % 3]),
                 _ => {}
             }
             let n = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize();

@@ -49,17 +49,18 @@ impl VolumeLookup {
         let mut cell = ((0.5 * spacing) as f32).max(1e-6 * scene.extent);
         // Many large triangles would need too many cells: coarser ones only
         // make the lists longer.
+        let offset = scene.ray_offset();
+        // Triangles of one cell carry their answers themselves, mostly.
         let total = |cell: f32| -> f64 {
-            let cells = |t: &Triangle| {
-                cells_along(Vec3::from(t.e1), cell) as f64
-                    * cells_along(Vec3::from(t.e2), cell) as f64
+            let cells = |t: &Triangle| match grid_of(t, cell, offset) {
+                [1, 1] => 0.0,
+                [nu, nv] => 2.0 * nu as f64 * nv as f64,
             };
-            scene.triangles.iter().map(|t| 2.0 * cells(t)).sum()
+            scene.triangles.iter().map(cells).sum()
         };
         while total(cell) > MAX_CELLS && cell < scene.extent {
             cell *= 1.25;
         }
-        let offset = scene.ray_offset();
         let triangles = &scene.triangles;
         // The triangles split into one contiguous share per core.
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -190,6 +191,25 @@ fn cells_along(e: Vec3, cell: f32) -> u32 {
     (e.length() / cell).ceil().clamp(1.0, MAX_CELLS_PER_EDGE) as u32
 }
 
+/// The margin around a cell that covers rounding in the hit point and in
+/// its barycentric coordinates.
+fn margin(cell: f32, offset: f32) -> f32 {
+    1e-3 * cell + offset
+}
+
+/// Cells along e1 and e2 of a triangle. The shader's barycentric coordinates
+/// lose precision like 1 / sin²θ as the angle θ at v0 closes; where their
+/// error could pass the margin, the triangle keeps one cell, which needs none.
+fn grid_of(t: &Triangle, cell: f32, offset: f32) -> [u32; 2] {
+    let (e1, e2) = (Vec3::from(t.e1), Vec3::from(t.e2));
+    let sin2 = e1.cross(e2).length_squared() / (e1.length_squared() * e2.length_squared());
+    let error = 1e-6 * e1.length().max(e2.length()) / sin2;
+    if t.light_pdf > 0.0 || !(error < margin(cell, offset)) {
+        return [1, 1];
+    }
+    [cells_along(e1, cell), cells_along(e2, cell)]
+}
+
 fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> TriangleCells {
     let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
     let n = e1.cross(e2).normalize();
@@ -203,7 +223,7 @@ fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> T
         out.cells = vec![[NO_VOLUME, 0]; 2];
         return out;
     }
-    let [nu, nv] = [cells_along(e1, cell), cells_along(e2, cell)];
+    let [nu, nv] = grid_of(t, cell, offset);
     out.dims = [nu, nv];
     for side in [n, -n] {
         // Query points sit one ray offset off the surface, on the shaded side.
@@ -221,10 +241,9 @@ fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> T
                 .iter()
                 .map(|uv| origin + uv.x * e1 + uv.y * e2)
                 .collect();
-                // Rounding in the hit point and its barycentric coordinates
-                // stays well inside this margin.
-                let margin = 1e-3 * cell + offset;
-                let found = candidates(volumes, &region, margin, |v| faces_same_way(v, side));
+                let found = candidates(volumes, &region, margin(cell, offset), |v| {
+                    faces_same_way(v, side)
+                });
                 match found.as_slice() {
                     [] => out.cells.push([NO_VOLUME, 0]),
                     [only] => out.cells.push([*only, 0]),
@@ -254,6 +273,11 @@ fn clip_to_triangle(quad: [Vec2; 4]) -> Vec<Vec2> {
             let s = (1.0 - a.x - a.y) / ((b.x - a.x) + (b.y - a.y));
             out.push(a + s * (b - a));
         }
+    }
+    // Corners on the cut line come out twice.
+    out.dedup();
+    if out.len() > 1 && out.first() == out.last() {
+        out.pop();
     }
     if out.is_empty() {
         out.push(quad[0]);
@@ -313,4 +337,61 @@ fn candidates(
         })
     };
     found.iter().copied().filter(|&j| !dominated(j)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn triangle(e1: Vec3, e2: Vec3) -> Triangle {
+        Triangle {
+            e1: e1.into(),
+            e2: e2.into(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn thin_triangles_keep_one_cell() {
+        // A right triangle 10 cells a side gets its grid ...
+        let square = triangle(Vec3::X * 10.0, Vec3::Y * 10.0);
+        assert_eq!(grid_of(&square, 1.0, 1e-5), [10, 10]);
+        // ... one with a 0.01° angle at v0 would round its barycentric
+        // coordinates past the margin, so it keeps one cell.
+        let sliver = triangle(Vec3::X * 10.0, Vec3::new(10.0, 0.0017, 0.0));
+        assert_eq!(grid_of(&sliver, 1.0, 1e-5), [1, 1]);
+    }
+
+    #[test]
+    fn cells_clip_to_the_triangle() {
+        let inside = clip_to_triangle([
+            Vec2::new(0.0, 0.0),
+            Vec2::new(0.5, 0.0),
+            Vec2::new(0.5, 0.5),
+            Vec2::new(0.0, 0.5),
+        ]);
+        assert_eq!(inside.len(), 4);
+        let cut = clip_to_triangle([
+            Vec2::new(0.5, 0.0),
+            Vec2::new(1.0, 0.0),
+            Vec2::new(1.0, 0.5),
+            Vec2::new(0.5, 0.5),
+        ]);
+        assert_eq!(
+            cut,
+            vec![
+                Vec2::new(0.5, 0.0),
+                Vec2::new(1.0, 0.0),
+                Vec2::new(0.5, 0.5)
+            ]
+        );
+        // A cell wholly past the hypotenuse keeps its corner nearest to it.
+        let past = clip_to_triangle([
+            Vec2::new(0.75, 0.5),
+            Vec2::new(1.0, 0.5),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(0.75, 1.0),
+        ]);
+        assert_eq!(past, vec![Vec2::new(0.75, 0.5)]);
+    }
 }

@@ -251,7 +251,8 @@ impl Scene {
                     light_pdf: 0.0,
                     e2: e2.into(),
                     area: 0.5 * e1.cross(e2).length(),
-                    lookup: [0; 4],
+                    // No guide: one cell per side, no volume.
+                    lookup: [0, 0, shaders::NO_VOLUME, shaders::NO_VOLUME],
                 }
             })
             .collect();
