@@ -204,7 +204,9 @@ fn grid_of(t: &Triangle, cell: f32, offset: f32) -> [u32; 2] {
     let (e1, e2) = (Vec3::from(t.e1), Vec3::from(t.e2));
     let sin2 = e1.cross(e2).length_squared() / (e1.length_squared() * e2.length_squared());
     let error = 1e-6 * e1.length().max(e2.length()) / sin2;
-    if t.light_pdf > 0.0 || !(error < margin(cell, offset)) {
+    // NaN (a degenerate triangle) counts as too large.
+    let precise = error < margin(cell, offset);
+    if t.light_pdf > 0.0 || !precise {
         return [1, 1];
     }
     [cells_along(e1, cell), cells_along(e2, cell)]
