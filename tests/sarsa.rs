@@ -160,6 +160,57 @@ fn chi2_survival(chi2: f64, dof: f64) -> f64 {
     }
 }
 
+/// Every volume's alias table gives each sector exactly its probability:
+/// its own column's kept share plus what other columns hand it.
+#[test]
+fn alias_tables_give_each_sector_its_probability() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let s = SarsaSettings {
+        volumes: Some(64),
+        ..Default::default()
+    };
+    let n = s.sectors() as usize;
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 1).unwrap();
+    // Lumpy Q: spikes, zeros, an all-zero volume and a uniform one.
+    let mut rng = Lcg(3);
+    let q: Vec<f32> = (0..64 * n)
+        .map(|i| match (i / n, i % 5) {
+            (0, _) => 0.0,
+            (1, _) => 1.0,
+            (_, 0) => 100.0 * rng.next() * rng.next(),
+            (_, 1) => 0.0,
+            _ => rng.next(),
+        })
+        .collect();
+    guide.upload_q(&ctx, &q).unwrap();
+    let table = guide.download_sectors().unwrap();
+    common::assert_no_validation_errors(&ctx);
+    for v in 0..64 {
+        let t = &table[v * n..(v + 1) * n];
+        let total: f64 = t.iter().map(|e| e.p as f64).sum();
+        assert!((total - 1.0).abs() < 1e-5, "volume {v}: P sums to {total}");
+        let mut given = vec![0.0f64; n];
+        for (k, e) in t.iter().enumerate() {
+            let keep = (e.threshold as f64).min(1.0);
+            given[k] += keep;
+            given[e.alias as usize] += 1.0 - keep;
+            assert_eq!(
+                e.p_alias, t[e.alias as usize].p,
+                "volume {v} sector {k}: p_alias"
+            );
+        }
+        for k in 0..n {
+            let want = t[k].p as f64;
+            let got = given[k] / n as f64;
+            assert!(
+                (got - want).abs() < 1e-6,
+                "volume {v} sector {k}: table gives {got}, P = {want}"
+            );
+        }
+    }
+}
+
 /// χ² test: directions the GPU sampler draws follow the pdf it reports.
 #[test]
 fn guided_sampler_matches_its_pdf() {

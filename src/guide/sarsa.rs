@@ -427,9 +427,14 @@ impl SarsaGuide {
 
     /// Current sector probabilities P(k), volume-major.
     pub fn download_probabilities(&self) -> gpu::Result<Vec<f32>> {
-        let entries: Vec<SectorEntry> = self.sectors.download()?;
-        let cells = self.volumes.len() * self.settings.sectors() as usize;
-        Ok(entries[..cells].iter().map(|e| e.p).collect())
+        Ok(self.download_sectors()?.iter().map(|e| e.p).collect())
+    }
+
+    /// Current alias tables, volume-major.
+    pub fn download_sectors(&self) -> gpu::Result<Vec<SectorEntry>> {
+        let mut entries: Vec<SectorEntry> = self.sectors.download()?;
+        entries.truncate(self.volumes.len() * self.settings.sectors() as usize);
+        Ok(entries)
     }
 
     /// Overwrites Q (tests and tools), then rebuilds the distributions.
