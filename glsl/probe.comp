@@ -48,14 +48,18 @@ void main() {
         vec3 w = guide_sample(v, q.yzw, sector, p_sector);
         probe_out[i] = vec4(w, mixture_pdf(v, p_sector, w.z));
     } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
-        // in = (volume bits, sector bits, next volume bits, albedo or -emitted);
+        // in[2i] = (volume bits, sector bits, next volume bits, albedo or
+        // -emitted), in[2i+1].x = the share of an emitted target NEE carries;
         // out.x = the target recorded
-        vec4 q = probe_in[i];
+        vec4 q = probe_in[2u * i];
         uint v = floatBitsToUint(q.x);
         uint k = floatBitsToUint(q.y);
         uint vy = floatBitsToUint(q.z);
         float target = q.w < 0.0 ? -q.w : sarsa_surface_target(volume_sums_of(vy), q.w);
         sarsa_record(v, k, target, 0.0);
+        if (q.w < 0.0) {
+            sarsa_record_direct(v, k, probe_in[2u * i + 1u].x);
+        }
         probe_out[i] = vec4(target, 0.0, 0.0, 0.0);
     }
 }

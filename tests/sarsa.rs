@@ -395,6 +395,7 @@ fn check_update(atomics: Atomics) {
     let mut q: Vec<f32> = (0..6 * n).map(|_| 0.1 + rng.next()).collect();
     guide.upload_q(&ctx, &q).unwrap();
     let mut seen = vec![0u32; q.len()];
+    let mut q_direct = vec![0f32; q.len()];
     // Two batches, so the second folds into Q that already has visits.
     for round in 0..2 {
         let batch: Vec<Transition> = (0..3000)
@@ -404,14 +405,34 @@ fn check_update(atomics: Atomics) {
                 next_volume: rng.below(6),
                 albedo: rng.next(),
                 emitted: (rng.next() < 0.2).then(|| 5.0 * rng.next()),
+                nee_share: rng.next(),
             })
             .collect();
+        // The NEE share's running mean counts every visit, emitter or not.
+        let mut shares = vec![0f64; q.len()];
+        for t in batch.iter().filter(|t| t.emitted.is_some()) {
+            shares[t.volume as usize * n + t.sector as usize] += t.nee_share as f64;
+        }
+        let seen_before = seen.clone();
         let gpu_targets = probe::sarsa_updates(&ctx, &scene, &guide, &batch).unwrap();
         let cpu_targets = cpu_update(&mut q, &mut seen, &batch, n, s.grid);
         for (i, (g, c)) in gpu_targets.iter().zip(&cpu_targets).enumerate() {
             assert!(
                 (g - c).abs() <= 1e-4 * c.abs() + 1e-6,
                 "round {round} transition {i}: target {g} vs {c}"
+            );
+        }
+        for i in 0..q.len() {
+            if seen[i] > seen_before[i] {
+                q_direct[i] = ((q_direct[i] as f64 * seen_before[i] as f64 + shares[i])
+                    / seen[i] as f64) as f32;
+            }
+        }
+        let gpu_direct = guide.download_q_direct().unwrap();
+        for (i, (g, c)) in gpu_direct.iter().zip(&q_direct).enumerate() {
+            assert!(
+                (g - c).abs() <= 1e-4 * c.abs() + 1e-6,
+                "{atomics:?} round {round} NEE share[{i}]: GPU {g} vs CPU {c}"
             );
         }
         let gpu_q = guide.download_q().unwrap();

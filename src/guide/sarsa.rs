@@ -430,6 +430,13 @@ impl SarsaGuide {
         Ok(self.download_sectors()?.iter().map(|e| e.p).collect())
     }
 
+    /// Running means of the share of targets NEE carries, volume-major.
+    pub fn download_q_direct(&self) -> gpu::Result<Vec<f32>> {
+        let mut q: Vec<f32> = self.q_direct.download()?;
+        q.truncate(self.volumes.len() * self.settings.sectors() as usize);
+        Ok(q)
+    }
+
     /// Current alias tables, volume-major.
     pub fn download_sectors(&self) -> gpu::Result<Vec<SectorEntry>> {
         let mut entries: Vec<SectorEntry> = self.sectors.download()?;

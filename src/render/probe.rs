@@ -182,6 +182,8 @@ pub struct Transition {
     pub next_volume: u32,
     pub albedo: f32,
     pub emitted: Option<f32>,
+    /// With NEE: the part of `emitted` that NEE carries.
+    pub nee_share: f32,
 }
 
 /// Records `transitions` with the GPU update code, then folds them into Q.
@@ -194,13 +196,16 @@ pub fn sarsa_updates(
 ) -> Result<Vec<f32>, RenderError> {
     let input: Vec<Vec4> = transitions
         .iter()
-        .map(|t| {
-            Vec4::new(
-                f32::from_bits(t.volume),
-                f32::from_bits(t.sector),
-                f32::from_bits(t.next_volume),
-                t.emitted.map_or(t.albedo, |e| -e),
-            )
+        .flat_map(|t| {
+            [
+                Vec4::new(
+                    f32::from_bits(t.volume),
+                    f32::from_bits(t.sector),
+                    f32::from_bits(t.next_volume),
+                    t.emitted.map_or(t.albedo, |e| -e),
+                ),
+                Vec4::new(t.nee_share, 0.0, 0.0, 0.0),
+            ]
         })
         .collect();
     let out = run(
