@@ -11,6 +11,18 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ("trace", "trace_pt", &["METHOD_PT"]),
     ("trace", "trace_sarsa", &["METHOD_SARSA", "FLOAT_ATOMICS"]),
     ("trace", "trace_sarsa_cas", &["METHOD_SARSA"]),
+    // With NEE, sarsa also learns the share NEE carries (compiled out of the
+    // plain kernel, where it cost about 10% on lavapipe even untaken).
+    (
+        "trace",
+        "trace_sarsa_nee",
+        &["METHOD_SARSA", "SARSA_NEE", "FLOAT_ATOMICS"],
+    ),
+    (
+        "trace",
+        "trace_sarsa_nee_cas",
+        &["METHOD_SARSA", "SARSA_NEE"],
+    ),
     ("probe", "probe", &["FLOAT_ATOMICS"]),
     ("probe", "probe_cas", &[]),
 ];

@@ -18,11 +18,11 @@ layout(push_constant) uniform Push { PassParams params; };
 // and adds its squared TD error to the path's loss.
 void learn_bounce(uint volume, uint sector, float q, float target, inout float td_sq_sum, inout uint td_count) {
     if (volume != NO_VOLUME) {
+#ifdef SARSA_NEE
         // With NEE, q is the sampling table's Q, short of what NEE carries;
         // the loss compares with Q itself.
-        if ((params.flags & FLAG_NEE) != 0u) {
-            q = q_values[volume * sector_count() + sector];
-        }
+        q = q_values[volume * sector_count() + sector];
+#endif
         td_sq_sum += sarsa_record(volume, sector, target, q);
         td_count += 1u;
     }
@@ -133,9 +133,11 @@ void main() {
             if (learn) {
                 float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
                 learn_bounce(prev_volume, prev_sector, prev_q, le, td_sq_sum, td_count);
+#ifdef SARSA_NEE
                 if (nee && prev_volume != NO_VOLUME) {
                     sarsa_record_direct(prev_volume, prev_sector, le * (1.0 - weight));
                 }
+#endif
             }
 #endif
             break;

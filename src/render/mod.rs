@@ -155,13 +155,12 @@ fn trace_variant(
 ) -> Result<&'static [u8], RenderError> {
     Ok(match settings.method {
         Method::Pt => spirv::TRACE_PT,
-        Method::Sarsa => {
-            if settings.sarsa.use_float_atomics(ctx.info())? {
-                spirv::TRACE_SARSA
-            } else {
-                spirv::TRACE_SARSA_CAS
-            }
-        }
+        Method::Sarsa => match (settings.sarsa.use_float_atomics(ctx.info())?, settings.nee) {
+            (true, false) => spirv::TRACE_SARSA,
+            (false, false) => spirv::TRACE_SARSA_CAS,
+            (true, true) => spirv::TRACE_SARSA_NEE,
+            (false, true) => spirv::TRACE_SARSA_NEE_CAS,
+        },
     })
 }
 
