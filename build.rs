@@ -8,20 +8,21 @@ use std::path::{Path, PathBuf};
 /// Shaders built more than once with different macros: (source stem, output
 /// name, defines). Sources not listed build once under their own name.
 const VARIANTS: &[(&str, &str, &[&str])] = &[
+    // NEE code is compiled only into the NEE variants: on lavapipe, code
+    // behind an untaken uniform branch still costs time.
     ("trace", "trace_pt", &["METHOD_PT"]),
+    ("trace", "trace_pt_nee", &["METHOD_PT", "WITH_NEE"]),
     ("trace", "trace_sarsa", &["METHOD_SARSA", "FLOAT_ATOMICS"]),
     ("trace", "trace_sarsa_cas", &["METHOD_SARSA"]),
-    // With NEE, sarsa also learns the share NEE carries (compiled out of the
-    // plain kernel, where it cost about 10% on lavapipe even untaken).
     (
         "trace",
         "trace_sarsa_nee",
-        &["METHOD_SARSA", "SARSA_NEE", "FLOAT_ATOMICS"],
+        &["METHOD_SARSA", "WITH_NEE", "FLOAT_ATOMICS"],
     ),
     (
         "trace",
         "trace_sarsa_nee_cas",
-        &["METHOD_SARSA", "SARSA_NEE"],
+        &["METHOD_SARSA", "WITH_NEE"],
     ),
     ("probe", "probe", &["FLOAT_ATOMICS"]),
     ("probe", "probe_cas", &[]),

@@ -18,7 +18,7 @@ layout(push_constant) uniform Push { PassParams params; };
 // and adds its squared TD error to the path's loss.
 void learn_bounce(uint volume, uint sector, float q, float target, inout float td_sq_sum, inout uint td_count) {
     if (volume != NO_VOLUME) {
-#ifdef SARSA_NEE
+#ifdef WITH_NEE
         // With NEE, q is the sampling table's Q, short of what NEE carries;
         // the loss compares with Q itself.
         q = q_values[volume * sector_count() + sector];
@@ -71,7 +71,11 @@ void main() {
     }
     uint index = pixel.y * params.width + pixel.x;
     uint rng = rng_init(index, params.pass_index, params.seed);
+#ifdef WITH_NEE
     bool nee = (params.flags & FLAG_NEE) != 0u && params.light_count > 0u;
+#else
+    const bool nee = false;
+#endif
     float eps = params.cam_pos.w;
 
     // Camera ray through a uniformly jittered point of the pixel (box filter).
@@ -133,7 +137,7 @@ void main() {
             if (learn) {
                 float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
                 learn_bounce(prev_volume, prev_sector, prev_q, le, td_sq_sum, td_count);
-#ifdef SARSA_NEE
+#ifdef WITH_NEE
                 if (nee && prev_volume != NO_VOLUME) {
                     sarsa_record_direct(prev_volume, prev_sector, le * (1.0 - weight));
                 }

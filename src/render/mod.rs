@@ -154,6 +154,7 @@ fn trace_variant(
     settings: &RenderSettings,
 ) -> Result<&'static [u8], RenderError> {
     Ok(match settings.method {
+        Method::Pt if settings.nee => spirv::TRACE_PT_NEE,
         Method::Pt => spirv::TRACE_PT,
         Method::Sarsa => match (settings.sarsa.use_float_atomics(ctx.info())?, settings.nee) {
             (true, false) => spirv::TRACE_SARSA,
