@@ -36,10 +36,9 @@ fn number(row: &[String], i: usize) -> f64 {
 
 #[test]
 fn quick_bench_writes_the_report() {
-    let out = common::repo("target/test-scratch/bench-report");
-    let cache = common::repo("target/test-scratch/bench-cache");
-    let _ = std::fs::remove_dir_all(&out);
-    let _ = std::fs::remove_dir_all(&cache);
+    let dir = common::scratch("bench-report");
+    let out = dir.join("report");
+    let cache = dir.join("cache");
     let run = || {
         Command::new(env!("CARGO_BIN_EXE_qtrace"))
             .args([
@@ -180,7 +179,7 @@ fn bench_rejects_a_reference_for_several_scenes() {
             "x.exr",
             "--out",
         ])
-        .arg(common::repo("target/test-scratch/bench-bad"))
+        .arg(common::scratch("bench-bad").join("out"))
         .current_dir(common::repo("."))
         .output()
         .unwrap();
@@ -192,8 +191,7 @@ fn bench_rejects_a_reference_for_several_scenes() {
 
 #[test]
 fn speed_table_reports_every_pass_and_cost() {
-    let json = common::repo("target/test-scratch/speed.json");
-    let _ = std::fs::remove_file(&json);
+    let json = common::scratch("bench-speed").join("speed.json");
     let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
         .args([
             "bench",

@@ -14,9 +14,7 @@ fn qtrace() -> Command {
 
 /// A scratch directory holding copies of the Cornell box files.
 fn scratch(name: &str) -> PathBuf {
-    let dir = common::repo(&format!("target/test-scratch/{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch(name);
     for f in ["cornell-box.toml", "cornell-box.obj", "cornell-box.mtl"] {
         std::fs::copy(common::repo(&format!("scenes/{f}")), dir.join(f)).unwrap();
     }

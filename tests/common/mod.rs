@@ -12,6 +12,15 @@ pub fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
 }
 
+/// A fresh, empty directory `target/test-scratch/<name>` of this test's own:
+/// a fresh clone has no `target/`, and tests run in any order.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = repo(&format!("target/test-scratch/{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    dir
+}
+
 /// A context on the default device (or QTRACE_DEVICE) with validation on.
 /// Without a Vulkan device the test fails with the reason: it never passes silently.
 pub fn gpu() -> Arc<GpuContext> {
