@@ -19,6 +19,18 @@ pub struct ComputePipeline {
 
 impl ComputePipeline {
     pub fn new(ctx: &Arc<GpuContext>, name: &str, spirv: &[u8], push_size: u32) -> Result<Self> {
+        Self::specialized(ctx, name, spirv, push_size, &[])
+    }
+
+    /// A pipeline whose shader's specialization constants 0, 1, … take the
+    /// values `constants` (sizes fixed per pipeline, such as a network's shape).
+    pub fn specialized(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        spirv: &[u8],
+        push_size: u32,
+        constants: &[u32],
+    ) -> Result<Self> {
         let words = shader::words(name, spirv)?;
         let bindings = shader::reflect_bindings(&words);
         let module = ShaderModule::new(ctx, &words)?;
@@ -56,10 +68,23 @@ impl ComputePipeline {
                 return Err(e.into());
             }
         };
-        let stage = vk::PipelineShaderStageCreateInfo::default()
+        let entries: Vec<_> = (0..constants.len() as u32)
+            .map(|id| vk::SpecializationMapEntry {
+                constant_id: id,
+                offset: id * 4,
+                size: 4,
+            })
+            .collect();
+        let specialization = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(bytemuck::cast_slice(constants));
+        let mut stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(module.raw)
             .name(c"main");
+        if !constants.is_empty() {
+            stage = stage.specialization_info(&specialization);
+        }
         let info = [vk::ComputePipelineCreateInfo::default()
             .stage(stage)
             .layout(layout)];

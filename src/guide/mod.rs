@@ -2,6 +2,7 @@
 //! importance-sample bounce directions.
 
 pub mod lookup;
+pub mod mlp;
 pub mod sarsa;
 pub mod volumes;
 
