@@ -34,7 +34,8 @@ impl Layer {
     pub fn bias(&self, out: usize) -> usize {
         self.offset + self.fan_out * self.fan_in + out
     }
-    pub fn len(&self) -> usize {
+    /// Its weights and biases.
+    pub fn param_count(&self) -> usize {
         self.fan_out * (self.fan_in + 1)
     }
 }
@@ -117,14 +118,14 @@ impl MlpShape {
                 fan_out,
                 offset,
             };
-            offset += layer.len();
+            offset += layer.param_count();
             layers.push(layer);
         }
         layers
     }
 
     pub fn param_count(&self) -> usize {
-        self.layers().iter().map(Layer::len).sum()
+        self.layers().iter().map(Layer::param_count).sum()
     }
 
     /// The values of the shader's specialization constants 0..4.
