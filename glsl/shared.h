@@ -28,6 +28,16 @@
 #define B_LOOKUP_ITEMS 16
 #define B_DIRECT_SUM 17
 #define B_Q_DIRECT 18
+// Neural-Q network (glsl/mlp.glsl).
+#define B_MLP_PARAMS 19
+#define B_MLP_MOMENTS 20
+#define B_MLP_GRAD 21
+#define B_MLP_INPUTS 22
+#define B_MLP_TARGETS 23
+#define B_MLP_ACTS 24
+#define B_MLP_DELTAS 25
+#define B_MLP_OUTPUTS 26
+#define B_MLP_COUNT 27
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -69,6 +79,8 @@
 #define SIZEOF_PASS_PARAMS 128
 #define SIZEOF_VOLUME 32
 #define SIZEOF_SECTOR_ENTRY 16
+#define SIZEOF_MLP_TARGET 16
+#define SIZEOF_MLP_PUSH 32
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -169,6 +181,27 @@ struct SectorEntry {
     uint alias;
     float p;
     float p_alias;
+};
+
+// One training transition of the Neural-Q network (its input is in the
+// inputs buffer at the same index): the loss is 0.5 (target - Q_sector)^2.
+struct MlpTarget {
+    uint sector;
+    float target;
+    float loss;        // written by the training pass
+    float delta;       // dLoss/dz of the sector's output, written by the training pass
+};
+
+// Push constants of the network's own passes.
+struct MlpPush {
+    uint capacity;     // rows of the inputs/targets buffers
+    uint step;         // Adam step, from 1
+    float learning_rate;
+    float beta1;
+    float beta2;
+    float epsilon;
+    uint pad0;
+    uint pad1;
 };
 
 #endif

@@ -140,3 +140,27 @@ const _: () = assert!(std::mem::offset_of!(PassParams, width) == 80);
 const _: () = assert!(std::mem::offset_of!(Triangle, e2) == 32);
 // Push constants must fit the 128 bytes every device guarantees.
 const _: () = assert!(size_of::<PassParams>() <= 128);
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct MlpTarget {
+    pub sector: u32,
+    pub target: f32,
+    pub loss: f32,
+    pub delta: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct MlpPush {
+    pub capacity: u32,
+    pub step: u32,
+    pub learning_rate: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub epsilon: f32,
+    pub pad: [u32; 2],
+}
+
+const _: () = assert!(size_of::<MlpTarget>() == SIZEOF_MLP_TARGET as usize);
+const _: () = assert!(size_of::<MlpPush>() == SIZEOF_MLP_PUSH as usize);

@@ -3,6 +3,7 @@
 
 pub mod lookup;
 pub mod mlp;
+pub mod network;
 pub mod sarsa;
 pub mod volumes;
 

@@ -1,0 +1,254 @@
+//! The Neural-Q network on the GPU: its parameters and Adam moments, a batch
+//! of training transitions, and the passes that train on that batch
+//! (`mlp_train`, then `mlp_adam`). The maths is `guide::mlp`'s.
+
+use super::mlp::{Adam, MlpShape};
+use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
+use crate::shaders::{self, spirv, MlpPush, MlpTarget};
+use std::mem::size_of;
+use std::sync::Arc;
+
+pub struct Network {
+    pub shape: MlpShape,
+    pub adam: Adam,
+    /// Rows of the training batch.
+    pub capacity: u32,
+    /// Adam steps taken.
+    steps: u32,
+    params: Buffer,
+    moments: Buffer,
+    grad: Buffer,
+    inputs: Buffer,
+    targets: Buffer,
+    count: Buffer,
+    acts: Buffer,
+    deltas: Buffer,
+    train: ComputePipeline,
+    adam_pass: ComputePipeline,
+    train_set: DescriptorSet,
+    adam_set: DescriptorSet,
+}
+
+fn groups(items: u32) -> [u32; 3] {
+    [items.div_ceil(shaders::LINEAR_GROUP).max(1), 1, 1]
+}
+
+impl Network {
+    /// A network with parameters `params` (see `MlpShape::init`) and a
+    /// training batch of `capacity` transitions.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        shape: MlpShape,
+        adam: Adam,
+        capacity: u32,
+        params: &[f32],
+    ) -> gpu::Result<Self> {
+        assert_eq!(params.len(), shape.param_count(), "parameters of {shape:?}");
+        let p = params.len() as u64;
+        let rows = capacity as u64;
+        let units = rows * shape.hidden as u64 * shape.width as u64;
+        let params = Buffer::gpu_only_with(ctx, "mlp parameters", params)?;
+        let moments = Buffer::gpu_only(ctx, "mlp Adam moments", p * 8)?;
+        let grad = Buffer::gpu_only(ctx, "mlp gradient", p * 4)?;
+        let inputs = Buffer::gpu_only(ctx, "mlp batch inputs", rows * shape.inputs as u64 * 4)?;
+        let targets = Buffer::gpu_only(
+            ctx,
+            "mlp batch targets",
+            rows * size_of::<MlpTarget>() as u64,
+        )?;
+        let count = Buffer::gpu_only(ctx, "mlp batch count", 4)?;
+        let acts = Buffer::gpu_only(ctx, "mlp batch activations", units * 4)?;
+        let deltas = Buffer::gpu_only(ctx, "mlp batch deltas", units * 4)?;
+        let push = size_of::<MlpPush>() as u32;
+        let constants = shape.constants();
+        let train =
+            ComputePipeline::specialized(ctx, "mlp training", spirv::MLP_TRAIN, push, &constants)?;
+        let adam_pass =
+            ComputePipeline::specialized(ctx, "mlp Adam step", spirv::MLP_ADAM, push, &constants)?;
+        let bindings = [
+            (shaders::B_MLP_PARAMS, &params),
+            (shaders::B_MLP_MOMENTS, &moments),
+            (shaders::B_MLP_GRAD, &grad),
+            (shaders::B_MLP_INPUTS, &inputs),
+            (shaders::B_MLP_TARGETS, &targets),
+            (shaders::B_MLP_COUNT, &count),
+            (shaders::B_MLP_ACTS, &acts),
+            (shaders::B_MLP_DELTAS, &deltas),
+        ];
+        let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
+        let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
+        ctx.submit(None, |rec| {
+            for b in [&moments, &grad, &count] {
+                rec.fill(b, 0);
+            }
+        })?;
+        Ok(Self {
+            shape,
+            adam,
+            capacity,
+            steps: 0,
+            params,
+            moments,
+            grad,
+            inputs,
+            targets,
+            count,
+            acts,
+            deltas,
+            train,
+            adam_pass,
+            train_set,
+            adam_set,
+        })
+    }
+
+    /// Buffers a kernel that fills the batch or reads the network binds.
+    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
+        [
+            (shaders::B_MLP_PARAMS, &self.params),
+            (shaders::B_MLP_INPUTS, &self.inputs),
+            (shaders::B_MLP_TARGETS, &self.targets),
+            (shaders::B_MLP_COUNT, &self.count),
+        ]
+    }
+
+    fn push(&self) -> MlpPush {
+        MlpPush {
+            capacity: self.capacity,
+            step: self.steps,
+            learning_rate: self.adam.learning_rate,
+            beta1: self.adam.beta1,
+            beta2: self.adam.beta2,
+            epsilon: self.adam.epsilon,
+            pad: [0; 2],
+        }
+    }
+
+    /// Records one training step on the batch (the first `count` rows) and
+    /// empties it.
+    pub fn record_step(&mut self, rec: &mut Recorder<'_>) {
+        self.steps += 1;
+        let push = self.push();
+        let push = bytemuck::bytes_of(&push);
+        rec.dispatch(Pass {
+            name: "mlp training",
+            pipeline: &self.train,
+            set: &self.train_set,
+            push,
+            groups: groups(self.capacity),
+        });
+        rec.dispatch(Pass {
+            name: "mlp Adam step",
+            pipeline: &self.adam_pass,
+            set: &self.adam_set,
+            push,
+            groups: groups(self.shape.param_count() as u32),
+        });
+    }
+
+    /// Replaces the batch (tests and tools): inputs row-major, one target each.
+    pub fn upload_batch(
+        &self,
+        ctx: &Arc<GpuContext>,
+        inputs: &[f32],
+        targets: &[MlpTarget],
+    ) -> gpu::Result<()> {
+        assert!(targets.len() <= self.capacity as usize);
+        assert_eq!(inputs.len(), targets.len() * self.shape.inputs as usize);
+        let rows = targets.len() as u32;
+        let staged = [
+            (bytemuck::cast_slice::<f32, u8>(inputs), &self.inputs),
+            (bytemuck::cast_slice(targets), &self.targets),
+            (bytemuck::bytes_of(&rows), &self.count),
+        ];
+        let staging = staged
+            .iter()
+            .map(|(bytes, _)| {
+                let b = Buffer::upload(ctx, "mlp batch (staging)", bytes.len().max(4) as u64)?;
+                b.write(bytes);
+                Ok(b)
+            })
+            .collect::<gpu::Result<Vec<_>>>()?;
+        ctx.submit(None, |rec| {
+            for (src, (_, dst)) in staging.iter().zip(&staged) {
+                rec.copy(src, dst);
+            }
+        })
+    }
+
+    pub fn download_params(&self) -> gpu::Result<Vec<f32>> {
+        self.params.download()
+    }
+
+    /// The gradient of the last step (mean over its batch).
+    pub fn download_grad(&self) -> gpu::Result<Vec<f32>> {
+        self.grad.download()
+    }
+
+    /// The batch's targets, with the loss and output delta the last step wrote.
+    pub fn download_targets(&self) -> gpu::Result<Vec<MlpTarget>> {
+        self.targets.download()
+    }
+
+    /// Q of every sector for each row of `inputs`, by the batched forward pass.
+    pub fn infer(&self, ctx: &Arc<GpuContext>, inputs: &[f32]) -> gpu::Result<Vec<f32>> {
+        let rows = (inputs.len() / self.shape.inputs as usize) as u32;
+        let staged = Buffer::gpu_only_with(ctx, "mlp inference inputs", inputs)?;
+        let count = Buffer::gpu_only_with(ctx, "mlp inference count", &[rows])?;
+        let outputs = Buffer::gpu_only(
+            ctx,
+            "mlp inference outputs",
+            (rows as u64 * self.shape.outputs as u64 * 4).max(4),
+        )?;
+        let push = MlpPush {
+            capacity: rows,
+            ..self.push()
+        };
+        let forward = ComputePipeline::specialized(
+            ctx,
+            "mlp inference",
+            spirv::MLP_FORWARD,
+            size_of::<MlpPush>() as u32,
+            &self.shape.constants(),
+        )?;
+        let set = DescriptorSet::new(
+            ctx,
+            &forward,
+            &[
+                (shaders::B_MLP_PARAMS, &self.params),
+                (shaders::B_MLP_INPUTS, &staged),
+                (shaders::B_MLP_COUNT, &count),
+                (shaders::B_MLP_OUTPUTS, &outputs),
+            ],
+        )?;
+        ctx.submit(None, |rec| {
+            rec.dispatch(Pass {
+                name: "mlp inference",
+                pipeline: &forward,
+                set: &set,
+                push: bytemuck::bytes_of(&push),
+                groups: groups(rows),
+            })
+        })?;
+        let mut q: Vec<f32> = outputs.download()?;
+        q.truncate(rows as usize * self.shape.outputs as usize);
+        Ok(q)
+    }
+
+    /// Device memory the network and its batch hold.
+    pub fn bytes(&self) -> u64 {
+        [
+            &self.params,
+            &self.moments,
+            &self.grad,
+            &self.inputs,
+            &self.targets,
+            &self.count,
+            &self.acts,
+            &self.deltas,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum()
+    }
+}

@@ -1,0 +1,139 @@
+//! The Neural-Q network's GPU passes against the CPU reference of
+//! `guide::mlp` (whose gradient is itself checked by finite differences):
+//! batched inference, one training step's losses, gradient and Adam update.
+
+mod common;
+
+use common::Lcg;
+use qtrace::guide::mlp::{Adam, MlpShape};
+use qtrace::guide::network::Network;
+use qtrace::shaders::MlpTarget;
+
+const SHAPE: MlpShape = MlpShape {
+    inputs: 9,
+    width: 16,
+    hidden: 3,
+    outputs: 20,
+};
+
+/// Initial parameters with non-zero hidden biases, so that which units are
+/// active varies from input to input.
+fn params(rng: &mut Lcg) -> Vec<f32> {
+    let mut p = SHAPE.init(17, 0.3);
+    for layer in &SHAPE.layers() {
+        for o in 0..layer.fan_out {
+            p[layer.bias(o)] += 0.2 * (rng.next() - 0.5);
+        }
+    }
+    p
+}
+
+fn inputs(rng: &mut Lcg, rows: usize) -> Vec<f32> {
+    (0..rows * SHAPE.inputs as usize)
+        .map(|_| rng.next() * 2.0 - 1.0)
+        .collect()
+}
+
+fn batch(rng: &mut Lcg, rows: usize) -> (Vec<f32>, Vec<MlpTarget>) {
+    let targets = (0..rows)
+        .map(|_| MlpTarget {
+            sector: rng.below(SHAPE.outputs),
+            target: 3.0 * rng.next(),
+            ..Default::default()
+        })
+        .collect();
+    (inputs(rng, rows), targets)
+}
+
+fn assert_close(what: &str, gpu: &[f32], cpu: &[f32], tol: f32) {
+    assert_eq!(gpu.len(), cpu.len(), "{what}: lengths");
+    for (i, (g, c)) in gpu.iter().zip(cpu).enumerate() {
+        assert!(
+            (g - c).abs() <= tol * c.abs().max(1.0),
+            "{what}[{i}]: GPU {g} vs CPU {c}"
+        );
+    }
+}
+
+#[test]
+fn gpu_inference_matches_cpu() {
+    let ctx = common::gpu();
+    let mut rng = Lcg(3);
+    let p = params(&mut rng);
+    let net = Network::new(&ctx, SHAPE, Adam::default(), 16, &p).unwrap();
+    let rows = 300;
+    let x = inputs(&mut rng, rows);
+    let gpu = net.infer(&ctx, &x).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let cpu: Vec<f32> = x
+        .chunks(SHAPE.inputs as usize)
+        .flat_map(|row| SHAPE.forward(&p, row))
+        .collect();
+    assert_close("Q", &gpu, &cpu, 1e-5);
+    // Not a constant function: the check means something.
+    let spread = cpu.iter().fold(0.0f32, |m, &q| m.max((q - cpu[0]).abs()));
+    assert!(spread > 0.05, "Q spread {spread}");
+}
+
+#[test]
+fn gpu_training_step_matches_cpu() {
+    let ctx = common::gpu();
+    let mut rng = Lcg(5);
+    let mut cpu_params = params(&mut rng);
+    let adam = Adam {
+        learning_rate: 1e-2,
+        ..Adam::default()
+    };
+    let capacity = 512;
+    let mut net = Network::new(&ctx, SHAPE, adam, capacity, &cpu_params).unwrap();
+    let n = cpu_params.len();
+    let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
+    // Two steps with different batch sizes: the second checks the moments too.
+    for (step, rows) in [(1u32, 500usize), (2, 200)] {
+        let (x, targets) = batch(&mut rng, rows);
+        net.upload_batch(&ctx, &x, &targets).unwrap();
+        ctx.submit(None, |rec| net.record_step(rec)).unwrap();
+        common::assert_no_validation_errors(&ctx);
+
+        let mut grad = vec![0.0; n];
+        let mut losses = Vec::new();
+        for (row, t) in x.chunks(SHAPE.inputs as usize).zip(&targets) {
+            losses.push(SHAPE.gradient(&cpu_params, row, t.sector as usize, t.target, &mut grad));
+        }
+        grad.iter_mut().for_each(|g| *g /= rows as f32);
+        let written = net.download_targets().unwrap();
+        let gpu_losses: Vec<f32> = written[..rows].iter().map(|t| t.loss).collect();
+        assert_close(&format!("step {step} loss"), &gpu_losses, &losses, 1e-4);
+
+        let gpu_grad = net.download_grad().unwrap();
+        let scale = grad.iter().fold(0.0f32, |s, g| s.max(g.abs()));
+        assert!(scale > 1e-3, "gradient vanishes: {scale}");
+        for (i, (g, c)) in gpu_grad.iter().zip(&grad).enumerate() {
+            assert!(
+                (g - c).abs() <= 1e-4 * scale,
+                "step {step} gradient[{i}]: GPU {g} vs CPU {c} (largest {scale})"
+            );
+        }
+        let nonzero = grad.iter().filter(|g| g.abs() > 1e-3 * scale).count();
+        assert!(nonzero > n / 2, "only {nonzero} of {n} parameters learn");
+
+        adam.step(&mut cpu_params, &mut m, &mut v, &grad, step);
+        let gpu_params = net.download_params().unwrap();
+        for (i, (g, c)) in gpu_params.iter().zip(&cpu_params).enumerate() {
+            // Adam moves each parameter by about the learning rate whatever
+            // its gradient's size, so a gradient that is rounding noise on
+            // one side may move it the other way: allow that only there.
+            let tol = if grad[i].abs() > 1e-3 * scale {
+                1e-5
+            } else {
+                2.0 * adam.learning_rate
+            };
+            assert!(
+                (g - c).abs() <= tol,
+                "step {step} parameter {i}: GPU {g} vs CPU {c}"
+            );
+        }
+        // Keep the two sides on the same parameters.
+        cpu_params = gpu_params;
+    }
+}
