@@ -9,7 +9,7 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { MlpPush push; };
 layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
-layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Count { uint count[]; };
+layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_TARGETS) readonly buffer Targets { MlpTarget targets[]; };
 layout(std430, set = 0, binding = B_MLP_ACTS) readonly buffer Acts { float acts[]; };
 layout(std430, set = 0, binding = B_MLP_DELTAS) readonly buffer Deltas { float deltas[]; };
@@ -23,8 +23,8 @@ uint unit_index(uint s, uint l, uint o) {
 
 void main() {
     uint p = gl_GlobalInvocationID.x;
-    uint batch = min(count[0], push.capacity);
-    if (p >= mlp_param_count() || batch == 0u) {
+    uint rows = min(batch.count, push.capacity);
+    if (p >= mlp_param_count() || rows == 0u) {
         return;
     }
     uint l = 0u;
@@ -38,7 +38,7 @@ void main() {
     uint i = is_bias ? 0u : local_index % fan_in;
 
     float g = 0.0;
-    for (uint s = 0u; s < batch; s++) {
+    for (uint s = 0u; s < rows; s++) {
         float delta;
         if (l == MLP_HIDDEN) {
             delta = targets[s].sector == o ? targets[s].delta : 0.0;
@@ -54,7 +54,7 @@ void main() {
         }
         g += delta * a;
     }
-    g /= float(batch);
+    g /= float(rows);
     grad[p] = g;
 
     vec2 m = moments[p];

@@ -8,12 +8,12 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { MlpPush push; };
 layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
-layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Count { uint count[]; };
+layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_OUTPUTS) writeonly buffer Outputs { float outputs[]; };
 
 void main() {
     uint s = gl_GlobalInvocationID.x;
-    if (s >= min(count[0], push.capacity)) {
+    if (s >= min(batch.count, push.capacity)) {
         return;
     }
     for (uint i = 0u; i < MLP_INPUTS; i++) {

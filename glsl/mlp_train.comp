@@ -10,7 +10,7 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { MlpPush push; };
 layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
-layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Count { uint count[]; };
+layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_TARGETS) buffer Targets { MlpTarget targets[]; };
 // [transition][hidden layer][unit]
 layout(std430, set = 0, binding = B_MLP_ACTS) buffer Acts { float acts[]; };
@@ -22,7 +22,7 @@ uint unit_index(uint s, uint l, uint o) {
 
 void main() {
     uint s = gl_GlobalInvocationID.x;
-    if (s >= min(count[0], push.capacity)) {
+    if (s >= min(batch.count, push.capacity)) {
         return;
     }
     for (uint i = 0u; i < MLP_INPUTS; i++) {

@@ -46,6 +46,8 @@
 #define FLAG_LEARN 4
 // Guides: sample sectors in proportion to Q * cos(theta) instead of Q.
 #define FLAG_COS_DISTRIBUTION 8
+// Neural: the Q-learning target (max over sectors) instead of the expected one.
+#define FLAG_MAX_TARGET 16
 
 // Probe kernel modes (tests of the GLSL building blocks).
 #define PROBE_TRACE 0
@@ -68,6 +70,11 @@
 // Longest BVH traversal stack the builder may produce.
 #define BVH_STACK_SIZE 64
 
+// Neural-Q state encoding: position and normal, then sin and cos of the
+// position at this many octaves.
+#define ENCODING_FREQUENCIES 4
+#define ENCODED_INPUTS (6 + 6 * ENCODING_FREQUENCIES)
+
 // Bytes of each struct, checked on the Rust side too.
 #define SIZEOF_BVH_NODE 32
 #define SIZEOF_TRIANGLE 64
@@ -81,6 +88,7 @@
 #define SIZEOF_SECTOR_ENTRY 16
 #define SIZEOF_MLP_TARGET 16
 #define SIZEOF_MLP_PUSH 32
+#define SIZEOF_MLP_BATCH 48
 
 // Flattened BVH node. Interior: children at `first` and `first + 1`.
 // Leaf (count > 0): triangles first .. first + count.
@@ -190,6 +198,18 @@ struct MlpTarget {
     float target;
     float loss;        // written by the training pass
     float delta;       // dLoss/dz of the sector's output, written by the training pass
+};
+
+// The Neural-Q training batch the trace kernel fills: each transition is
+// offered with `probability` and takes slot `count` (counted even when past
+// capacity, so the batch pass can aim the next pass's probability at it).
+struct MlpBatch {
+    uint count;
+    uint capacity;
+    float probability;
+    uint pad0;
+    vec4 bounds_min;   // the scene's box, for the encoding
+    vec4 bounds_scale; // 1 / its extent
 };
 
 // Push constants of the network's own passes.

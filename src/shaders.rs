@@ -164,3 +164,16 @@ pub struct MlpPush {
 
 const _: () = assert!(size_of::<MlpTarget>() == SIZEOF_MLP_TARGET as usize);
 const _: () = assert!(size_of::<MlpPush>() == SIZEOF_MLP_PUSH as usize);
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct MlpBatch {
+    pub count: u32,
+    pub capacity: u32,
+    pub probability: f32,
+    pub pad: u32,
+    pub bounds_min: [f32; 4],
+    pub bounds_scale: [f32; 4],
+}
+
+const _: () = assert!(size_of::<MlpBatch>() == SIZEOF_MLP_BATCH as usize);

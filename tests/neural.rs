@@ -92,7 +92,7 @@ fn gpu_training_step_matches_cpu() {
     for (step, rows) in [(1u32, 500usize), (2, 200)] {
         let (x, targets) = batch(&mut rng, rows);
         net.upload_batch(&ctx, &x, &targets).unwrap();
-        ctx.submit(None, |rec| net.record_step(rec)).unwrap();
+        ctx.submit(None, |rec| net.record_training(rec, 1)).unwrap();
         common::assert_no_validation_errors(&ctx);
 
         let mut grad = vec![0.0; n];

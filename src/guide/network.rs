@@ -4,7 +4,7 @@
 
 use super::mlp::{Adam, MlpShape};
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
-use crate::shaders::{self, spirv, MlpPush, MlpTarget};
+use crate::shaders::{self, spirv, MlpBatch, MlpPush, MlpTarget};
 use std::mem::size_of;
 use std::sync::Arc;
 
@@ -20,13 +20,16 @@ pub struct Network {
     grad: Buffer,
     inputs: Buffer,
     targets: Buffer,
+    /// The batch's state (`MlpBatch`).
     count: Buffer,
     acts: Buffer,
     deltas: Buffer,
     train: ComputePipeline,
     adam_pass: ComputePipeline,
+    batch_pass: ComputePipeline,
     train_set: DescriptorSet,
     adam_set: DescriptorSet,
+    batch_set: DescriptorSet,
 }
 
 fn groups(items: u32) -> [u32; 3] {
@@ -56,7 +59,13 @@ impl Network {
             "mlp batch targets",
             rows * size_of::<MlpTarget>() as u64,
         )?;
-        let count = Buffer::gpu_only(ctx, "mlp batch count", 4)?;
+        let state = MlpBatch {
+            capacity,
+            probability: 1.0,
+            bounds_scale: [1.0; 4],
+            ..Default::default()
+        };
+        let count = Buffer::gpu_only_with(ctx, "mlp batch state", &[state])?;
         let acts = Buffer::gpu_only(ctx, "mlp batch activations", units * 4)?;
         let deltas = Buffer::gpu_only(ctx, "mlp batch deltas", units * 4)?;
         let push = size_of::<MlpPush>() as u32;
@@ -65,6 +74,7 @@ impl Network {
             ComputePipeline::specialized(ctx, "mlp training", spirv::MLP_TRAIN, push, &constants)?;
         let adam_pass =
             ComputePipeline::specialized(ctx, "mlp Adam step", spirv::MLP_ADAM, push, &constants)?;
+        let batch_pass = ComputePipeline::new(ctx, "mlp batch reset", spirv::MLP_BATCH, 0)?;
         let bindings = [
             (shaders::B_MLP_PARAMS, &params),
             (shaders::B_MLP_MOMENTS, &moments),
@@ -77,8 +87,9 @@ impl Network {
         ];
         let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
         let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
+        let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
         ctx.submit(None, |rec| {
-            for b in [&moments, &grad, &count] {
+            for b in [&moments, &grad] {
                 rec.fill(b, 0);
             }
         })?;
@@ -97,8 +108,10 @@ impl Network {
             deltas,
             train,
             adam_pass,
+            batch_pass,
             train_set,
             adam_set,
+            batch_set,
         })
     }
 
@@ -124,26 +137,58 @@ impl Network {
         }
     }
 
-    /// Records one training step on the batch (the first `count` rows) and
-    /// empties it.
-    pub fn record_step(&mut self, rec: &mut Recorder<'_>) {
-        self.steps += 1;
-        let push = self.push();
-        let push = bytemuck::bytes_of(&push);
+    /// Records `steps` training steps on the batch, then empties it and
+    /// sets how likely the next pass offers each transition.
+    pub fn record_training(&mut self, rec: &mut Recorder<'_>, steps: u32) {
+        for _ in 0..steps {
+            self.steps += 1;
+            let push = self.push();
+            let push = bytemuck::bytes_of(&push);
+            rec.dispatch(Pass {
+                name: "mlp training",
+                pipeline: &self.train,
+                set: &self.train_set,
+                push,
+                groups: groups(self.capacity),
+            });
+            rec.dispatch(Pass {
+                name: "mlp Adam step",
+                pipeline: &self.adam_pass,
+                set: &self.adam_set,
+                push,
+                groups: groups(self.shape.param_count() as u32),
+            });
+        }
         rec.dispatch(Pass {
-            name: "mlp training",
-            pipeline: &self.train,
-            set: &self.train_set,
-            push,
-            groups: groups(self.capacity),
+            name: "mlp batch reset",
+            pipeline: &self.batch_pass,
+            set: &self.batch_set,
+            push: &[],
+            groups: [1, 1, 1],
         });
-        rec.dispatch(Pass {
-            name: "mlp Adam step",
-            pipeline: &self.adam_pass,
-            set: &self.adam_set,
-            push,
-            groups: groups(self.shape.param_count() as u32),
-        });
+    }
+
+    /// Sets the batch's state: the encoding's box and the chance the first
+    /// pass offers each transition.
+    pub fn set_batch(
+        &self,
+        ctx: &Arc<GpuContext>,
+        probability: f32,
+        bounds_min: [f32; 3],
+        bounds_max: [f32; 3],
+    ) -> gpu::Result<()> {
+        let scale = |i: usize| 1.0 / (bounds_max[i] - bounds_min[i]).max(1e-6);
+        let state = MlpBatch {
+            count: 0,
+            capacity: self.capacity,
+            probability,
+            pad: 0,
+            bounds_min: [bounds_min[0], bounds_min[1], bounds_min[2], 0.0],
+            bounds_scale: [scale(0), scale(1), scale(2), 0.0],
+        };
+        let staging = Buffer::upload(ctx, "mlp batch state (staging)", self.count.size())?;
+        staging.write(&[state]);
+        ctx.submit(None, |rec| rec.copy(&staging, &self.count))
     }
 
     /// Replaces the batch (tests and tools): inputs row-major, one target each.
@@ -194,7 +239,11 @@ impl Network {
     pub fn infer(&self, ctx: &Arc<GpuContext>, inputs: &[f32]) -> gpu::Result<Vec<f32>> {
         let rows = (inputs.len() / self.shape.inputs as usize) as u32;
         let staged = Buffer::gpu_only_with(ctx, "mlp inference inputs", inputs)?;
-        let count = Buffer::gpu_only_with(ctx, "mlp inference count", &[rows])?;
+        let state = MlpBatch {
+            count: rows,
+            ..Default::default()
+        };
+        let count = Buffer::gpu_only_with(ctx, "mlp inference rows", &[state])?;
         let outputs = Buffer::gpu_only(
             ctx,
             "mlp inference outputs",
