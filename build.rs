@@ -24,6 +24,8 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
         "trace_sarsa_nee_cas",
         &["METHOD_SARSA", "WITH_NEE"],
     ),
+    ("trace", "trace_neural", &["METHOD_NEURAL"]),
+    ("trace", "trace_neural_nee", &["METHOD_NEURAL", "WITH_NEE"]),
     ("probe", "probe", &["FLOAT_ATOMICS"]),
     ("probe", "probe_cas", &[]),
 ];

@@ -3,6 +3,8 @@
 #ifndef QTRACE_GUIDE_GLSL
 #define QTRACE_GUIDE_GLSL
 
+#include "grid.glsl"
+
 #ifdef FLOAT_ATOMICS
 #extension GL_EXT_shader_atomic_float : require
 #endif
@@ -30,17 +32,6 @@ layout(std430, set = 0, binding = B_LOOKUP_CELLS) readonly buffer LookupCells { 
 // (volume position, volume index bits) per list entry.
 layout(std430, set = 0, binding = B_LOOKUP_ITEMS) readonly buffer LookupItems { vec4 lookup_items[]; };
 
-uint grid_a() {
-    return params.sector_grid & 0xffffu;
-}
-
-uint grid_b() {
-    return params.sector_grid >> 16;
-}
-
-uint sector_count() {
-    return grid_a() * grid_b();
-}
 
 // Exact nearest volume to p, a point shading the front (or back) side of
 // triangle `tri`, among the volumes facing that side; NO_VOLUME if none.
@@ -91,19 +82,10 @@ float sector_probability(uint v, uint k) {
     return sectors[v * sector_count() + k].p;
 }
 
-// Solid-angle pdf of the one-sample mixture epsilon * cosine + (1 - epsilon) * guide
-// for a local direction with cos(theta) = cos_theta lying in a sector of
-// probability p_sector; the guide's density there is p_sector * n / (2 pi).
+// Solid-angle pdf of the mixture of cosine and volume v's distribution.
 float mixture_pdf(uint v, float p_sector, float cos_theta) {
-    if (cos_theta <= 0.0) {
-        return 0.0;
-    }
-    float cosine = cos_theta * INV_PI;
-    if (v == NO_VOLUME) {
-        return cosine;
-    }
-    float guided = p_sector * float(sector_count()) * 0.5 * INV_PI;
-    return params.guide_epsilon * cosine + (1.0 - params.guide_epsilon) * guided;
+    float eps = v == NO_VOLUME ? 1.0 : params.guide_epsilon;
+    return mixture_density(eps, p_sector, sector_count(), cos_theta);
 }
 
 float guide_pdf(uint v, vec3 local) {
@@ -112,44 +94,27 @@ float guide_pdf(uint v, vec3 local) {
 }
 
 // A local direction from the mixture, the sector it lies in and that
-// sector's probability; u = three uniform numbers. Both branches go through
-// one concentric map, so SIMD lanes that took different branches share it.
+// sector's probability; u = three uniform numbers.
 vec3 guide_sample(uint v, vec3 u, out uint sector, out float p_sector) {
     bool guided = v != NO_VOLUME && u.z >= params.guide_epsilon;
     uint n = sector_count();
-    uint a = grid_a();
-    vec2 s = u.xy;
+    uint k = 0u;
     p_sector = 0.0;
     if (guided) {
         // Alias method: u.z, rescaled to [0, n), picks a column; its fraction
         // decides between the column's sector and its alias.
         float x = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon) * float(n);
-        uint k = min(uint(x), n - 1u);
+        k = min(uint(x), n - 1u);
         SectorEntry e = sectors[v * n + k];
         bool keep = x - float(k) < e.threshold;
         k = keep ? k : e.alias;
         p_sector = keep ? e.p : e.p_alias;
-        // Keep clear of the cell's edges: rounding in the map must not move the
-        // direction into a neighbouring sector, so that k is the sector guide_pdf
-        // finds for it. (The strip left out is 2e-5 of the cell.)
-        vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
-        s = vec2((float(k % a) + inner.x) / float(a), (float(k / a) + inner.y) / float(grid_b()));
-        sector = k;
     }
-    vec2 d = square_to_disk(s);
-    float r2 = dot(d, d);
-    if (guided) {
-        return vec3(d * sqrt(max(0.0, 2.0 - r2)), 1.0 - r2);
-    }
-    // Cosine sample (Malley). The concentric map keeps the angle, so its
-    // equal-area square point is the disk's square point scaled by
-    // 1 / sqrt(1 + z): the sector needs no inverse map.
-    float z = sqrt(max(0.0, 1.0 - r2));
-    sector = square_sector(0.5 + (u.xy - 0.5) / sqrt(1.0 + z), a, grid_b());
-    if (v != NO_VOLUME) {
+    vec3 local = mixture_direction(guided, k, u.xy, grid_a(), grid_b(), sector);
+    if (!guided && v != NO_VOLUME) {
         p_sector = sector_probability(v, sector);
     }
-    return vec3(d, z);
+    return local;
 }
 
 // A volume's sums, zero for NO_VOLUME.

@@ -63,5 +63,5 @@ void main() {
     moments[p] = m;
     float c1 = 1.0 - pow(push.beta1, float(push.step));
     float c2 = 1.0 - pow(push.beta2, float(push.step));
-    mlp_params[p] -= push.learning_rate * (m.x / c1) / (sqrt(m.y / c2) + push.epsilon);
+    mlp_params[p >> 2][p & 3u] -= push.learning_rate * (m.x / c1) / (sqrt(m.y / c2) + push.epsilon);
 }

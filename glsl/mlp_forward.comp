@@ -7,7 +7,7 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { MlpPush push; };
-layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
+layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { vec4 inputs[]; };
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_OUTPUTS) writeonly buffer Outputs { float outputs[]; };
 
@@ -16,8 +16,8 @@ void main() {
     if (s >= min(batch.count, push.capacity)) {
         return;
     }
-    for (uint i = 0u; i < MLP_INPUTS; i++) {
-        mlp_in[i] = inputs[s * MLP_INPUTS + i];
+    for (uint i = 0u; i < MLP_IN4; i++) {
+        MLP_V(i) = inputs[s * MLP_IN4 + i];
     }
     mlp_hidden_layers();
     for (uint k = 0u; k < MLP_OUTPUTS; k++) {

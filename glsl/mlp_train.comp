@@ -9,15 +9,15 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { MlpPush push; };
-layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
+layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { vec4 inputs[]; };
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_TARGETS) buffer Targets { MlpTarget targets[]; };
-// [transition][hidden layer][unit]
-layout(std430, set = 0, binding = B_MLP_ACTS) buffer Acts { float acts[]; };
-layout(std430, set = 0, binding = B_MLP_DELTAS) writeonly buffer Deltas { float deltas[]; };
+// [transition][hidden layer][unit / 4]
+layout(std430, set = 0, binding = B_MLP_ACTS) buffer Acts { vec4 acts[]; };
+layout(std430, set = 0, binding = B_MLP_DELTAS) writeonly buffer Deltas { vec4 deltas[]; };
 
-uint unit_index(uint s, uint l, uint o) {
-    return (s * MLP_HIDDEN + l) * MLP_WIDTH + o;
+uint unit4(uint s, uint l) {
+    return (s * MLP_HIDDEN + l) * MLP_W4;
 }
 
 void main() {
@@ -25,13 +25,14 @@ void main() {
     if (s >= min(batch.count, push.capacity)) {
         return;
     }
-    for (uint i = 0u; i < MLP_INPUTS; i++) {
-        mlp_in[i] = inputs[s * MLP_INPUTS + i];
+    for (uint i = 0u; i < MLP_IN4; i++) {
+        MLP_V(i) = inputs[s * MLP_IN4 + i];
     }
     for (uint l = 0u; l < MLP_HIDDEN; l++) {
         mlp_hidden_layer(l);
-        for (uint o = 0u; o < MLP_WIDTH; o++) {
-            acts[unit_index(s, l, o)] = mlp_h[o];
+        uint h = mlp_output_region(l);
+        for (uint i = 0u; i < MLP_W4; i++) {
+            acts[unit4(s, l) + i] = MLP_V(h + i);
         }
     }
     MlpTarget t = targets[s];
@@ -42,26 +43,36 @@ void main() {
     targets[s].loss = 0.5 * (t.target - q) * (t.target - q);
     targets[s].delta = delta_out;
 
-    // Deltas of the last hidden layer (in mlp_t), then back through the rest.
-    uint out_row = mlp_offset(MLP_HIDDEN) + t.sector * MLP_WIDTH;
-    for (uint i = 0u; i < MLP_WIDTH; i++) {
-        mlp_t[i] = mlp_h[i] > 0.0 ? mlp_params[out_row + i] * delta_out : 0.0;
-        deltas[unit_index(s, MLP_HIDDEN - 1u, i)] = mlp_t[i];
+    // Deltas of the last hidden layer go to the region its activations do
+    // not occupy; each earlier layer's then to the other region in turn.
+    uint out_row = mlp_offset(MLP_HIDDEN) / 4u + t.sector * MLP_W4;
+    uint from = mlp_last_region();
+    uint to = from == 0u ? MLP_A4 : 0u;
+    for (uint i = 0u; i < MLP_W4; i++) {
+        vec4 d = mix(vec4(0.0), mlp_params[out_row + i] * delta_out, greaterThan(MLP_V(from + i), vec4(0.0)));
+        MLP_V(to + i) = d;
+        deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
     }
     for (uint l = MLP_HIDDEN - 1u; l > 0u; l--) {
-        uint w = mlp_offset(l);
-        for (uint j = 0u; j < MLP_WIDTH; j++) {
-            float d = 0.0;
-            if (acts[unit_index(s, l - 1u, j)] > 0.0) {
-                for (uint o = 0u; o < MLP_WIDTH; o++) {
-                    d += mlp_params[w + o * MLP_WIDTH + j] * mlp_t[o];
+        // delta_{l-1}[j] = sum_o W_l[o][j] delta_l[o], where unit j was active.
+        from = to;
+        to = from == 0u ? MLP_A4 : 0u;
+        uint w4 = mlp_offset(l) / 4u;
+        for (uint j = 0u; j < MLP_W4; j++) {
+            MLP_V(to + j) = vec4(0.0);
+        }
+        for (uint o = 0u; o < MLP_WIDTH; o++) {
+            float d_o = MLP_V(from + o / 4u)[o % 4u];
+            if (d_o != 0.0) {
+                for (uint j = 0u; j < MLP_W4; j++) {
+                    MLP_V(to + j) += d_o * mlp_params[w4 + o * MLP_W4 + j];
                 }
             }
-            mlp_h[j] = d;
         }
-        for (uint j = 0u; j < MLP_WIDTH; j++) {
-            mlp_t[j] = mlp_h[j];
-            deltas[unit_index(s, l - 1u, j)] = mlp_h[j];
+        for (uint j = 0u; j < MLP_W4; j++) {
+            vec4 d = mix(vec4(0.0), MLP_V(to + j), greaterThan(acts[unit4(s, l - 1u) + j], vec4(0.0)));
+            MLP_V(to + j) = d;
+            deltas[unit4(s, l - 1u) + j] = d;
         }
     }
 }

@@ -73,7 +73,8 @@
 // Neural-Q state encoding: position and normal, then sin and cos of the
 // position at this many octaves.
 #define ENCODING_FREQUENCIES 4
-#define ENCODED_INPUTS (6 + 6 * ENCODING_FREQUENCIES)
+// 6 + 6 * ENCODING_FREQUENCIES, padded with zeros to a multiple of 4.
+#define ENCODED_INPUTS 32
 
 // Bytes of each struct, checked on the Rust side too.
 #define SIZEOF_BVH_NODE 32

@@ -28,6 +28,26 @@ void learn_bounce(uint volume, uint sector, float q, float target, inout float t
     }
 }
 #endif
+
+#ifdef METHOD_NEURAL
+#include "neural.glsl"
+
+// Scores the bounce that just landed, if there was one, and offers it to
+// the training batch.
+void learn_bounce(bool has_prev, vec3 p, vec3 n, uint sector, float q, float target,
+                  inout float td_sq_sum, inout uint td_count, inout uint rng) {
+    if (has_prev) {
+        float td = target - q;
+        td_sq_sum += td * td;
+        td_count += 1u;
+        neural_offer(p, n, sector, target, rng_next(rng));
+    }
+}
+#endif
+
+#if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
+#define GUIDED
+#endif
 layout(std430, set = 0, binding = B_LIGHTS) readonly buffer Lights { Light lights[]; };
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 
@@ -91,16 +111,24 @@ void main() {
     uint path_length = 0u;
     uint rays = 0u;
     float prev_bsdf_pdf = 0.0; // 0 marks the camera ray: no MIS for what it hits
-#ifdef METHOD_SARSA
-    // The previous bounce's (volume, sector) and the Q its sampling table
-    // gave it, to update once its ray lands.
-    uint prev_volume = NO_VOLUME;
+#ifdef GUIDED
+    // The previous bounce's sector and the Q the guide gave it, to update
+    // once its ray lands.
     uint prev_sector = 0u;
     float prev_q = 0.0;
     bool learn = (params.flags & FLAG_LEARN) != 0u;
     // The guide's estimate of the radiance this path's first hit sends to the
     // camera: the scale Russian roulette compares a path's prospects with.
     float path_estimate = 0.0;
+#endif
+#ifdef METHOD_SARSA
+    uint prev_volume = NO_VOLUME;
+#endif
+#ifdef METHOD_NEURAL
+    // The previous bounce's state, to offer its transition once it lands.
+    bool has_prev = false;
+    vec3 prev_position = vec3(0.0);
+    vec3 prev_normal = vec3(0.0);
 #endif
     uint td_count = 0u;
     float td_sq_sum = 0.0;
@@ -113,6 +141,12 @@ void main() {
 #ifdef METHOD_SARSA
             if (learn) {
                 learn_bounce(prev_volume, prev_sector, prev_q, luminance(params.environment.rgb), td_sq_sum, td_count);
+            }
+#endif
+#ifdef METHOD_NEURAL
+            if (learn) {
+                learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q,
+                             luminance(params.environment.rgb), td_sq_sum, td_count, rng);
             }
 #endif
             break;
@@ -144,6 +178,13 @@ void main() {
 #endif
             }
 #endif
+#ifdef METHOD_NEURAL
+            if (learn) {
+                float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
+                learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, le,
+                             td_sq_sum, td_count, rng);
+            }
+#endif
             break;
         }
 
@@ -161,6 +202,20 @@ void main() {
         if (learn) {
             learn_bounce(prev_volume, prev_sector, prev_q, outgoing, td_sq_sum, td_count);
         }
+        bool guided_here = volume != NO_VOLUME;
+#endif
+#ifdef METHOD_NEURAL
+        vec2 inferred = neural_infer(position, ns);
+        float total = inferred.x;
+        float outgoing = luminance(albedo) * INV_PI * inferred.y;
+        if (depth == 0u) {
+            path_estimate = outgoing;
+        }
+        if (learn) {
+            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, outgoing,
+                         td_sq_sum, td_count, rng);
+        }
+        bool guided_here = total > 0.0;
 #endif
         if (depth >= params.max_depth) {
             break;
@@ -188,8 +243,10 @@ void main() {
                 Hit shadow = trace_ray(position, wi, dist * (1.0 - 1e-4) - eps, true);
                 if (shadow.triangle == NO_HIT) {
                     float light_pdf = lt.light_pdf * dist2 / cos_y;
-#ifdef METHOD_SARSA
+#if defined(METHOD_SARSA)
                     float scatter_pdf = guide_pdf(volume, vec3(dot(wi, t), dot(wi, b), cos_x));
+#elif defined(METHOD_NEURAL)
+                    float scatter_pdf = neural_pdf(total, vec3(dot(wi, t), dot(wi, b), cos_x));
 #else
                     float scatter_pdf = bsdf_pdf(cos_x);
 #endif
@@ -209,6 +266,16 @@ void main() {
         prev_volume = volume;
         prev_sector = sector;
         prev_q = sector_q(sums, sector, p_sector);
+#elif defined(METHOD_NEURAL)
+        uint sector;
+        float p_sector;
+        vec3 local = neural_sample(total, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+        float pdf = neural_mixture_pdf(total, p_sector, local.z);
+        prev_sector = sector;
+        prev_q = neural_q(sector, p_sector * total);
+        prev_position = position;
+        prev_normal = ns;
+        has_prev = true;
 #else
         // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
         vec2 u = rng_next2(rng);
@@ -225,7 +292,7 @@ void main() {
 
         if (depth + 1u >= RR_START_DEPTH) {
             float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
-#ifdef METHOD_SARSA
+#ifdef GUIDED
             // Guided paths toward light carry small weights because their pdf
             // is high, so throughput alone would end exactly the paths the guide
             // chose. They also survive by what they are expected to bring:
@@ -233,7 +300,7 @@ void main() {
             // against the estimate for the whole path (weight window at 1).
             // Never below the throughput rule, so a Q that underestimates ends
             // no more of a path's continuations than that rule would.
-            if (volume != NO_VOLUME && path_estimate > 0.0) {
+            if (guided_here && path_estimate > 0.0) {
                 float expected = luminance(throughput) * prev_q;
                 q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
             }

@@ -5,8 +5,9 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use qtrace::bench::{self, Config, EvalPlan, SpeedPlan};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
+use qtrace::guide::neural::Target;
 use qtrace::guide::sarsa::{Atomics, Distribution};
-use qtrace::guide::SarsaSettings;
+use qtrace::guide::{NeuralSettings, SarsaSettings};
 use qtrace::image::{self, Image};
 use qtrace::render::{self, Method, Overrides, Progress, RenderSettings, Sampling};
 use qtrace::Scene;
@@ -67,6 +68,8 @@ struct RenderArgs {
     sampling: Option<Sampling>,
     #[command(flatten)]
     sarsa: SarsaArgs,
+    #[command(flatten)]
+    neural: NeuralArgs,
 }
 
 /// Options of `--method sarsa`.
@@ -101,6 +104,60 @@ struct SarsaArgs {
     /// How targets are added on the GPU.
     #[arg(long, value_enum, default_value_t = Atomics::Auto)]
     sarsa_atomics: Atomics,
+}
+
+/// Options of `--method neural`.
+#[derive(clap::Args, Clone)]
+#[command(next_help_heading = "Neural-Q guide (--method neural)")]
+struct NeuralArgs {
+    /// Sector grid AxB per hemisphere: the network's A·B outputs.
+    #[arg(long, default_value = "12x12", value_parser = parse_grid)]
+    neural_sectors: [u32; 2],
+    /// Units per hidden layer.
+    #[arg(long, default_value_t = NeuralSettings::default().width)]
+    neural_width: u32,
+    /// Hidden layers.
+    #[arg(long, default_value_t = NeuralSettings::default().layers)]
+    neural_layers: u32,
+    /// Adam's learning rate.
+    #[arg(long, default_value_t = NeuralSettings::default().learning_rate)]
+    neural_lr: f32,
+    /// Training transitions gathered per sample pass.
+    #[arg(long, default_value_t = NeuralSettings::default().batch)]
+    neural_batch: u32,
+    /// Training steps on each pass's transitions.
+    #[arg(long, default_value_t = NeuralSettings::default().steps)]
+    neural_steps: u32,
+    /// Share of cosine sampling in the mixture, in (0, 1].
+    #[arg(long, default_value_t = NeuralSettings::default().epsilon)]
+    neural_epsilon: f32,
+    /// Sample sectors in proportion to Q or to Q·cos θ.
+    #[arg(long, value_enum, default_value_t = Distribution::Qcos)]
+    neural_distribution: Distribution,
+    /// Bootstrap target: expected (rendering equation) or max (deep Q-learning).
+    #[arg(long, value_enum, default_value_t = Target::Expected)]
+    neural_target: Target,
+    /// Stop training after this many sample passes.
+    #[arg(long)]
+    neural_freeze_after: Option<u32>,
+}
+
+impl NeuralArgs {
+    fn settings(&self) -> NeuralSettings {
+        NeuralSettings {
+            grid: self.neural_sectors,
+            width: self.neural_width,
+            layers: self.neural_layers,
+            learning_rate: self.neural_lr,
+            batch: self.neural_batch,
+            steps: self.neural_steps,
+            epsilon: self.neural_epsilon,
+            distribution: self.neural_distribution,
+            target: self.neural_target,
+            freeze_after: self.neural_freeze_after,
+            ..Default::default()
+        }
+    }
 }
 
 fn parse_grid(s: &str) -> Result<[u32; 2], String> {
@@ -145,6 +202,7 @@ impl RenderArgs {
             seed: self.seed,
             sampling: self.sampling,
             sarsa: self.sarsa.settings(),
+            neural: self.neural.settings(),
         }
     }
 }

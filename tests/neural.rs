@@ -10,7 +10,7 @@ use qtrace::guide::network::Network;
 use qtrace::shaders::MlpTarget;
 
 const SHAPE: MlpShape = MlpShape {
-    inputs: 9,
+    inputs: 12,
     width: 16,
     hidden: 3,
     outputs: 20,

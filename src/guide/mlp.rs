@@ -40,6 +40,9 @@ impl Layer {
     }
 }
 
+/// Workgroup memory every device we target offers (lavapipe's limit).
+pub const MAX_WORKGROUP_BYTES: u32 = 32768;
+
 pub fn softplus(z: f32) -> f32 {
     // log(1 + e^z) loses nothing above 15 by returning z, and cannot overflow.
     if z > 15.0 {
@@ -92,13 +95,26 @@ impl MlpShape {
         if self.inputs == 0 || self.width == 0 || self.hidden == 0 || self.outputs == 0 {
             return Err(format!("every layer needs at least one unit: {self:?}"));
         }
-        if self.width > 256 {
+        // Shaders read rows as vec4s and keep each invocation's vectors in
+        // workgroup memory: 64 invocations, two regions (see glsl/mlp.glsl).
+        if self.inputs % 4 != 0 || self.width % 4 != 0 {
+            return Err(format!("inputs and width must be multiples of 4: {self:?}"));
+        }
+        if self.workgroup_bytes() > MAX_WORKGROUP_BYTES {
             return Err(format!(
-                "network width {} is beyond the 256 units a shader invocation keeps",
-                self.width
+                "a network {} wide with {} inputs needs {} KiB of workgroup memory; at most {} KiB",
+                self.width,
+                self.inputs,
+                self.workgroup_bytes() / 1024,
+                MAX_WORKGROUP_BYTES / 1024
             ));
         }
         Ok(())
+    }
+
+    /// Workgroup memory a kernel running the network needs.
+    pub fn workgroup_bytes(&self) -> u32 {
+        64 * 4 * (self.inputs.max(self.width) + self.width)
     }
 
     /// Hidden layers first, the output layer last.

@@ -10,7 +10,7 @@ pub use stats::{PassRecord, RenderStats};
 
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
 use crate::guide::lookup::VolumeLookup;
-use crate::guide::SarsaGuide;
+use crate::guide::{NeuralGuide, SarsaGuide};
 use crate::image::Image;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
@@ -146,6 +146,7 @@ pub struct Renderer {
     _samples: Buffer,
     profiler: Profiler,
     guide: Option<SarsaGuide>,
+    neural: Option<NeuralGuide>,
 }
 
 /// SPIR-V of the trace kernel for a method on this device.
@@ -162,6 +163,8 @@ fn trace_variant(
             (true, true) => spirv::TRACE_SARSA_NEE,
             (false, true) => spirv::TRACE_SARSA_NEE_CAS,
         },
+        Method::Neural if settings.nee => spirv::TRACE_NEURAL_NEE,
+        Method::Neural => spirv::TRACE_NEURAL,
     })
 }
 
@@ -211,11 +214,21 @@ impl Renderer {
             }
         }
         let guide = match settings.method {
-            Method::Pt => None,
             Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
+            _ => None,
+        };
+        let pixels = settings.width as u64 * settings.height as u64;
+        let neural = match settings.method {
+            Method::Neural => Some(NeuralGuide::new(
+                ctx,
+                scene,
+                &settings.neural,
+                settings.seed,
+                pixels,
+            )?),
+            _ => None,
         };
         let gpu_scene = GpuScene::upload(ctx, scene, guide.as_ref().and_then(|g| g.lookup()))?;
-        let pixels = settings.width as u64 * settings.height as u64;
         let samples =
             Buffer::gpu_only(ctx, "path samples", pixels * size_of::<PathSample>() as u64)?;
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
@@ -225,7 +238,16 @@ impl Renderer {
             shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
         )?;
         let push = size_of::<PassParams>() as u32;
-        let trace = ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?;
+        let trace = match &neural {
+            Some(n) => ComputePipeline::specialized(
+                ctx,
+                "trace",
+                trace_variant(ctx, &settings)?,
+                push,
+                &n.network.shape.constants(),
+            )?,
+            None => ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?,
+        };
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([
@@ -235,6 +257,9 @@ impl Renderer {
         ]);
         if let Some(g) = &guide {
             bindings.extend(g.bindings());
+        }
+        if let Some(n) = &neural {
+            bindings.extend(n.bindings());
         }
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
@@ -254,6 +279,7 @@ impl Renderer {
             _samples: samples,
             profiler: Profiler::new(ctx)?,
             guide,
+            neural,
         })
     }
 
@@ -268,12 +294,19 @@ impl Renderer {
         let (trace, trace_set) = (&self.trace, &self.trace_set);
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
         let guide = self.guide.as_ref();
+        let mut neural = self.neural.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         self.ctx.submit(Some(&mut self.profiler), |rec| {
             for index in first..first + count {
                 let mut params = base;
                 params.pass_index = index;
-                let learn = settings.sarsa.learns_in_pass(index);
+                let learn = match settings.method {
+                    Method::Neural => settings.neural.learns_in_pass(index),
+                    _ => settings.sarsa.learns_in_pass(index),
+                };
+                if let Some(n) = neural.as_deref() {
+                    n.set_params(&mut params, learn);
+                }
                 if let Some(guide) = guide {
                     guide.set_params(&mut params, learn);
                     if settings.sarsa.reset_after == Some(index) {
@@ -298,6 +331,9 @@ impl Renderer {
                 // The next pass samples from what this one learned.
                 if let (Some(guide), true) = (guide, learn) {
                     guide.record_update(rec, &params);
+                }
+                if let (Some(n), true) = (neural.as_deref_mut(), learn) {
+                    n.record_update(rec);
                 }
             }
         })?;
@@ -396,10 +432,8 @@ impl Renderer {
                     zero_contribution_fraction: s.zero_paths as f64 / n,
                     mean_path_length: s.length_sum as f64 / n,
                     rays: s.rays as u64,
-                    loss: self
-                        .guide
-                        .as_ref()
-                        .map(|_| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
+                    loss: (self.guide.is_some() || self.neural.is_some())
+                        .then(|| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
                 });
             }
             let mut elapsed = start.elapsed().as_secs_f64() - paused;
@@ -463,7 +497,8 @@ impl Renderer {
                 .map(|t| (t.name.clone(), t.total_ms))
                 .collect(),
             gpu_passes: timings,
-            guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes()),
+            guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes())
+                + self.neural.as_ref().map_or(0, |n| n.bytes()),
             guide_volumes: self.guide.as_ref().map_or(0, |g| g.volumes.len() as u64),
             passes: records,
         };

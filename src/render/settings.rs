@@ -1,6 +1,6 @@
 //! Render settings: the scene's defaults overridden by the command line, validated.
 
-use crate::guide::SarsaSettings;
+use crate::guide::{NeuralSettings, SarsaSettings};
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 
@@ -12,6 +12,8 @@ pub enum Method {
     Pt,
     /// Expected Sarsa guiding: Q-values in radiance volumes.
     Sarsa,
+    /// Neural-Q guiding: an MLP gives every sector's Q at a point.
+    Neural,
 }
 
 impl Method {
@@ -19,6 +21,7 @@ impl Method {
         match self {
             Method::Pt => "pt",
             Method::Sarsa => "sarsa",
+            Method::Neural => "neural",
         }
     }
 }
@@ -45,6 +48,7 @@ pub struct Overrides {
     pub seed: Option<u32>,
     pub sampling: Option<Sampling>,
     pub sarsa: SarsaSettings,
+    pub neural: NeuralSettings,
 }
 
 /// When a render stops.
@@ -67,6 +71,8 @@ pub struct RenderSettings {
     pub sampling: Sampling,
     /// Used by `--method sarsa` only.
     pub sarsa: SarsaSettings,
+    /// Used by `--method neural` only.
+    pub neural: NeuralSettings,
 }
 
 pub const MAX_RESOLUTION: u32 = 16384;
@@ -125,6 +131,9 @@ impl RenderSettings {
                 }
             }
         }
+        if method == Method::Neural {
+            o.neural.validate().map_err(SettingsError)?;
+        }
         Ok(Self {
             method,
             budget,
@@ -135,6 +144,7 @@ impl RenderSettings {
             seed: o.seed.unwrap_or(0),
             sampling: o.sampling.unwrap_or_default(),
             sarsa: o.sarsa.for_image(width, height),
+            neural: o.neural.clone(),
         })
     }
 }

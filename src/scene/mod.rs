@@ -144,6 +144,12 @@ impl Scene {
         self.extent * 1e-5
     }
 
+    /// The box around every triangle (the BVH root's).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let root = &self.nodes[0];
+        (Vec3::from(root.bmin), Vec3::from(root.bmax))
+    }
+
     /// Loads and validates a scene file and everything it names.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SceneError> {
         let path = path.as_ref();

@@ -1,0 +1,204 @@
+//! Neural-Q guiding (SPEC §4.3): an MLP maps the encoded state (position,
+//! normal) to the Q of every hemisphere sector. The trace kernel infers it at
+//! each path vertex, samples from it, and offers its transitions to a batch
+//! the network trains on after the pass.
+
+use super::mlp::{Adam, MlpShape};
+use super::network::Network;
+use super::sarsa::Distribution;
+use crate::gpu::{self, Buffer, GpuContext, Recorder};
+use crate::scene::Scene;
+use crate::shaders::{self, PassParams};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// The bootstrap term of a transition's target.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Target {
+    /// (2π/n) Σ_j Q̂(y)_j f_s cos θ_j: the rendering equation's (Expected Sarsa) form.
+    #[default]
+    Expected,
+    /// max_j Q̂(y)_j f_s cos θ_j: deep Q-learning (thesis Eq. 3.7).
+    Max,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NeuralSettings {
+    /// Sector grid a × b; the network has a·b outputs.
+    pub grid: [u32; 2],
+    /// Units per hidden layer.
+    pub width: u32,
+    /// Hidden layers.
+    pub layers: u32,
+    pub learning_rate: f32,
+    /// Training transitions per pass (the batch's capacity).
+    pub batch: u32,
+    /// Training steps on each pass's batch.
+    pub steps: u32,
+    /// Weight of cosine sampling in the one-sample mixture (keeps every pdf > 0).
+    pub epsilon: f32,
+    pub distribution: Distribution,
+    pub target: Target,
+    /// Stop learning after this many passes (None: learn throughout).
+    pub freeze_after: Option<u32>,
+    /// Q of every sector before training.
+    pub initial_q: f32,
+}
+
+impl Default for NeuralSettings {
+    fn default() -> Self {
+        Self {
+            grid: [12, 12],
+            width: 32,
+            layers: 2,
+            learning_rate: 5e-3,
+            batch: 4096,
+            steps: 1,
+            epsilon: 0.5,
+            distribution: Distribution::Qcos,
+            target: Target::Expected,
+            freeze_after: None,
+            initial_q: 1e-2,
+        }
+    }
+}
+
+const _: () = assert!(
+    shaders::ENCODED_INPUTS >= 6 + 6 * shaders::ENCODING_FREQUENCIES
+        && shaders::ENCODED_INPUTS % 4 == 0
+);
+
+/// Largest training batch: its activations must fit one storage buffer.
+pub const MAX_BATCH: u32 = 1 << 18;
+
+impl NeuralSettings {
+    pub fn sectors(&self) -> u32 {
+        self.grid[0] * self.grid[1]
+    }
+
+    pub fn shape(&self) -> MlpShape {
+        MlpShape {
+            inputs: shaders::ENCODED_INPUTS,
+            width: self.width,
+            hidden: self.layers,
+            outputs: self.sectors(),
+        }
+    }
+
+    /// Checks ranges; the message names the option.
+    pub fn validate(&self) -> Result<(), String> {
+        let [a, b] = self.grid;
+        if !(1..=64).contains(&a) || !(1..=64).contains(&b) {
+            return Err(format!(
+                "--neural-sectors {a}x{b}: each side must lie in 1..=64"
+            ));
+        }
+        if !(4..=64).contains(&self.width) || self.width % 4 != 0 {
+            return Err(format!(
+                "--neural-width {} must be a multiple of 4 in 4..=64",
+                self.width
+            ));
+        }
+        if !(1..=8).contains(&self.layers) {
+            return Err(format!("--neural-layers {} must lie in 1..=8", self.layers));
+        }
+        if !(self.learning_rate.is_finite()
+            && self.learning_rate > 0.0
+            && self.learning_rate <= 1.0)
+        {
+            return Err(format!(
+                "--neural-lr {} must lie in (0, 1]",
+                self.learning_rate
+            ));
+        }
+        if !(1..=MAX_BATCH).contains(&self.batch) {
+            return Err(format!(
+                "--neural-batch {} must lie in 1..={MAX_BATCH}",
+                self.batch
+            ));
+        }
+        if !(1..=64).contains(&self.steps) {
+            return Err(format!("--neural-steps {} must lie in 1..=64", self.steps));
+        }
+        if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
+            return Err(format!(
+                "--neural-epsilon {} must lie in (0, 1]: cosine sampling keeps every direction possible",
+                self.epsilon
+            ));
+        }
+        if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
+            return Err(format!("initial Q {} must be positive", self.initial_q));
+        }
+        self.shape().validate()
+    }
+
+    pub fn learns_in_pass(&self, index: u32) -> bool {
+        self.freeze_after.is_none_or(|k| index < k)
+    }
+}
+
+pub struct NeuralGuide {
+    pub settings: NeuralSettings,
+    pub network: Network,
+}
+
+impl NeuralGuide {
+    /// A freshly initialised network for `scene`; the first pass offers
+    /// transitions with a chance that fills about half the batch at
+    /// `pixels` paths of a few bounces.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        settings: &NeuralSettings,
+        seed: u32,
+        pixels: u64,
+    ) -> gpu::Result<Self> {
+        let shape = settings.shape();
+        let params = shape.init(seed as u64, settings.initial_q);
+        let adam = Adam {
+            learning_rate: settings.learning_rate,
+            ..Adam::default()
+        };
+        let network = Network::new(ctx, shape, adam, settings.batch, &params)?;
+        let (lo, hi) = scene.bounds();
+        let probability = (settings.batch as f64 / (4.0 * pixels.max(1) as f64)).min(1.0);
+        network.set_batch(ctx, probability as f32, lo.into(), hi.into())?;
+        Ok(Self {
+            settings: settings.clone(),
+            network,
+        })
+    }
+
+    /// Buffers the trace kernel binds.
+    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
+        self.network.bindings()
+    }
+
+    /// The pass parameters the trace kernel reads.
+    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
+        let s = &self.settings;
+        p.sector_grid = s.grid[0] | (s.grid[1] << 16);
+        p.guide_epsilon = s.epsilon;
+        if learn {
+            p.flags |= shaders::FLAG_LEARN;
+        }
+        if s.distribution == Distribution::Qcos {
+            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
+        }
+        if s.target == Target::Max {
+            p.flags |= shaders::FLAG_MAX_TARGET;
+        }
+    }
+
+    /// Records the training on what the pass offered.
+    pub fn record_update(&mut self, rec: &mut Recorder<'_>) {
+        self.network.record_training(rec, self.settings.steps);
+    }
+
+    /// Device memory the network and its batch hold.
+    pub fn bytes(&self) -> u64 {
+        self.network.bytes()
+    }
+}
