@@ -474,3 +474,71 @@ fn devices_and_inspect() {
         .expect("a triangle count");
     assert!(triangles >= 100_000, "{stdout}");
 }
+
+#[test]
+fn neural_render_reports_loss_and_training_passes() {
+    let dir = scratch("neural");
+    let json = dir.join("n.json");
+    let output = qtrace()
+        .arg("render")
+        .arg(dir.join("cornell-box.toml"))
+        .args([
+            "--method",
+            "neural",
+            "--spp",
+            "4",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--neural-width",
+            "8",
+            "--neural-sectors",
+            "4x4",
+            "--neural-target",
+            "max",
+            "--validation",
+            "-o",
+        ])
+        .arg(dir.join("n.exr"))
+        .arg("--stats")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(stats["method"], "neural");
+    assert!(stats["guide_bytes"].as_u64().unwrap() > 0);
+    assert!(stats["passes"][3]["loss"].as_f64().is_some());
+    for pass in ["trace", "mlp training", "mlp Adam step"] {
+        assert!(stats["gpu_ms"][pass].as_f64().is_some(), "{pass}: {stats}");
+    }
+}
+
+#[test]
+fn bad_neural_options() {
+    let dir = scratch("bad-neural");
+    let scene = dir.join("cornell-box.toml");
+    for (option, value, message) in [
+        ("--neural-width", "100", "width"),
+        ("--neural-width", "6", "width"),
+        ("--neural-lr", "0", "lr"),
+        ("--neural-batch", "0", "batch"),
+        ("--neural-epsilon", "0", "epsilon"),
+        ("--neural-sectors", "0x4", "sectors"),
+        ("--neural-layers", "0", "layers"),
+    ] {
+        expect_error(
+            &dir,
+            &scene,
+            &["--method", "neural", option, value],
+            &[],
+            &[message],
+        );
+    }
+}

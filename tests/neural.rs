@@ -1,12 +1,16 @@
-//! The Neural-Q network's GPU passes against the CPU reference of
-//! `guide::mlp` (whose gradient is itself checked by finite differences):
-//! batched inference, one training step's losses, gradient and Adam update.
+//! The Neural-Q guide: its network's GPU passes against the CPU reference of
+//! `guide::mlp` (whose gradient is itself checked by finite differences), and
+//! neural renders against pt (unbiasedness).
 
 mod common;
 
 use common::Lcg;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
+use qtrace::guide::neural::Target;
+use qtrace::guide::sarsa::Distribution;
+use qtrace::guide::NeuralSettings;
+use qtrace::render::{Method, Overrides};
 use qtrace::shaders::MlpTarget;
 
 const SHAPE: MlpShape = MlpShape {
@@ -136,4 +140,109 @@ fn gpu_training_step_matches_cpu() {
         // Keep the two sides on the same parameters.
         cpu_params = gpu_params;
     }
+}
+
+/// Settings small enough for the suite: a narrow network, a small batch.
+fn small() -> NeuralSettings {
+    NeuralSettings {
+        width: 16,
+        batch: 1024,
+        ..Default::default()
+    }
+}
+
+/// The neural render converges to the pt reference (pt+NEE, 1024 spp): no
+/// bias from learning, the mixture pdf or the guided roulette.
+fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
+    let ctx = common::gpu();
+    let scene = common::scene(scene_name);
+    let size = |o: Overrides| Overrides {
+        width: Some(32),
+        height: Some(32),
+        ..o
+    };
+    let reference = common::render_with(
+        &ctx,
+        &scene,
+        size(Overrides {
+            spp: Some(1024),
+            nee: true,
+            seed: Some(100),
+            ..Default::default()
+        }),
+    );
+    let guided = common::render_with(
+        &ctx,
+        &scene,
+        size(Overrides {
+            method: Some(Method::Neural),
+            spp: Some(spp),
+            nee,
+            seed: Some(300),
+            neural: settings,
+            ..Default::default()
+        }),
+    );
+    let name = format!("{scene_name}-neural-nee{nee}");
+    common::assert_same_expectation(&name, &guided, &reference);
+    let p = &guided.stats.passes;
+    assert!(p.iter().all(|r| r.loss.is_some_and(f64::is_finite)));
+    assert!(guided.stats.guide_bytes > 0);
+    // Learning shows: the last passes leave fewer zero-contribution paths than the first.
+    if !nee {
+        let first = p[0].zero_contribution_fraction;
+        let last = p[p.len() - 8..]
+            .iter()
+            .map(|r| r.zero_contribution_fraction)
+            .sum::<f64>()
+            / 8.0;
+        assert!(
+            last < first,
+            "{name}: zero-contribution {first} at first, {last} at the end"
+        );
+    }
+}
+
+#[test]
+fn neural_converges_to_pt_on_the_cornell_box() {
+    unbiased("cornell-box", false, 1024, small());
+}
+
+#[test]
+fn neural_with_nee_converges_to_pt_on_the_cornell_box() {
+    unbiased("cornell-box", true, 256, small());
+}
+
+/// With the Q-learning target and sampling in proportion to Q.
+#[test]
+fn neural_converges_to_pt_on_the_indirectly_lit_room() {
+    unbiased(
+        "indirect-room",
+        false,
+        1024,
+        NeuralSettings {
+            target: Target::Max,
+            distribution: Distribution::Q,
+            ..small()
+        },
+    );
+}
+
+/// The white furnace (every pixel 1): the guided estimator matches it even
+/// where guiding cannot help.
+#[test]
+fn neural_matches_the_white_furnace() {
+    let ctx = common::gpu();
+    let scene = common::scene("furnace");
+    let out = common::render_with(
+        &ctx,
+        &scene,
+        Overrides {
+            method: Some(Method::Neural),
+            spp: Some(128),
+            neural: small(),
+            ..Default::default()
+        },
+    );
+    common::assert_white_furnace(&out);
 }

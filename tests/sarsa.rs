@@ -566,22 +566,5 @@ fn sarsa_matches_the_white_furnace() {
             ..Default::default()
         },
     );
-    let n = (3 * out.image.pixels.len()) as f64;
-    let mean = out.image.mean();
-    // Standard error of the image mean from the per-pixel variances.
-    let se = (out
-        .variance
-        .pixels
-        .iter()
-        .flatten()
-        .map(|&v| v as f64)
-        .sum::<f64>()
-        / out.stats.image_spp as f64)
-        .sqrt()
-        / n;
-    let z = (mean - 1.0) / se;
-    assert!(
-        z.abs() < 5.0,
-        "image mean {mean}, {z:.2} standard errors from 1"
-    );
+    common::assert_white_furnace(&out);
 }

@@ -172,3 +172,26 @@ pub fn assert_same_expectation_binned(name: &str, a: &RenderOutput, b: &RenderOu
         "{name}: {outliers} of {n} binned pixel channels beyond 4 sigma, rms z {rms_z:.3}, whole-image z {image_z:.3}"
     );
 }
+
+/// The white furnace has an analytic answer (every pixel is 1): the image
+/// mean must lie within 5 standard errors of it.
+pub fn assert_white_furnace(out: &RenderOutput) {
+    let n = (3 * out.image.pixels.len()) as f64;
+    let mean = out.image.mean();
+    // Standard error of the image mean from the per-pixel variances.
+    let se = (out
+        .variance
+        .pixels
+        .iter()
+        .flatten()
+        .map(|&v| v as f64)
+        .sum::<f64>()
+        / out.stats.image_spp as f64)
+        .sqrt()
+        / n;
+    let z = (mean - 1.0) / se;
+    assert!(
+        z.abs() < 5.0,
+        "image mean {mean}, {z:.2} standard errors from 1"
+    );
+}
