@@ -23,10 +23,13 @@ const uint MLP_W4 = MLP_WIDTH / 4u;
 const uint MLP_A4 = MLP_IN4 > MLP_W4 ? MLP_IN4 : MLP_W4;
 const uint MLP_SPAN4 = MLP_A4 + MLP_W4;
 
-// Kernels that include this run MLP_LANES invocations per workgroup.
+// Kernels that run the network (all but those that define MLP_PARAMS_ONLY)
+// run MLP_LANES invocations per workgroup.
 #define MLP_LANES 64
+#ifndef MLP_PARAMS_ONLY
 shared vec4 mlp_vectors[MLP_LANES * MLP_SPAN4];
 #define MLP_V(i) mlp_vectors[(i) * MLP_LANES + gl_LocalInvocationIndex]
+#endif
 
 layout(std430, set = 0, binding = B_MLP_PARAMS) buffer MlpParams { vec4 mlp_params[]; };
 
@@ -51,6 +54,7 @@ uint mlp_param_count() {
     return mlp_offset(MLP_HIDDEN) + MLP_OUTPUTS * (MLP_WIDTH + 1u);
 }
 
+#ifndef MLP_PARAMS_ONLY
 // The region (first vec4) holding layer l's input: the encoded input for
 // l = 0 is in A; layer l writes its output to the other region.
 uint mlp_input_region(uint l) {
@@ -118,5 +122,6 @@ float mlp_output(uint k) {
     }
     return z;
 }
+#endif
 
 #endif

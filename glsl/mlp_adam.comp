@@ -1,21 +1,19 @@
 #version 460
-// One invocation per parameter: its gradient, the mean over the batch of
-// delta (unit) x activation (input), then an Adam step.
+// The hidden layers' parameters, one invocation each: the gradient, the mean
+// over the batch of delta (unit) x activation (input), then an Adam step.
+// (mlp_adam_output.comp does the output layer.)
 
+#define MLP_PARAMS_ONLY
 #include "shared.h"
 #include "mlp.glsl"
+#include "adam.glsl"
 
 layout(local_size_x = LINEAR_GROUP) in;
 
-layout(push_constant) uniform Push { MlpPush push; };
 layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
-layout(std430, set = 0, binding = B_MLP_TARGETS) readonly buffer Targets { MlpTarget targets[]; };
 layout(std430, set = 0, binding = B_MLP_ACTS) readonly buffer Acts { float acts[]; };
 layout(std430, set = 0, binding = B_MLP_DELTAS) readonly buffer Deltas { float deltas[]; };
-// Adam's first and second moment per parameter.
-layout(std430, set = 0, binding = B_MLP_MOMENTS) buffer Moments { vec2 moments[]; };
-layout(std430, set = 0, binding = B_MLP_GRAD) writeonly buffer Grad { float grad[]; };
 
 uint unit_index(uint s, uint l, uint o) {
     return (s * MLP_HIDDEN + l) * MLP_WIDTH + o;
@@ -24,27 +22,22 @@ uint unit_index(uint s, uint l, uint o) {
 void main() {
     uint p = gl_GlobalInvocationID.x;
     uint rows = min(batch.count, push.capacity);
-    if (p >= mlp_param_count() || rows == 0u) {
+    if (p >= mlp_offset(MLP_HIDDEN) || rows == 0u) {
         return;
     }
     uint l = 0u;
-    while (l < MLP_HIDDEN && p >= mlp_offset(l + 1u)) {
+    while (p >= mlp_offset(l + 1u)) {
         l++;
     }
     uint fan_in = mlp_fan_in(l);
     uint local_index = p - mlp_offset(l);
-    bool is_bias = local_index >= mlp_fan_out(l) * fan_in;
-    uint o = is_bias ? local_index - mlp_fan_out(l) * fan_in : local_index / fan_in;
+    bool is_bias = local_index >= MLP_WIDTH * fan_in;
+    uint o = is_bias ? local_index - MLP_WIDTH * fan_in : local_index / fan_in;
     uint i = is_bias ? 0u : local_index % fan_in;
 
     float g = 0.0;
     for (uint s = 0u; s < rows; s++) {
-        float delta;
-        if (l == MLP_HIDDEN) {
-            delta = targets[s].sector == o ? targets[s].delta : 0.0;
-        } else {
-            delta = deltas[unit_index(s, l, o)];
-        }
+        float delta = deltas[unit_index(s, l, o)];
         if (delta == 0.0) {
             continue;
         }
@@ -54,14 +47,5 @@ void main() {
         }
         g += delta * a;
     }
-    g /= float(rows);
-    grad[p] = g;
-
-    vec2 m = moments[p];
-    m.x = push.beta1 * m.x + (1.0 - push.beta1) * g;
-    m.y = push.beta2 * m.y + (1.0 - push.beta2) * g * g;
-    moments[p] = m;
-    float c1 = 1.0 - pow(push.beta1, float(push.step));
-    float c2 = 1.0 - pow(push.beta2, float(push.step));
-    mlp_params[p >> 2][p & 3u] -= push.learning_rate * (m.x / c1) / (sqrt(m.y / c2) + push.epsilon);
+    adam_step(p, g / float(rows));
 }

@@ -251,7 +251,7 @@ enum Command {
         /// Scenes to evaluate.
         #[arg(default_values = ["scenes/cornell-box.toml"])]
         scenes: Vec<PathBuf>,
-        /// Methods to compare (pt, sarsa; add +nee for next-event estimation).
+        /// Methods to compare (pt, sarsa, neural; add +nee for next-event estimation).
         #[arg(long, alias = "configs", value_delimiter = ',', default_values = ["pt", "sarsa"])]
         methods: Vec<Config>,
         /// Sample counts at which images and errors are kept.

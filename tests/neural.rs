@@ -88,12 +88,13 @@ fn gpu_training_step_matches_cpu() {
         learning_rate: 1e-2,
         ..Adam::default()
     };
-    let capacity = 512;
+    let capacity = 2048;
     let mut net = Network::new(&ctx, SHAPE, adam, capacity, &cpu_params).unwrap();
     let n = cpu_params.len();
     let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
     // Two steps with different batch sizes: the second checks the moments too.
-    for (step, rows) in [(1u32, 500usize), (2, 200)] {
+    // The first batch spans two of the output pass's chunks.
+    for (step, rows) in [(1u32, 1500usize), (2, 200)] {
         let (x, targets) = batch(&mut rng, rows);
         net.upload_batch(&ctx, &x, &targets).unwrap();
         ctx.submit(None, |rec| net.record_training(rec, 1)).unwrap();

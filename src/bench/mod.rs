@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// A method with or without next-event estimation, written `pt`, `pt+nee`,
-/// `sarsa`, `sarsa+nee`.
+/// `sarsa`, `sarsa+nee`, `neural`, `neural+nee`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Config {
     pub method: Method,
@@ -41,7 +41,7 @@ impl std::str::FromStr for Config {
             None => (s, false),
         };
         let method = <Method as clap::ValueEnum>::from_str(name, true).map_err(|_| {
-            format!("unknown method '{name}' in '{s}' (pt, sarsa; add +nee for NEE)")
+            format!("unknown method '{name}' in '{s}' (pt, sarsa, neural; add +nee for NEE)")
         })?;
         Ok(Self { method, nee })
     }

@@ -26,9 +26,11 @@ pub struct Network {
     deltas: Buffer,
     train: ComputePipeline,
     adam_pass: ComputePipeline,
+    adam_output: ComputePipeline,
     batch_pass: ComputePipeline,
     train_set: DescriptorSet,
     adam_set: DescriptorSet,
+    adam_output_set: DescriptorSet,
     batch_set: DescriptorSet,
 }
 
@@ -72,8 +74,20 @@ impl Network {
         let constants = shape.constants();
         let train =
             ComputePipeline::specialized(ctx, "mlp training", spirv::MLP_TRAIN, push, &constants)?;
-        let adam_pass =
-            ComputePipeline::specialized(ctx, "mlp Adam step", spirv::MLP_ADAM, push, &constants)?;
+        let adam_pass = ComputePipeline::specialized(
+            ctx,
+            "mlp Adam step (hidden)",
+            spirv::MLP_ADAM,
+            push,
+            &constants,
+        )?;
+        let adam_output = ComputePipeline::specialized(
+            ctx,
+            "mlp Adam step (output)",
+            spirv::MLP_ADAM_OUTPUT,
+            push,
+            &constants,
+        )?;
         let batch_pass = ComputePipeline::new(ctx, "mlp batch reset", spirv::MLP_BATCH, 0)?;
         let bindings = [
             (shaders::B_MLP_PARAMS, &params),
@@ -87,6 +101,7 @@ impl Network {
         ];
         let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
         let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
+        let adam_output_set = DescriptorSet::new(ctx, &adam_output, &bindings)?;
         let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
         ctx.submit(None, |rec| {
             for b in [&moments, &grad] {
@@ -108,9 +123,11 @@ impl Network {
             deltas,
             train,
             adam_pass,
+            adam_output,
             batch_pass,
             train_set,
             adam_set,
+            adam_output_set,
             batch_set,
         })
     }
@@ -151,12 +168,20 @@ impl Network {
                 push,
                 groups: groups(self.capacity),
             });
+            let hidden = self.shape.layers().last().unwrap().offset as u32;
             rec.dispatch(Pass {
-                name: "mlp Adam step",
+                name: "mlp Adam step (hidden)",
                 pipeline: &self.adam_pass,
                 set: &self.adam_set,
                 push,
-                groups: groups(self.shape.param_count() as u32),
+                groups: groups(hidden),
+            });
+            rec.dispatch(Pass {
+                name: "mlp Adam step (output)",
+                pipeline: &self.adam_output,
+                set: &self.adam_output_set,
+                push,
+                groups: [self.shape.outputs, 1, 1],
             });
         }
         rec.dispatch(Pass {
