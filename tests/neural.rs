@@ -5,12 +5,13 @@
 mod common;
 
 use common::Lcg;
+use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
-use qtrace::guide::neural::Target;
+use qtrace::guide::neural::{encode, Target};
 use qtrace::guide::sarsa::Distribution;
 use qtrace::guide::NeuralSettings;
-use qtrace::render::{Method, Overrides};
+use qtrace::render::{Method, Overrides, RenderSettings, Renderer};
 use qtrace::shaders::MlpTarget;
 
 const SHAPE: MlpShape = MlpShape {
@@ -246,4 +247,54 @@ fn neural_matches_the_white_furnace() {
         },
     );
     common::assert_white_furnace(&out);
+}
+
+/// What the trace kernel offers the batch is the state encoding of
+/// `neural::encode` (its CPU twin) at points inside the scene, with unit normals.
+#[test]
+fn trace_kernel_offers_encoded_states() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let o = Overrides {
+        method: Some(Method::Neural),
+        spp: Some(1),
+        width: Some(32),
+        height: Some(32),
+        neural: small(),
+        ..Default::default()
+    };
+    let settings = RenderSettings::resolve(&scene, &o).unwrap();
+    let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
+    renderer.run(&mut |_| {}).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let inputs = renderer
+        .neural()
+        .unwrap()
+        .network
+        .download_inputs()
+        .unwrap();
+    let (lo, hi) = scene.bounds();
+    let width = qtrace::shaders::ENCODED_INPUTS as usize;
+    let mut rows = 0;
+    for row in inputs.chunks(width) {
+        let n = Vec3::new(row[3], row[4], row[5]);
+        if n == Vec3::ZERO {
+            continue; // a row no transition reached
+        }
+        rows += 1;
+        assert!((n.length() - 1.0).abs() < 1e-5, "normal {n} in {row:?}");
+        let u = (Vec3::new(row[0], row[1], row[2]) + 1.0) * 0.5;
+        assert!(
+            u.min_element() > -1e-3 && u.max_element() < 1.0 + 1e-3,
+            "point outside the scene: {row:?}"
+        );
+        let p = lo + u * (hi - lo);
+        let cpu = encode((lo, hi), p, n);
+        for (i, (g, c)) in row.iter().zip(&cpu).enumerate() {
+            assert!((g - c).abs() < 2e-4, "input {i}: GPU {g} vs CPU {c}");
+        }
+    }
+    // The first pass offers each transition with chance batch / (4 pixels),
+    // 1/4 here, of about 2.5 per path: some 600 rows.
+    assert!(rows > 300, "{rows} rows offered");
 }

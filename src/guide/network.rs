@@ -104,7 +104,7 @@ impl Network {
         let adam_output_set = DescriptorSet::new(ctx, &adam_output, &bindings)?;
         let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
         ctx.submit(None, |rec| {
-            for b in [&moments, &grad] {
+            for b in [&moments, &grad, &inputs] {
                 rec.fill(b, 0);
             }
         })?;
@@ -244,6 +244,11 @@ impl Network {
                 rec.copy(src, dst);
             }
         })
+    }
+
+    /// The batch's input rows as the trace kernel or `upload_batch` left them.
+    pub fn download_inputs(&self) -> gpu::Result<Vec<f32>> {
+        self.inputs.download()
     }
 
     pub fn download_params(&self) -> gpu::Result<Vec<f32>> {

@@ -9,6 +9,7 @@ use super::sarsa::Distribution;
 use crate::gpu::{self, Buffer, GpuContext, Recorder};
 use crate::scene::Scene;
 use crate::shaders::{self, PassParams};
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -137,6 +138,27 @@ impl NeuralSettings {
     pub fn learns_in_pass(&self, index: u32) -> bool {
         self.freeze_after.is_none_or(|k| index < k)
     }
+}
+
+/// The network's input for a point p with normal n in a scene whose box is
+/// `bounds` (the CPU twin of `neural_encode` in glsl/neural.glsl): p mapped
+/// to [-1, 1]³, n, sin and cos of p at ENCODING_FREQUENCIES octaves, zeros.
+pub fn encode(bounds: (Vec3, Vec3), p: Vec3, n: Vec3) -> Vec<f32> {
+    let (lo, hi) = bounds;
+    let u = (p - lo) / (hi - lo).max(Vec3::splat(1e-6));
+    let mut e = vec![0.0; shaders::ENCODED_INPUTS as usize];
+    for i in 0..3 {
+        e[i] = 2.0 * u[i] - 1.0;
+        e[3 + i] = n[i];
+    }
+    for o in 0..shaders::ENCODING_FREQUENCIES as usize {
+        let f = std::f32::consts::PI * (1 << o) as f32;
+        for i in 0..3 {
+            e[6 + 6 * o + i] = (u[i] * f).sin();
+            e[9 + 6 * o + i] = (u[i] * f).cos();
+        }
+    }
+    e
 }
 
 pub struct NeuralGuide {

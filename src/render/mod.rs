@@ -351,6 +351,11 @@ impl Renderer {
         self.run_with_checkpoints(progress, &[], &mut |_| {})
     }
 
+    /// The Neural-Q guide, for `--method neural`.
+    pub fn neural(&self) -> Option<&NeuralGuide> {
+        self.neural.as_ref()
+    }
+
     /// The learned guide, if the method has one.
     pub fn guide(&self) -> Option<&SarsaGuide> {
         self.guide.as_ref()
