@@ -46,7 +46,7 @@ fn quick_bench_writes_the_report() {
                 "scenes/cornell-box.toml",
                 "--quick",
                 "--methods",
-                "pt,sarsa",
+                "pt,sarsa,neural",
                 "--out",
             ])
             .arg(&out)
@@ -79,6 +79,8 @@ fn quick_bench_writes_the_report() {
         "cornell-box/sarsa/spp-0016.png",
         "cornell-box/sarsa/voronoi.png",
         "cornell-box/sarsa/hemispheres.png",
+        "cornell-box/neural/spp-0032.png",
+        "cornell-box/neural/hemispheres.png",
     ] {
         let p = out.join(f);
         assert!(
@@ -99,13 +101,13 @@ fn quick_bench_writes_the_report() {
     for name in ["mse", "mape", "scene", "config"] {
         column(&h, name);
     }
-    assert_eq!(rows.len(), 12, "{rows:?}");
+    assert_eq!(rows.len(), 18, "{rows:?}");
     for r in &rows {
         assert!(number(r, rel).is_finite() && number(r, rel) >= 0.0);
         assert!((0.0..=1.0).contains(&number(r, zero)));
         assert!(number(r, secs) > 0.0);
     }
-    for method in ["pt", "sarsa"] {
+    for method in ["pt", "sarsa", "neural"] {
         let mine: Vec<&Vec<String>> = rows.iter().filter(|r| r[1] == method).collect();
         let (first, last) = (mine.first().unwrap(), mine.last().unwrap());
         assert_eq!((number(first, spp), number(last, spp)), (1.0, 32.0));
@@ -115,17 +117,17 @@ fn quick_bench_writes_the_report() {
         );
     }
 
-    // Per pass: 32 passes per method, loss only for the learned one.
+    // Per pass: 32 passes per method, loss only for the learned ones.
     let (h, rows) = csv(&out.join("passes.csv"));
     let (cfg, loss, len) = (
         column(&h, "config"),
         column(&h, "loss"),
         column(&h, "mean_path_length"),
     );
-    assert_eq!(rows.len(), 64);
+    assert_eq!(rows.len(), 96);
     for r in &rows {
         assert!(number(r, len) >= 1.0);
-        assert_eq!(r[cfg] == "sarsa", !r[loss].is_empty(), "{r:?}");
+        assert_eq!(r[cfg] != "pt", !r[loss].is_empty(), "{r:?}");
     }
 
     let (h, rows) = csv(&out.join("summary.csv"));
@@ -148,12 +150,13 @@ fn quick_bench_writes_the_report() {
         "lowest_error_equal_time",
     ] {
         let v = summary[key].as_str().unwrap();
-        assert!(v == "pt" || v == "sarsa", "{key}: {v}");
+        assert!(["pt", "sarsa", "neural"].contains(&v), "{key}: {v}");
     }
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     for needle in [
         "Summary",
         "cornell-box/sarsa/voronoi.png",
+        "cornell-box/neural/hemispheres.png",
         "cornell-box/error-vs-time.png",
         "relMSE at equal time",
     ] {

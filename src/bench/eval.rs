@@ -70,9 +70,11 @@ pub struct CheckpointRow {
 
 #[derive(Clone, Debug, Serialize)]
 pub struct LearnedPictures {
-    pub voronoi: String,
+    /// Voronoi regions of the radiance volumes (guides that have volumes).
+    pub voronoi: Option<String>,
     pub hemispheres: String,
-    pub volumes: Vec<u32>,
+    /// Where the hemispheres are, for their caption.
+    pub hemispheres_at: String,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -432,8 +434,8 @@ pub fn evaluate(
             if runs.is_empty() {
                 crop_centre = worst_block(&out.image, &reference);
             }
-            let learned = match renderer.guide() {
-                Some(guide) => {
+            let learned = match (renderer.guide(), renderer.neural()) {
+                (Some(guide), _) => {
                     let voronoi = learned::voronoi(
                         ctx,
                         &scene,
@@ -446,15 +448,37 @@ pub fn evaluate(
                     let q = guide
                         .download_q()
                         .map_err(|e| BenchError::Render(e.into()))?;
-                    let hemis = learned::hemispheres(guide, &q, &volumes, 96);
+                    let rows = learned::volume_rows(guide, &q, &volumes);
+                    let hemis = learned::hemispheres(guide.settings.grid, &rows, 96);
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
-                        voronoi: vpng,
+                        voronoi: Some(vpng),
                         hemispheres: hpng,
-                        volumes,
+                        hemispheres_at: format!(
+                            "the {} volumes nearest the brightest light (volumes {})",
+                            volumes.len(),
+                            volumes
+                                .iter()
+                                .map(|v| v.to_string())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
                     })
                 }
-                None => None,
+                (None, Some(neural)) => {
+                    let rows = learned::neural_rows(ctx, &scene, neural, 6)?;
+                    let hemis = learned::hemispheres(neural.settings.grid, &rows, 96);
+                    let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
+                    Some(LearnedPictures {
+                        voronoi: None,
+                        hemispheres: hpng,
+                        hemispheres_at: format!(
+                            "{} surface points nearest the brightest light, as the network infers them",
+                            rows.len()
+                        ),
+                    })
+                }
+                (None, None) => None,
             };
             let s = out.stats;
             runs.push(RunReport {

@@ -1,8 +1,9 @@
 //! Pictures of what a guide learned: the Voronoi regions of the radiance
-//! volumes as the camera sees them, and Q hemispheres of volumes near the light.
+//! volumes as the camera sees them, and Q hemispheres near the light (of
+//! the Sarsa guide's volumes, or inferred by the Neural-Q network).
 
 use crate::gpu::GpuContext;
-use crate::guide::SarsaGuide;
+use crate::guide::{neural, volumes, NeuralGuide, SarsaGuide};
 use crate::image::Image;
 use crate::render::probe::{self, SurfacePoint};
 use crate::render::RenderError;
@@ -81,21 +82,60 @@ pub fn voronoi(
     Ok(image)
 }
 
-/// The volumes nearest to the centre of the brightest light.
-pub fn volumes_near_light(scene: &Scene, guide: &SarsaGuide, count: usize) -> Vec<u32> {
+/// Indices of the `count` points nearest to the centre of the brightest light.
+fn nearest_light(scene: &Scene, points: &[crate::shaders::Volume], count: usize) -> Vec<u32> {
     let Some(light) = scene.lights.iter().max_by(|a, b| a.pdf.total_cmp(&b.pdf)) else {
-        return (0..count.min(guide.volumes.len()) as u32).collect();
+        return (0..count.min(points.len()) as u32).collect();
     };
     let t = &scene.triangles[light.triangle as usize];
     let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
-    let mut order: Vec<u32> = (0..guide.volumes.len() as u32).collect();
+    let mut order: Vec<u32> = (0..points.len() as u32).collect();
     order.sort_by(|&a, &b| {
-        let da = Vec3::from(guide.volumes[a as usize].position).distance_squared(centre);
-        let db = Vec3::from(guide.volumes[b as usize].position).distance_squared(centre);
+        let da = Vec3::from(points[a as usize].position).distance_squared(centre);
+        let db = Vec3::from(points[b as usize].position).distance_squared(centre);
         da.total_cmp(&db)
     });
     order.truncate(count);
     order
+}
+
+/// The volumes nearest to the centre of the brightest light.
+pub fn volumes_near_light(scene: &Scene, guide: &SarsaGuide, count: usize) -> Vec<u32> {
+    nearest_light(scene, &guide.volumes, count)
+}
+
+/// Q of every sector of the given volumes, one row each.
+pub fn volume_rows(guide: &SarsaGuide, q: &[f32], volumes: &[u32]) -> Vec<Vec<f32>> {
+    let n = guide.settings.sectors() as usize;
+    volumes
+        .iter()
+        .map(|&v| q[v as usize * n..(v as usize + 1) * n].to_vec())
+        .collect()
+}
+
+/// Q̂ of every sector as the network infers it at the `count` surface points
+/// (placed as radiance volumes would be) nearest the brightest light.
+pub fn neural_rows(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &NeuralGuide,
+    count: usize,
+) -> Result<Vec<Vec<f32>>, RenderError> {
+    let points = volumes::place(scene, 1024, 1);
+    let bounds = scene.bounds();
+    let inputs: Vec<f32> = nearest_light(scene, &points, count)
+        .iter()
+        .flat_map(|&i| {
+            let p = &points[i as usize];
+            // Offset like a path vertex, which sits a ray offset off its surface.
+            let n = Vec3::from(p.normal);
+            neural::encode(bounds, Vec3::from(p.position) + n * scene.ray_offset(), n)
+        })
+        .collect();
+    let q = guide.network.infer(ctx, &inputs)?;
+    Ok(q.chunks(guide.settings.sectors() as usize)
+        .map(<[f32]>::to_vec)
+        .collect())
 }
 
 /// A perceptual-ish ramp from dark blue through red to pale yellow.
@@ -112,18 +152,17 @@ fn ramp(x: f32) -> Vec3 {
     stops[i].lerp(stops[i + 1], x - i as f32)
 }
 
-/// One disk per volume, side by side: the hemisphere seen from above (the
-/// equal-area disk), each sector coloured by its Q relative to the volume's largest.
-pub fn hemispheres(guide: &SarsaGuide, q: &[f32], volumes: &[u32], size: usize) -> Image {
-    let [a, b] = guide.settings.grid;
-    let n = (a * b) as usize;
+/// One disk per row of Q (an a×b `grid` of sectors), side by side: the
+/// hemisphere seen from above (the equal-area disk), each sector coloured by
+/// its Q relative to the row's largest.
+pub fn hemispheres(grid: [u32; 2], rows: &[Vec<f32>], size: usize) -> Image {
+    let [a, b] = grid;
     let gap = size / 8;
-    let mut image = Image::new(volumes.len() * (size + gap) + gap, size + 2 * gap);
+    let mut image = Image::new(rows.len() * (size + gap) + gap, size + 2 * gap);
     for p in image.pixels.iter_mut() {
         *p = [0.12; 3];
     }
-    for (slot, &v) in volumes.iter().enumerate() {
-        let values = &q[v as usize * n..(v as usize + 1) * n];
+    for (slot, values) in rows.iter().enumerate() {
         let max = values.iter().cloned().fold(0.0f32, f32::max).max(1e-12);
         for y in 0..size {
             for x in 0..size {

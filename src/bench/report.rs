@@ -385,15 +385,23 @@ fn write_html(
             let l = r.learned.as_ref().unwrap();
             let _ = write!(
                 h,
-                "<h3>What {0} learned</h3><div class=\"row\"><div class=\"cell\"><img src=\"{1}\" width=\"256\"><br>Voronoi regions: \
-                 each pixel coloured by the radiance volume its first hit uses</div>\
-                 <div class=\"cell\"><img src=\"{2}\" height=\"120\"><br>Q hemispheres of the {3} volumes nearest the brightest light \
-                 (volumes {4}), seen from above; brighter = more incoming radiance, relative to each volume's largest</div></div>",
-                esc(&r.config),
-                esc(&l.voronoi),
+                "<h3>What {} learned</h3><div class=\"row\">",
+                esc(&r.config)
+            );
+            if let Some(voronoi) = &l.voronoi {
+                let _ = write!(
+                    h,
+                    "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Voronoi regions: \
+                     each pixel coloured by the radiance volume its first hit uses</div>",
+                    esc(voronoi)
+                );
+            }
+            let _ = write!(
+                h,
+                "<div class=\"cell\"><img src=\"{}\" height=\"120\"><br>Q hemispheres at {}, \
+                 seen from above; brighter = more incoming radiance, relative to each one's largest</div></div>",
                 esc(&l.hemispheres),
-                l.volumes.len(),
-                l.volumes.iter().map(|v| v.to_string()).collect::<Vec<_>>().join(", ")
+                esc(&l.hemispheres_at)
             );
         }
     }
