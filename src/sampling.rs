@@ -73,6 +73,19 @@ pub fn sample_cosine(u: Vec2) -> Vec3 {
     Vec3::new(d.x, d.y, (1.0 - d.length_squared()).max(0.0).sqrt())
 }
 
+/// cos θ at the centre of sector k of an a×b grid (as `sector_cos` in
+/// glsl/sampling.glsl): the concentric map sends the centre to disk radius
+/// max(|x|, |y|) of its [-1, 1]² point, and the lift gives z = 1 − r².
+pub fn sector_cos(k: u32, a: u32, b: u32) -> f32 {
+    let o =
+        2.0 * Vec2::new(
+            ((k % a) as f32 + 0.5) / a as f32,
+            ((k / a) as f32 + 0.5) / b as f32,
+        ) - Vec2::ONE;
+    let r = o.x.abs().max(o.y.abs());
+    1.0 - r * r
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,8 +10,9 @@ use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
 use qtrace::guide::neural::{encode, Target};
 use qtrace::guide::sarsa::Distribution;
-use qtrace::guide::NeuralSettings;
-use qtrace::render::{Method, Overrides, RenderSettings, Renderer};
+use qtrace::guide::{NeuralGuide, NeuralSettings};
+use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
+use qtrace::sampling;
 use qtrace::shaders::MlpTarget;
 
 const SHAPE: MlpShape = MlpShape {
@@ -297,4 +298,63 @@ fn trace_kernel_offers_encoded_states() {
     // The first pass offers each transition with chance batch / (4 pixels),
     // 1/4 here, of about 2.5 per path: some 600 rows.
     assert!(rows > 300, "{rows} rows offered");
+}
+
+/// χ² test: directions the GPU Neural-Q sampler draws at a state follow the
+/// pdf it reports, whose sector probabilities are the CPU network's Q·cos θ
+/// (or Q) at that state's encoding, normalised.
+fn check_sampler(distribution: Distribution) {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let settings = NeuralSettings {
+        epsilon: 0.25,
+        distribution,
+        ..small()
+    };
+    let guide = NeuralGuide::new(&ctx, &scene, &settings, 1, 1024).unwrap();
+    // Large output weights make a lumpy distribution.
+    let shape = settings.shape();
+    let mut params = shape.init(5, 0.1);
+    let out = *shape.layers().last().unwrap();
+    for o in 0..out.fan_out {
+        for i in 0..out.fan_in {
+            params[out.weight(o, i)] *= 40.0;
+        }
+    }
+    guide.network.upload_params(&ctx, &params).unwrap();
+    let (point, normal) = (Vec3::new(300.0, 200.0, 250.0), Vec3::new(0.0, 1.0, 0.0));
+
+    let mut rng = Lcg(21);
+    let uniforms: Vec<Vec3> = (0..300_000)
+        .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    let samples = probe::neural_samples(&ctx, &scene, &guide, point, normal, &uniforms).unwrap();
+    common::assert_no_validation_errors(&ctx);
+
+    let [a, b] = settings.grid;
+    let q = shape.forward(&params, &encode(scene.bounds(), point, normal));
+    let w: Vec<f64> = q
+        .iter()
+        .enumerate()
+        .map(|(k, &q)| match distribution {
+            Distribution::Qcos => q as f64 * sampling::sector_cos(k as u32, a, b) as f64,
+            Distribution::Q => q as f64,
+        })
+        .collect();
+    let total: f64 = w.iter().sum();
+    let p: Vec<f64> = w.iter().map(|x| x / total).collect();
+    // Lumpy indeed: the test would pass a near-uniform sampler otherwise.
+    let largest = p.iter().cloned().fold(0.0, f64::max);
+    assert!(largest > 5.0 / p.len() as f64, "largest P(k) {largest}");
+    common::assert_mixture_sampler(&samples, &p, settings.epsilon as f64, settings.grid);
+}
+
+#[test]
+fn neural_sampler_matches_its_pdf() {
+    check_sampler(Distribution::Qcos);
+}
+
+#[test]
+fn neural_sampler_matches_its_pdf_in_proportion_to_q() {
+    check_sampler(Distribution::Q);
 }

@@ -251,6 +251,14 @@ impl Network {
         self.inputs.download()
     }
 
+    /// Overwrites the parameters (tests and tools).
+    pub fn upload_params(&self, ctx: &Arc<GpuContext>, params: &[f32]) -> gpu::Result<()> {
+        assert_eq!(params.len(), self.shape.param_count());
+        let staging = Buffer::upload(ctx, "mlp parameters (staging)", self.params.size())?;
+        staging.write(params);
+        ctx.submit(None, |rec| rec.copy(&staging, &self.params))
+    }
+
     pub fn download_params(&self) -> gpu::Result<Vec<f32>> {
         self.params.download()
     }

@@ -3,7 +3,7 @@
 
 use super::{pass_params, GpuScene, RenderError, RenderSettings};
 use crate::gpu::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass};
-use crate::guide::SarsaGuide;
+use crate::guide::{NeuralGuide, SarsaGuide};
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
 use glam::{Vec2, Vec3, Vec4};
@@ -169,6 +169,55 @@ pub fn guide_samples(
         &input,
         uniforms.len(),
     )?;
+    Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
+}
+
+/// Directions the GPU Neural-Q sampler draws at the state (point, normal)
+/// from the given uniform triples, with the pdf it reports for each.
+pub fn neural_samples(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &NeuralGuide,
+    point: Vec3,
+    normal: Vec3,
+    uniforms: &[Vec3],
+) -> Result<Vec<(Vec3, f32)>, RenderError> {
+    let input: Vec<Vec4> = [point, normal]
+        .iter()
+        .chain(uniforms)
+        .map(|v| v.extend(0.0))
+        .collect();
+    let count = uniforms.len();
+    let input_buf = Buffer::gpu_only_with(ctx, "probe input", &input)?;
+    let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
+    let pipeline = ComputePipeline::specialized(
+        ctx,
+        "neural probe",
+        spirv::NEURAL_PROBE,
+        size_of::<PassParams>() as u32,
+        &guide.network.shape.constants(),
+    )?;
+    let mut bindings = guide.bindings().to_vec();
+    bindings.extend([
+        (shaders::B_PROBE_IN, &input_buf),
+        (shaders::B_PROBE_OUT, &output),
+    ]);
+    let set = DescriptorSet::new(ctx, &pipeline, &bindings)?;
+    let settings = RenderSettings::resolve(scene, &Default::default())?;
+    let mut params = pass_params(scene, &settings);
+    guide.set_params(&mut params, false);
+    params.item_count = count as u32;
+    ctx.submit(None, |rec| {
+        rec.dispatch(Pass {
+            name: "neural probe",
+            pipeline: &pipeline,
+            set: &set,
+            push: bytemuck::bytes_of(&params),
+            groups: [(count as u32).div_ceil(shaders::LINEAR_GROUP), 1, 1],
+        })
+    })?;
+    let mut out: Vec<Vec4> = output.download()?;
+    out.truncate(count);
     Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
 }
 

@@ -1,10 +1,13 @@
 //! Shared test helpers: a validated GPU context and image statistics.
 #![allow(dead_code)]
 
+use glam::{Vec2, Vec3};
 use qtrace::gpu::{ContextOptions, GpuContext};
 use qtrace::image::Image;
 use qtrace::render::{self, Overrides, RenderOutput, RenderSettings};
+use qtrace::sampling;
 use qtrace::Scene;
+use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -193,5 +196,141 @@ pub fn assert_white_furnace(out: &RenderOutput) {
     assert!(
         z.abs() < 5.0,
         "image mean {mean}, {z:.2} standard errors from 1"
+    );
+}
+
+/// Regularised upper incomplete gamma Q(a, x) by series/continued fraction
+/// (Numerical Recipes), for the chi-square p-value.
+pub fn chi2_survival(chi2: f64, dof: f64) -> f64 {
+    let (a, x) = (dof / 2.0, chi2 / 2.0);
+    let ln_gamma = |z: f64| {
+        // Lanczos approximation.
+        let g = [
+            76.18009172947146,
+            -86.50532032941677,
+            24.01409824083091,
+            -1.231739572450155,
+            0.1208650973866179e-2,
+            -0.5395239384953e-5,
+        ];
+        let mut y = z;
+        let tmp = z + 5.5 - (z + 0.5) * (z + 5.5).ln();
+        let mut ser = 1.000000000190015;
+        for c in g {
+            y += 1.0;
+            ser += c / y;
+        }
+        -tmp + (2.5066282746310005 * ser / z).ln()
+    };
+    if x < a + 1.0 {
+        let (mut sum, mut del, mut ap) = (1.0 / a, 1.0 / a, a);
+        for _ in 0..1000 {
+            ap += 1.0;
+            del *= x / ap;
+            sum += del;
+        }
+        1.0 - sum * (-x + a * x.ln() - ln_gamma(a)).exp()
+    } else {
+        let (mut b, mut c, mut d) = (x + 1.0 - a, 1.0 / 1e-300, 1.0 / (x + 1.0 - a));
+        let mut h = d;
+        for i in 1..1000 {
+            let an = -(i as f64) * (i as f64 - a);
+            b += 2.0;
+            d = an * d + b;
+            d = 1.0 / if d.abs() < 1e-300 { 1e-300 } else { d };
+            c = b + an / c;
+            let del = d * c;
+            h *= del;
+            if (del - 1.0).abs() < 1e-12 {
+                break;
+            }
+        }
+        (-x + a * x.ln() - ln_gamma(a)).exp() * h
+    }
+}
+
+/// χ² test of a guide's sampler: `samples` (local direction, reported pdf)
+/// drawn from the one-sample mixture eps · cosine + (1 − eps) · (sector k
+/// with probability p[k], uniform inside it) over an a×b `grid`. Each
+/// reported pdf must be the mixture's, and the directions must follow it.
+pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid: [u32; 2]) {
+    let (a, b) = (grid[0] as usize, grid[1] as usize);
+    let n = a * b;
+    let draws = samples.len();
+    // Bins: each sector split 2 x 2 on the square.
+    let sub = 2usize;
+    let (ba, bb) = (a * sub, b * sub);
+    let mut observed = vec![0f64; ba * bb];
+    for (w, pdf) in samples {
+        assert!(
+            w.z >= 0.0 && (w.length() - 1.0).abs() < 1e-4,
+            "bad direction {w}"
+        );
+        let u = sampling::hemisphere_to_square(*w);
+        let (i, j) = (
+            ((u.x * ba as f32) as usize).min(ba - 1),
+            ((u.y * bb as f32) as usize).min(bb - 1),
+        );
+        observed[i + ba * j] += 1.0;
+        // The reported pdf is the mixture's. Within rounding of a sector edge
+        // the CPU may place the direction in the neighbouring sector: accept either.
+        let pdf_in = |k: usize| eps * w.z as f64 / PI + (1.0 - eps) * p[k] * n as f64 / (2.0 * PI);
+        let near: Vec<usize> = [
+            (0.0, 0.0),
+            (1e-5, 0.0),
+            (-1e-5, 0.0),
+            (0.0, 1e-5),
+            (0.0, -1e-5),
+        ]
+        .iter()
+        .map(|(dx, dy)| {
+            let c = (u + Vec2::new(*dx, *dy)).clamp(Vec2::ZERO, Vec2::splat(0.999_999));
+            (c.x * a as f32) as usize + a * (c.y * b as f32) as usize
+        })
+        .collect();
+        assert!(
+            near.iter()
+                .any(|&k| (*pdf as f64 - pdf_in(k)).abs() <= 1e-3 * pdf_in(k) + 1e-6),
+            "pdf {pdf} vs {} at {w}",
+            pdf_in(near[0])
+        );
+    }
+    // Expected bin probabilities: the cosine part integrated over the bin
+    // (dω = 2π du dv under the equal-area map), the guided part uniform in its sector.
+    let m = 12;
+    let mut chi2 = 0.0;
+    let mut bins = 0;
+    for j in 0..bb {
+        for i in 0..ba {
+            let mut cos_integral = 0.0;
+            for y in 0..m {
+                for x in 0..m {
+                    let u = Vec2::new(
+                        (i as f32 + (x as f32 + 0.5) / m as f32) / ba as f32,
+                        (j as f32 + (y as f32 + 0.5) / m as f32) / bb as f32,
+                    );
+                    cos_integral += sampling::square_to_hemisphere(u).z as f64;
+                }
+            }
+            let cos_prob = 2.0 * cos_integral / (m * m) as f64 / (ba * bb) as f64;
+            let k = (i / sub) + a * (j / sub);
+            let prob = eps * cos_prob + (1.0 - eps) * p[k] / (sub * sub) as f64;
+            let e = prob * draws as f64;
+            let o = observed[i + ba * j];
+            if e < 5.0 {
+                assert!(
+                    o <= 5.0 * e.max(1.0) + 10.0,
+                    "bin ({i}, {j}): {o} draws where {e} expected"
+                );
+                continue;
+            }
+            chi2 += (o - e) * (o - e) / e;
+            bins += 1;
+        }
+    }
+    let p_value = chi2_survival(chi2, (bins - 1) as f64);
+    assert!(
+        p_value > 1e-3,
+        "chi-square {chi2:.1} over {bins} bins: p = {p_value:.2e}"
     );
 }
