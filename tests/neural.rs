@@ -154,56 +154,27 @@ fn small() -> NeuralSettings {
     }
 }
 
-/// The neural render converges to the pt reference (pt+NEE, 1024 spp): no
-/// bias from learning, the mixture pdf or the guided roulette.
+/// The neural render converges to the pt reference: no bias from learning,
+/// the mixture pdf or the guided roulette.
 fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
-    let ctx = common::gpu();
     let scene = common::scene(scene_name);
-    let size = |o: Overrides| Overrides {
-        width: Some(32),
-        height: Some(32),
-        ..o
-    };
-    let reference = common::render_with(
-        &ctx,
+    let name = format!("{scene_name}-neural-nee{nee}");
+    let guided = common::assert_converges_to_pt(
+        &name,
         &scene,
-        size(Overrides {
-            spp: Some(1024),
-            nee: true,
-            seed: Some(100),
-            ..Default::default()
-        }),
-    );
-    let guided = common::render_with(
-        &ctx,
-        &scene,
-        size(Overrides {
+        Overrides {
             method: Some(Method::Neural),
             spp: Some(spp),
             nee,
             seed: Some(300),
             neural: settings,
             ..Default::default()
-        }),
+        },
     );
-    let name = format!("{scene_name}-neural-nee{nee}");
-    common::assert_same_expectation(&name, &guided, &reference);
-    let p = &guided.stats.passes;
-    assert!(p.iter().all(|r| r.loss.is_some_and(f64::is_finite)));
-    assert!(guided.stats.guide_bytes > 0);
-    // Learning shows: the last passes leave fewer zero-contribution paths than the first.
     if !nee {
-        let first = p[0].zero_contribution_fraction;
-        let last = p[p.len() - 8..]
-            .iter()
-            .map(|r| r.zero_contribution_fraction)
-            .sum::<f64>()
-            / 8.0;
-        assert!(
-            last < first,
-            "{name}: zero-contribution {first} at first, {last} at the end"
-        );
+        common::assert_learning_shows(&name, &guided);
     }
+    assert!(guided.stats.guide_bytes > 0);
 }
 
 #[test]

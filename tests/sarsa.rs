@@ -344,27 +344,12 @@ fn gpu_sarsa_update_equals_cpu_reference_with_cas_fallback() {
 }
 
 fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after: Option<u32>) {
-    let ctx = common::gpu();
     let scene = common::scene(scene_name);
-    let size = |o: Overrides| Overrides {
-        width: Some(32),
-        height: Some(32),
-        ..o
-    };
-    let reference = common::render_with(
-        &ctx,
+    let name = format!("{scene_name}-sarsa-nee{nee}-{atomics:?}");
+    let guided = common::assert_converges_to_pt(
+        &name,
         &scene,
-        size(Overrides {
-            spp: Some(1024),
-            nee: true,
-            seed: Some(100),
-            ..Default::default()
-        }),
-    );
-    let guided = common::render_with(
-        &ctx,
-        &scene,
-        size(Overrides {
+        Overrides {
             method: Some(Method::Sarsa),
             spp: Some(spp),
             nee,
@@ -376,24 +361,10 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after
                 ..Default::default()
             },
             ..Default::default()
-        }),
+        },
     );
-    let name = format!("{scene_name}-sarsa-nee{nee}-{atomics:?}");
-    common::assert_same_expectation(&name, &guided, &reference);
-    // Learning shows: the last passes leave fewer zero-contribution paths than the first.
     if !nee {
-        let p = &guided.stats.passes;
-        let first = p[0].zero_contribution_fraction;
-        let last = p[p.len() - 8..]
-            .iter()
-            .map(|r| r.zero_contribution_fraction)
-            .sum::<f64>()
-            / 8.0;
-        assert!(
-            last < first,
-            "{name}: zero-contribution {first} at first, {last} at the end"
-        );
-        assert!(p.iter().all(|r| r.loss.is_some()));
+        common::assert_learning_shows(&name, &guided);
     }
     assert!(guided.stats.guide_bytes > 0);
     assert_eq!(guided.stats.image_spp, spp - reset_after.unwrap_or(0));

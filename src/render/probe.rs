@@ -9,6 +9,39 @@ use crate::shaders::{self, spirv, PassParams};
 use glam::{Vec2, Vec3, Vec4};
 use std::sync::Arc;
 
+/// Dispatches `pipeline` once per item of `count` over `input` (bound at
+/// B_PROBE_IN, with `bindings`) and returns its B_PROBE_OUT vec4s.
+fn launch(
+    ctx: &Arc<GpuContext>,
+    pipeline: &ComputePipeline,
+    bindings: &[(u32, &Buffer)],
+    mut params: PassParams,
+    input: &[Vec4],
+    count: usize,
+) -> Result<Vec<Vec4>, RenderError> {
+    let input_buf = Buffer::gpu_only_with(ctx, "probe input", input)?;
+    let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
+    let mut bindings = bindings.to_vec();
+    bindings.extend([
+        (shaders::B_PROBE_IN, &input_buf),
+        (shaders::B_PROBE_OUT, &output),
+    ]);
+    let set = DescriptorSet::new(ctx, pipeline, &bindings)?;
+    params.item_count = count as u32;
+    ctx.submit(None, |rec| {
+        rec.dispatch(Pass {
+            name: pipeline.name(),
+            pipeline,
+            set: &set,
+            push: bytemuck::bytes_of(&params),
+            groups: [(count as u32).div_ceil(shaders::LINEAR_GROUP), 1, 1],
+        })
+    })?;
+    let mut out: Vec<Vec4> = output.download()?;
+    out.truncate(count);
+    Ok(out)
+}
+
 fn run(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
@@ -18,8 +51,6 @@ fn run(
     count: usize,
 ) -> Result<Vec<Vec4>, RenderError> {
     let gpu_scene = GpuScene::upload(ctx, scene, guide.and_then(|g| g.lookup()))?;
-    let input_buf = Buffer::gpu_only_with(ctx, "probe input", input)?;
-    let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
     // The probe reads guide buffers in some modes; an empty guide fills the bindings.
     let empty;
     let guide = match guide {
@@ -36,29 +67,12 @@ fn run(
     };
     let pipeline = ComputePipeline::new(ctx, "probe", spirv, size_of::<PassParams>() as u32)?;
     let mut bindings = gpu_scene.bindings().to_vec();
-    bindings.extend([
-        (shaders::B_PROBE_IN, &input_buf),
-        (shaders::B_PROBE_OUT, &output),
-    ]);
     bindings.extend(guide.bindings());
-    let set = DescriptorSet::new(ctx, &pipeline, &bindings)?;
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
     guide.set_params(&mut params, true);
     params.probe_mode = mode;
-    params.item_count = count as u32;
-    ctx.submit(None, |rec| {
-        rec.dispatch(Pass {
-            name: "probe",
-            pipeline: &pipeline,
-            set: &set,
-            push: bytemuck::bytes_of(&params),
-            groups: [(count as u32).div_ceil(shaders::LINEAR_GROUP), 1, 1],
-        })
-    })?;
-    let mut out: Vec<Vec4> = output.download()?;
-    out.truncate(count);
-    Ok(out)
+    launch(ctx, &pipeline, &bindings, params, input, count)
 }
 
 /// What the GPU found along one ray: the closest hit (t, triangle), if any,
@@ -187,9 +201,6 @@ pub fn neural_samples(
         .chain(uniforms)
         .map(|v| v.extend(0.0))
         .collect();
-    let count = uniforms.len();
-    let input_buf = Buffer::gpu_only_with(ctx, "probe input", &input)?;
-    let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
     let pipeline = ComputePipeline::specialized(
         ctx,
         "neural probe",
@@ -197,27 +208,17 @@ pub fn neural_samples(
         size_of::<PassParams>() as u32,
         &guide.network.shape.constants(),
     )?;
-    let mut bindings = guide.bindings().to_vec();
-    bindings.extend([
-        (shaders::B_PROBE_IN, &input_buf),
-        (shaders::B_PROBE_OUT, &output),
-    ]);
-    let set = DescriptorSet::new(ctx, &pipeline, &bindings)?;
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
     guide.set_params(&mut params, false);
-    params.item_count = count as u32;
-    ctx.submit(None, |rec| {
-        rec.dispatch(Pass {
-            name: "neural probe",
-            pipeline: &pipeline,
-            set: &set,
-            push: bytemuck::bytes_of(&params),
-            groups: [(count as u32).div_ceil(shaders::LINEAR_GROUP), 1, 1],
-        })
-    })?;
-    let mut out: Vec<Vec4> = output.download()?;
-    out.truncate(count);
+    let out = launch(
+        ctx,
+        &pipeline,
+        &guide.bindings(),
+        params,
+        &input,
+        uniforms.len(),
+    )?;
     Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
 }
 

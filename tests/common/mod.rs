@@ -334,3 +334,45 @@ pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid
         "chi-square {chi2:.1} over {bins} bins: p = {p_value:.2e}"
     );
 }
+
+/// Renders `scene` at 32×32 with `guided` (method, spp, NEE and its
+/// options) and checks it estimates the same image as a 1024-spp pt+NEE
+/// reference. Returns the guided render.
+pub fn assert_converges_to_pt(name: &str, scene: &Scene, guided: Overrides) -> RenderOutput {
+    let ctx = gpu();
+    let size = |o: Overrides| Overrides {
+        width: Some(32),
+        height: Some(32),
+        ..o
+    };
+    let reference = render_with(
+        &ctx,
+        scene,
+        size(Overrides {
+            spp: Some(1024),
+            nee: true,
+            seed: Some(100),
+            ..Default::default()
+        }),
+    );
+    let out = render_with(&ctx, scene, size(guided));
+    assert_same_expectation(name, &out, &reference);
+    out
+}
+
+/// Learning shows: the last 8 passes leave fewer zero-contribution paths
+/// than the first, and every pass reports a finite loss.
+pub fn assert_learning_shows(name: &str, out: &RenderOutput) {
+    let p = &out.stats.passes;
+    assert!(p.iter().all(|r| r.loss.is_some_and(f64::is_finite)));
+    let first = p[0].zero_contribution_fraction;
+    let last = p[p.len() - 8..]
+        .iter()
+        .map(|r| r.zero_contribution_fraction)
+        .sum::<f64>()
+        / 8.0;
+    assert!(
+        last < first,
+        "{name}: zero-contribution {first} at first, {last} at the end"
+    );
+}
