@@ -547,4 +547,21 @@ fn bad_neural_options() {
             &[message],
         );
     }
+    // A batch whose activations exceed a storage buffer (128 MiB on lavapipe).
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "neural",
+            "--neural-batch",
+            "262144",
+            "--neural-width",
+            "64",
+            "--neural-layers",
+            "8",
+        ],
+        &[],
+        &["--neural-batch", "MiB"],
+    );
 }

@@ -213,6 +213,24 @@ impl Renderer {
                 .into());
             }
         }
+        if settings.method == Method::Neural {
+            // The largest buffer is the batch's activations (deltas match it).
+            let n = &settings.neural;
+            let bytes = n.batch as u64 * n.layers as u64 * n.width as u64 * 4;
+            let limit = ctx.info().max_storage_buffer_range;
+            if bytes > limit {
+                return Err(SettingsError(format!(
+                    "a batch of {} transitions through {} layers of {} units needs {} MiB per buffer; device '{}' allows {} MiB: use a smaller --neural-batch",
+                    n.batch,
+                    n.layers,
+                    n.width,
+                    bytes >> 20,
+                    ctx.info().name,
+                    limit >> 20
+                ))
+                .into());
+            }
+        }
         let guide = match settings.method {
             Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
             _ => None,
