@@ -11,11 +11,31 @@
 layout(std430, set = 0, binding = B_MLP_COUNT) buffer Batch { MlpBatch batch; };
 layout(std430, set = 0, binding = B_MLP_INPUTS) writeonly buffer BatchInputs { vec4 batch_inputs[]; };
 layout(std430, set = 0, binding = B_MLP_TARGETS) writeonly buffer BatchTargets { MlpTarget batch_targets[]; };
+layout(std430, set = 0, binding = B_NEURAL_VERTICES) readonly buffer Vertices { vec4 neural_vertices[]; };
 
 // The state of a point p with normal n, as the network's input: p in the
 // scene's box mapped to [-1, 1]^3, n, then sin and cos of p at
 // ENCODING_FREQUENCIES octaves, then zeros.
+//
+// Or, with FLAG_VERTEX_ENCODING (the thesis's, for small scenes): every
+// scene vertex relative to p, over the scene's extent, then n, then zeros.
 void neural_encode(vec3 p, vec3 n) {
+    if ((params.flags & FLAG_VERTEX_ENCODING) != 0u) {
+        uint count = batch.vertex_count;
+        for (uint v = 0u; v < count; v++) {
+            vec3 d = (neural_vertices[v].xyz - p) * batch.bounds_scale.xyz;
+            for (uint i = 0u; i < 3u; i++) {
+                mlp_set_input(3u * v + i, d[i]);
+            }
+        }
+        for (uint i = 0u; i < 3u; i++) {
+            mlp_set_input(3u * count + i, n[i]);
+        }
+        for (uint i = 3u * count + 3u; i < MLP_INPUTS; i++) {
+            mlp_set_input(i, 0.0);
+        }
+        return;
+    }
     vec3 u = (p - batch.bounds_min.xyz) * batch.bounds_scale.xyz;
     for (uint i = 0u; i < 3u; i++) {
         mlp_set_input(i, 2.0 * u[i] - 1.0);

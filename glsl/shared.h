@@ -38,6 +38,7 @@
 #define B_MLP_DELTAS 25
 #define B_MLP_OUTPUTS 26
 #define B_MLP_COUNT 27
+#define B_NEURAL_VERTICES 28
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -48,6 +49,8 @@
 #define FLAG_COS_DISTRIBUTION 8
 // Neural: the Q-learning target (max over sectors) instead of the expected one.
 #define FLAG_MAX_TARGET 16
+// Neural: encode the state by the scene's vertices relative to it (thesis).
+#define FLAG_VERTEX_ENCODING 32
 
 // Probe kernel modes (tests of the GLSL building blocks).
 #define PROBE_TRACE 0
@@ -208,7 +211,7 @@ struct MlpBatch {
     uint count;
     uint capacity;
     float probability;
-    uint pad0;
+    uint vertex_count; // the scene's vertices, for the vertex encoding
     vec4 bounds_min;   // the scene's box, for the encoding
     vec4 bounds_scale; // 1 / its extent
 };

@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use qtrace::bench::{self, Config, EvalPlan, SpeedPlan};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
-use qtrace::guide::neural::Target;
+use qtrace::guide::neural::{Encoding, Target};
 use qtrace::guide::sarsa::{Atomics, Distribution};
 use qtrace::guide::{NeuralSettings, SarsaSettings};
 use qtrace::image::{self, Image};
@@ -137,6 +137,11 @@ struct NeuralArgs {
     /// Bootstrap target: expected (rendering equation) or max (deep Q-learning).
     #[arg(long, value_enum, default_value_t = Target::Expected)]
     neural_target: Target,
+    /// State encoding: position at several frequencies (scales to any
+    /// scene), or the scene's vertices relative to the point (the thesis's;
+    /// scenes of a few dozen vertices).
+    #[arg(long, value_enum, default_value_t = Encoding::Frequency)]
+    neural_encoding: Encoding,
     /// Stop training after this many sample passes.
     #[arg(long)]
     neural_freeze_after: Option<u32>,
@@ -154,6 +159,7 @@ impl NeuralArgs {
             epsilon: self.neural_epsilon,
             distribution: self.neural_distribution,
             target: self.neural_target,
+            encoding: self.neural_encoding,
             freeze_after: self.neural_freeze_after,
             ..Default::default()
         }

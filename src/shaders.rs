@@ -171,7 +171,7 @@ pub struct MlpBatch {
     pub count: u32,
     pub capacity: u32,
     pub probability: f32,
-    pub pad: u32,
+    pub vertex_count: u32,
     pub bounds_min: [f32; 4],
     pub bounds_scale: [f32; 4],
 }

@@ -547,6 +547,22 @@ fn bad_neural_options() {
             &[message],
         );
     }
+    // The Cornell box's 32 vertices, encoded, overflow a 64-wide network's
+    // workgroup memory.
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "neural",
+            "--neural-encoding",
+            "vertices",
+            "--neural-width",
+            "64",
+        ],
+        &[],
+        &["--neural-encoding vertices", "vertices give"],
+    );
     // A batch whose activations exceed a storage buffer (128 MiB on lavapipe).
     expect_error(
         &dir,

@@ -8,7 +8,7 @@ use common::Lcg;
 use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
-use qtrace::guide::neural::{encode, Target};
+use qtrace::guide::neural::{encode, scene_vertices, Encoding, Target};
 use qtrace::guide::sarsa::Distribution;
 use qtrace::guide::{NeuralGuide, NeuralSettings};
 use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
@@ -222,9 +222,9 @@ fn neural_matches_the_white_furnace() {
 }
 
 /// What the trace kernel offers the batch is the state encoding of
-/// `neural::encode` (its CPU twin) at points inside the scene, with unit normals.
-#[test]
-fn trace_kernel_offers_encoded_states() {
+/// `NeuralGuide::encode` (its CPU twin) at points inside the scene, with
+/// unit normals.
+fn check_offers(encoding: Encoding) {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let o = Overrides {
@@ -232,36 +232,43 @@ fn trace_kernel_offers_encoded_states() {
         spp: Some(1),
         width: Some(32),
         height: Some(32),
-        neural: small(),
+        neural: NeuralSettings {
+            encoding,
+            ..small()
+        },
         ..Default::default()
     };
     let settings = RenderSettings::resolve(&scene, &o).unwrap();
     let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
     renderer.run(&mut |_| {}).unwrap();
     common::assert_no_validation_errors(&ctx);
-    let inputs = renderer
-        .neural()
-        .unwrap()
-        .network
-        .download_inputs()
-        .unwrap();
+    let guide = renderer.neural().unwrap();
+    let inputs = guide.network.download_inputs().unwrap();
     let (lo, hi) = scene.bounds();
-    let width = qtrace::shaders::ENCODED_INPUTS as usize;
+    let vertices = scene_vertices(&scene);
+    let width = guide.network.shape.inputs as usize;
     let mut rows = 0;
     for row in inputs.chunks(width) {
-        let n = Vec3::new(row[3], row[4], row[5]);
+        // Where the normal is, and the point recovered from the row.
+        let (normal_at, p) = match encoding {
+            Encoding::Frequency => (3, lo + (Vec3::from_slice(row) + 1.0) * 0.5 * (hi - lo)),
+            Encoding::Vertices => (
+                3 * vertices.len(),
+                vertices[0] - Vec3::from_slice(row) * (hi - lo),
+            ),
+        };
+        let n = Vec3::from_slice(&row[normal_at..]);
         if n == Vec3::ZERO {
             continue; // a row no transition reached
         }
         rows += 1;
         assert!((n.length() - 1.0).abs() < 1e-5, "normal {n} in {row:?}");
-        let u = (Vec3::new(row[0], row[1], row[2]) + 1.0) * 0.5;
+        let margin = (hi - lo) * 1e-3;
         assert!(
-            u.min_element() > -1e-3 && u.max_element() < 1.0 + 1e-3,
-            "point outside the scene: {row:?}"
+            p.cmpge(lo - margin).all() && p.cmple(hi + margin).all(),
+            "point {p} outside the scene: {row:?}"
         );
-        let p = lo + u * (hi - lo);
-        let cpu = encode((lo, hi), p, n);
+        let cpu = guide.encode(p, n);
         for (i, (g, c)) in row.iter().zip(&cpu).enumerate() {
             assert!((g - c).abs() < 2e-4, "input {i}: GPU {g} vs CPU {c}");
         }
@@ -269,6 +276,30 @@ fn trace_kernel_offers_encoded_states() {
     // The first pass offers each transition with chance batch / (4 pixels),
     // 1/4 here, of about 2.5 per path: some 600 rows.
     assert!(rows > 300, "{rows} rows offered");
+}
+
+#[test]
+fn trace_kernel_offers_encoded_states() {
+    check_offers(Encoding::Frequency);
+}
+
+#[test]
+fn trace_kernel_offers_vertex_encoded_states() {
+    check_offers(Encoding::Vertices);
+}
+
+/// The thesis's encoding, scene vertices relative to the point.
+#[test]
+fn neural_with_vertex_encoding_converges_to_pt_on_the_cornell_box() {
+    unbiased(
+        "cornell-box",
+        false,
+        512,
+        NeuralSettings {
+            encoding: Encoding::Vertices,
+            ..small()
+        },
+    );
 }
 
 /// χ² test: directions the GPU Neural-Q sampler draws at a state follow the

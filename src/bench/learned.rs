@@ -3,7 +3,7 @@
 //! the Sarsa guide's volumes, or inferred by the Neural-Q network).
 
 use crate::gpu::GpuContext;
-use crate::guide::{neural, volumes, NeuralGuide, SarsaGuide};
+use crate::guide::{volumes, NeuralGuide, SarsaGuide};
 use crate::image::Image;
 use crate::render::probe::{self, SurfacePoint};
 use crate::render::RenderError;
@@ -122,14 +122,13 @@ pub fn neural_rows(
     count: usize,
 ) -> Result<Vec<Vec<f32>>, RenderError> {
     let points = volumes::place(scene, 1024, 1);
-    let bounds = scene.bounds();
     let inputs: Vec<f32> = nearest_light(scene, &points, count)
         .iter()
         .flat_map(|&i| {
             let p = &points[i as usize];
             // Offset like a path vertex, which sits a ray offset off its surface.
             let n = Vec3::from(p.normal);
-            neural::encode(bounds, Vec3::from(p.position) + n * scene.ray_offset(), n)
+            guide.encode(Vec3::from(p.position) + n * scene.ray_offset(), n)
         })
         .collect();
     let q = guide.network.infer(ctx, &inputs)?;

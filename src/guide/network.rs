@@ -193,21 +193,22 @@ impl Network {
         });
     }
 
-    /// Sets the batch's state: the encoding's box and the chance the first
-    /// pass offers each transition.
+    /// Sets the batch's state: the encoding's box and vertex count, and the
+    /// chance the first pass offers each transition.
     pub fn set_batch(
         &self,
         ctx: &Arc<GpuContext>,
         probability: f32,
         bounds_min: [f32; 3],
         bounds_max: [f32; 3],
+        vertex_count: u32,
     ) -> gpu::Result<()> {
         let scale = |i: usize| 1.0 / (bounds_max[i] - bounds_min[i]).max(1e-6);
         let state = MlpBatch {
             count: 0,
             capacity: self.capacity,
             probability,
-            pad: 0,
+            vertex_count,
             bounds_min: [bounds_min[0], bounds_min[1], bounds_min[2], 0.0],
             bounds_scale: [scale(0), scale(1), scale(2), 0.0],
         };

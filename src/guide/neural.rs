@@ -24,6 +24,18 @@ pub enum Target {
     Max,
 }
 
+/// How a path vertex's state becomes the network's input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Encoding {
+    /// Position in the scene's box and sin/cos of it at a few octaves, and the normal.
+    #[default]
+    Frequency,
+    /// Every scene vertex relative to the point, and the normal (the
+    /// thesis's; for scenes of a few dozen vertices).
+    Vertices,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NeuralSettings {
@@ -42,6 +54,7 @@ pub struct NeuralSettings {
     pub epsilon: f32,
     pub distribution: Distribution,
     pub target: Target,
+    pub encoding: Encoding,
     /// Stop learning after this many passes (None: learn throughout).
     pub freeze_after: Option<u32>,
     /// Q of every sector before training.
@@ -60,6 +73,7 @@ impl Default for NeuralSettings {
             epsilon: 0.5,
             distribution: Distribution::Qcos,
             target: Target::Expected,
+            encoding: Encoding::Frequency,
             freeze_after: None,
             initial_q: 1e-2,
         }
@@ -79,9 +93,37 @@ impl NeuralSettings {
         self.grid[0] * self.grid[1]
     }
 
+    /// The network for the frequency encoding.
     pub fn shape(&self) -> MlpShape {
+        self.shape_with_inputs(shaders::ENCODED_INPUTS)
+    }
+
+    /// The network for this encoding in `scene`.
+    pub fn shape_for(&self, scene: &Scene) -> MlpShape {
+        match self.encoding {
+            Encoding::Frequency => self.shape(),
+            Encoding::Vertices => self.shape_with_inputs(
+                (3 * scene_vertices(scene).len() as u32 + 3).next_multiple_of(4),
+            ),
+        }
+    }
+
+    /// Checks the network this encoding needs in `scene` fits the shaders.
+    pub fn validate_for(&self, scene: &Scene) -> Result<(), String> {
+        let shape = self.shape_for(scene);
+        shape.validate().map_err(|e| match self.encoding {
+            Encoding::Frequency => e,
+            Encoding::Vertices => format!(
+                "--neural-encoding vertices: the scene's {} vertices give {} inputs, too many: {e}",
+                scene_vertices(scene).len(),
+                shape.inputs
+            ),
+        })
+    }
+
+    fn shape_with_inputs(&self, inputs: u32) -> MlpShape {
         MlpShape {
-            inputs: shaders::ENCODED_INPUTS,
+            inputs,
             width: self.width,
             hidden: self.layers,
             outputs: self.sectors(),
@@ -140,6 +182,41 @@ impl NeuralSettings {
     }
 }
 
+/// The scene's distinct triangle corners, in order of first use.
+pub fn scene_vertices(scene: &Scene) -> Vec<Vec3> {
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    for t in &scene.triangles {
+        let v0 = Vec3::from(t.v0);
+        for v in [v0, v0 + Vec3::from(t.e1), v0 + Vec3::from(t.e2)] {
+            if seen.insert(v.to_array().map(f32::to_bits)) {
+                out.push(v);
+            }
+        }
+    }
+    out
+}
+
+/// The vertex encoding of a point p with normal n (the CPU twin of
+/// `neural_encode` with FLAG_VERTEX_ENCODING): every vertex relative to p
+/// over the extent of the scene's box `bounds`, n, zeros up to `inputs`.
+pub fn encode_vertices(
+    vertices: &[Vec3],
+    bounds: (Vec3, Vec3),
+    inputs: usize,
+    p: Vec3,
+    n: Vec3,
+) -> Vec<f32> {
+    let scale = Vec3::ONE / (bounds.1 - bounds.0).max(Vec3::splat(1e-6));
+    let mut e: Vec<f32> = vertices
+        .iter()
+        .flat_map(|&v| ((v - p) * scale).to_array())
+        .chain(n.to_array())
+        .collect();
+    e.resize(inputs, 0.0);
+    e
+}
+
 /// The network's input for a point p with normal n in a scene whose box is
 /// `bounds` (the CPU twin of `neural_encode` in glsl/neural.glsl): p mapped
 /// to [-1, 1]³, n, sin and cos of p at ENCODING_FREQUENCIES octaves, zeros.
@@ -164,6 +241,10 @@ pub fn encode(bounds: (Vec3, Vec3), p: Vec3, n: Vec3) -> Vec<f32> {
 pub struct NeuralGuide {
     pub settings: NeuralSettings,
     pub network: Network,
+    bounds: (Vec3, Vec3),
+    /// The scene's vertices, for the vertex encoding (empty otherwise).
+    vertices: Vec<Vec3>,
+    vertex_buffer: Buffer,
 }
 
 impl NeuralGuide {
@@ -177,7 +258,7 @@ impl NeuralGuide {
         seed: u32,
         pixels: u64,
     ) -> gpu::Result<Self> {
-        let shape = settings.shape();
+        let shape = settings.shape_for(scene);
         let params = shape.init(seed as u64, settings.initial_q);
         let adam = Adam {
             learning_rate: settings.learning_rate,
@@ -185,17 +266,54 @@ impl NeuralGuide {
         };
         let network = Network::new(ctx, shape, adam, settings.batch, &params)?;
         let (lo, hi) = scene.bounds();
+        let vertices = match settings.encoding {
+            Encoding::Frequency => Vec::new(),
+            Encoding::Vertices => scene_vertices(scene),
+        };
+        let mut padded: Vec<[f32; 4]> = vertices.iter().map(|v| v.extend(0.0).into()).collect();
+        padded.resize(padded.len().max(1), [0.0; 4]);
+        let vertex_buffer = Buffer::gpu_only_with(ctx, "neural scene vertices", &padded)?;
         let probability = (settings.batch as f64 / (4.0 * pixels.max(1) as f64)).min(1.0);
-        network.set_batch(ctx, probability as f32, lo.into(), hi.into())?;
+        network.set_batch(
+            ctx,
+            probability as f32,
+            lo.into(),
+            hi.into(),
+            vertices.len() as u32,
+        )?;
         Ok(Self {
             settings: settings.clone(),
             network,
+            bounds: (lo, hi),
+            vertices,
+            vertex_buffer,
         })
     }
 
+    /// The network's input for a point p with normal n (as the GPU encodes it).
+    pub fn encode(&self, p: Vec3, n: Vec3) -> Vec<f32> {
+        match self.settings.encoding {
+            Encoding::Frequency => encode(self.bounds, p, n),
+            Encoding::Vertices => encode_vertices(
+                &self.vertices,
+                self.bounds,
+                self.network.shape.inputs as usize,
+                p,
+                n,
+            ),
+        }
+    }
+
     /// Buffers the trace kernel binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
-        self.network.bindings()
+    pub fn bindings(&self) -> [(u32, &Buffer); 5] {
+        let [a, b, c, d] = self.network.bindings();
+        [
+            a,
+            b,
+            c,
+            d,
+            (shaders::B_NEURAL_VERTICES, &self.vertex_buffer),
+        ]
     }
 
     /// The pass parameters the trace kernel reads.
@@ -211,6 +329,9 @@ impl NeuralGuide {
         }
         if s.target == Target::Max {
             p.flags |= shaders::FLAG_MAX_TARGET;
+        }
+        if s.encoding == Encoding::Vertices {
+            p.flags |= shaders::FLAG_VERTEX_ENCODING;
         }
     }
 

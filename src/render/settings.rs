@@ -133,6 +133,7 @@ impl RenderSettings {
         }
         if method == Method::Neural {
             o.neural.validate().map_err(SettingsError)?;
+            o.neural.validate_for(scene).map_err(SettingsError)?;
         }
         Ok(Self {
             method,
