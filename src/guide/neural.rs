@@ -113,11 +113,21 @@ impl NeuralSettings {
         let shape = self.shape_for(scene);
         shape.validate().map_err(|e| match self.encoding {
             Encoding::Frequency => e,
-            Encoding::Vertices => format!(
-                "--neural-encoding vertices: the scene's {} vertices give {} inputs, too many: {e}",
-                scene_vertices(scene).len(),
-                shape.inputs
-            ),
+            Encoding::Vertices => {
+                let widest = (4..=self.width)
+                    .rev()
+                    .step_by(4)
+                    .find(|&width| MlpShape { width, ..shape }.validate().is_ok());
+                let hint = match widest {
+                    Some(w) => format!("; --neural-width {w} would fit"),
+                    None => String::new(),
+                };
+                format!(
+                    "--neural-encoding vertices: the scene's {} vertices give {} inputs, too many: {e}{hint}",
+                    scene_vertices(scene).len(),
+                    shape.inputs
+                )
+            }
         })
     }
 
