@@ -180,7 +180,9 @@ void main() {
 #endif
 #ifdef METHOD_NEURAL
             if (learn) {
-                float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
+                // With NEE, Q learns what scattering brings beyond NEE: of an
+                // emitter it hits, its MIS share (see the NEE target below).
+                float le = cos_out > 0.0 ? luminance(mat.emission.rgb) * weight : 0.0;
                 learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, le,
                              td_sq_sum, td_count, rng);
             }
@@ -211,13 +213,17 @@ void main() {
         if (depth == 0u) {
             path_estimate = outgoing;
         }
-        if (learn) {
-            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, outgoing,
-                         td_sq_sum, td_count, rng);
-        }
+        // The landed bounce's target; NEE at this vertex adds to it below.
+        float pending_target = outgoing;
         bool guided_here = total > 0.0;
 #endif
         if (depth >= params.max_depth) {
+#ifdef METHOD_NEURAL
+            if (learn) {
+                learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q,
+                             pending_target, td_sq_sum, td_count, rng);
+            }
+#endif
             break;
         }
         vec3 t;
@@ -252,10 +258,22 @@ void main() {
 #endif
                     float weight = power_heuristic(light_pdf, scatter_pdf);
                     vec3 le = materials[lt.material].emission.rgb;
-                    radiance += throughput * albedo * INV_PI * cos_x * le * weight / light_pdf;
+                    vec3 direct = albedo * INV_PI * cos_x * le * weight / light_pdf;
+                    radiance += throughput * direct;
+#ifdef METHOD_NEURAL
+                    // The light reaching the previous vertex from here
+                    // includes what NEE brings here.
+                    pending_target += luminance(direct);
+#endif
                 }
             }
         }
+#ifdef METHOD_NEURAL
+        if (learn) {
+            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, pending_target,
+                         td_sq_sum, td_count, rng);
+        }
+#endif
 
 #ifdef METHOD_SARSA
         // Guided sampling: the mixture of cosine and the volume's sector distribution.
