@@ -90,15 +90,16 @@ void mlp_hidden_layer(uint l) {
     uint fan_in4 = mlp_fan_in(l) / 4u;
     uint row4 = mlp_offset(l) / 4u;
     uint bias4 = row4 + MLP_WIDTH * fan_in4;
+    // Four units at a time, so each input vec4 is read once for four rows.
     for (uint o4 = 0u; o4 < MLP_W4; o4++) {
         vec4 z = mlp_params[bias4 + o4];
-        for (uint c = 0u; c < 4u; c++) {
-            uint row = row4 + (4u * o4 + c) * fan_in4;
-            float s = 0.0;
-            for (uint i = 0u; i < fan_in4; i++) {
-                s += dot(mlp_params[row + i], MLP_V(from + i));
-            }
-            z[c] += s;
+        uint row = row4 + 4u * o4 * fan_in4;
+        for (uint i = 0u; i < fan_in4; i++) {
+            vec4 x = MLP_V(from + i);
+            z += vec4(dot(mlp_params[row + i], x),
+                      dot(mlp_params[row + fan_in4 + i], x),
+                      dot(mlp_params[row + 2u * fan_in4 + i], x),
+                      dot(mlp_params[row + 3u * fan_in4 + i], x));
         }
         MLP_V(to + o4) = max(z, vec4(0.0));
     }
@@ -109,6 +110,30 @@ void mlp_hidden_layers() {
     for (uint l = 0u; l < MLP_HIDDEN; l++) {
         mlp_hidden_layer(l);
     }
+}
+
+// Pre-activations of outputs 4 k4 .. 4 k4 + 3 (those past MLP_OUTPUTS are
+// 0), after mlp_hidden_layers: each hidden vec4 is read once for four rows.
+vec4 mlp_output4(uint k4) {
+    uint last = mlp_offset(MLP_HIDDEN);
+    uint h = mlp_last_region();
+    vec4 z = vec4(0.0);
+    uint first = 4u * k4;
+    // Rows past the end repeat the last row; their results are dropped.
+    uint r0 = last / 4u + min(first, MLP_OUTPUTS - 1u) * MLP_W4;
+    uint r1 = last / 4u + min(first + 1u, MLP_OUTPUTS - 1u) * MLP_W4;
+    uint r2 = last / 4u + min(first + 2u, MLP_OUTPUTS - 1u) * MLP_W4;
+    uint r3 = last / 4u + min(first + 3u, MLP_OUTPUTS - 1u) * MLP_W4;
+    for (uint i = 0u; i < MLP_W4; i++) {
+        vec4 x = MLP_V(h + i);
+        z += vec4(dot(mlp_params[r0 + i], x), dot(mlp_params[r1 + i], x),
+                  dot(mlp_params[r2 + i], x), dot(mlp_params[r3 + i], x));
+    }
+    uint bias = last + MLP_OUTPUTS * MLP_WIDTH;
+    for (uint c = 0u; c < 4u; c++) {
+        z[c] = first + c < MLP_OUTPUTS ? z[c] + mlp_param(bias + first + c) : 0.0;
+    }
+    return z;
 }
 
 // Pre-activation z of output k (Q = softplus(z)), after mlp_hidden_layers.

@@ -73,14 +73,21 @@ vec2 neural_infer(vec3 p, vec3 n) {
     float total = 0.0;
     float sum = 0.0;
     float best = 0.0;
-    for (uint k = 0u; k < MLP_OUTPUTS; k++) {
-        float q = mlp_softplus(mlp_output(k));
-        float qc = q * sector_cos(k, a, b);
-        float w = cos_weights ? qc : q;
-        neural_w[k] = w;
-        total += w;
-        sum += qc;
-        best = max(best, qc);
+    for (uint k4 = 0u; 4u * k4 < MLP_OUTPUTS; k4++) {
+        vec4 z = mlp_output4(k4);
+        for (uint c = 0u; c < 4u; c++) {
+            uint k = 4u * k4 + c;
+            if (k >= MLP_OUTPUTS) {
+                break;
+            }
+            float q = mlp_softplus(z[c]);
+            float qc = q * sector_cos(k, a, b);
+            float w = cos_weights ? qc : q;
+            neural_w[k] = w;
+            total += w;
+            sum += qc;
+            best = max(best, qc);
+        }
     }
     float reach = (params.flags & FLAG_MAX_TARGET) != 0u ? best : sum * 2.0 * PI / float(MLP_OUTPUTS);
     return vec2(total, reach);
