@@ -55,13 +55,20 @@ impl RenderStats {
     /// The `--profile` table: one line per pass name.
     pub fn profile_table(&self) -> String {
         let total: f64 = self.gpu_passes.iter().map(|t| t.total_ms).sum();
+        let w = self
+            .gpu_passes
+            .iter()
+            .map(|t| t.name.chars().count())
+            .max()
+            .unwrap_or(0)
+            .max(20);
         let mut s = format!(
-            "{:<20} {:>7} {:>11} {:>7} {:>10} {:>10} {:>10} {:>10}\n",
+            "{:<w$} {:>7} {:>11} {:>7} {:>10} {:>10} {:>10} {:>10}\n",
             "pass", "count", "total ms", "share", "mean ms", "median ms", "min ms", "max ms"
         );
         for t in &self.gpu_passes {
             s += &format!(
-                "{:<20} {:>7} {:>11.3} {:>6.1}% {:>10.4} {:>10.4} {:>10.4} {:>10.4}\n",
+                "{:<w$} {:>7} {:>11.3} {:>6.1}% {:>10.4} {:>10.4} {:>10.4} {:>10.4}\n",
                 t.name,
                 t.count,
                 t.total_ms,
