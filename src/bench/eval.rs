@@ -473,7 +473,7 @@ pub fn evaluate(
                         voronoi: None,
                         hemispheres: hpng,
                         hemispheres_at: format!(
-                            "{} surface points nearest the brightest light, as the network infers them",
+                            "the {} points the camera sees nearest the brightest light, as the network infers them",
                             rows.len()
                         ),
                     })

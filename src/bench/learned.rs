@@ -3,7 +3,7 @@
 //! the Sarsa guide's volumes, or inferred by the Neural-Q network).
 
 use crate::gpu::GpuContext;
-use crate::guide::{volumes, NeuralGuide, SarsaGuide};
+use crate::guide::{NeuralGuide, SarsaGuide};
 use crate::image::Image;
 use crate::render::probe::{self, SurfacePoint};
 use crate::render::RenderError;
@@ -113,22 +113,49 @@ pub fn volume_rows(guide: &SarsaGuide, q: &[f32], volumes: &[u32]) -> Vec<Vec<f3
         .collect()
 }
 
-/// Q̂ of every sector as the network infers it at the `count` surface points
-/// (placed as radiance volumes would be) nearest the brightest light.
+/// Q̂ of every sector as the network infers it at the `count` points the
+/// camera sees nearest the brightest light (first hits of a grid of camera
+/// rays, shaded on the side facing the camera: states the network trained on).
 pub fn neural_rows(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     guide: &NeuralGuide,
     count: usize,
 ) -> Result<Vec<Vec<f32>>, RenderError> {
-    let points = volumes::place(scene, 1024, 1);
+    let cam = &scene.camera;
+    let size = 64;
+    let rays: Vec<(Vec3, Vec3)> = (0..size * size)
+        .map(|i| {
+            let (x, y) = ((i % size) as f32 + 0.5, (i / size) as f32 + 0.5);
+            (cam.position, cam.ray_direction(x, y, size, size))
+        })
+        .collect();
+    let hits = probe::trace_rays(ctx, scene, &rays)?;
+    let points: Vec<crate::shaders::Volume> = rays
+        .iter()
+        .zip(&hits)
+        .filter_map(|((o, d), (hit, _))| {
+            let (t, tri) = (*hit)?;
+            let triangle = &scene.triangles[tri as usize];
+            if triangle.light_pdf > 0.0 {
+                return None;
+            }
+            let n = Vec3::from(triangle.e1)
+                .cross(Vec3::from(triangle.e2))
+                .normalize();
+            let n = if n.dot(*d) < 0.0 { n } else { -n };
+            Some(crate::shaders::Volume {
+                position: (*o + *d * t + n * scene.ray_offset()).into(),
+                normal: n.into(),
+                ..Default::default()
+            })
+        })
+        .collect();
     let inputs: Vec<f32> = nearest_light(scene, &points, count)
         .iter()
         .flat_map(|&i| {
             let p = &points[i as usize];
-            // Offset like a path vertex, which sits a ray offset off its surface.
-            let n = Vec3::from(p.normal);
-            guide.encode(Vec3::from(p.position) + n * scene.ray_offset(), n)
+            guide.encode(Vec3::from(p.position), Vec3::from(p.normal))
         })
         .collect();
     let q = guide.network.infer(ctx, &inputs)?;
