@@ -32,6 +32,7 @@ pub struct DeviceInfo {
     pub timestamps: bool,
     pub timestamp_period_ns: f32,
     pub max_storage_buffer_range: u64,
+    pub max_shared_memory: u32,
     pub max_workgroup_count: [u32; 3],
     pub subgroup_size: u32,
     #[serde(skip)]
@@ -168,6 +169,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         timestamps,
         timestamp_period_ns: props.limits.timestamp_period,
         max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+        max_shared_memory: props.limits.max_compute_shared_memory_size,
         max_workgroup_count: props.limits.max_compute_work_group_count,
         subgroup_size,
         rank,

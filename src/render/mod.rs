@@ -214,6 +214,17 @@ impl Renderer {
             }
         }
         if settings.method == Method::Neural {
+            let shape = settings.neural.shape_for(scene);
+            let shared = ctx.info().max_shared_memory;
+            if shape.workgroup_bytes() > shared {
+                return Err(SettingsError(format!(
+                    "the network needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller --neural-width",
+                    shape.workgroup_bytes() / 1024,
+                    ctx.info().name,
+                    shared / 1024
+                ))
+                .into());
+            }
             // The largest buffer is the batch's activations (deltas match it).
             let n = &settings.neural;
             let bytes = n.batch as u64 * n.layers as u64 * n.width as u64 * 4;
