@@ -355,3 +355,60 @@ impl NeuralGuide {
         self.network.bytes()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn cornell() -> Scene {
+        Scene::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.toml")).unwrap()
+    }
+
+    #[test]
+    fn scene_vertices_are_the_distinct_corners() {
+        let scene = cornell();
+        let v = scene_vertices(&scene);
+        assert_eq!(v.len(), 32);
+        let distinct: std::collections::HashSet<_> =
+            v.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
+        assert_eq!(distinct.len(), v.len());
+    }
+
+    #[test]
+    fn encodings_fill_their_inputs_and_pad_with_zeros() {
+        let scene = cornell();
+        let bounds = scene.bounds();
+        let (p, n) = ((bounds.0 + bounds.1) * 0.5, Vec3::Y);
+        let e = encode(bounds, p, n);
+        assert_eq!(e.len(), shaders::ENCODED_INPUTS as usize);
+        assert!(
+            e[..3].iter().all(|x| x.abs() < 1e-6),
+            "centre maps to 0: {e:?}"
+        );
+        assert_eq!(&e[3..6], &[0.0, 1.0, 0.0]);
+        assert!(e[6 + 6 * shaders::ENCODING_FREQUENCIES as usize..]
+            .iter()
+            .all(|&x| x == 0.0));
+        let vertices = scene_vertices(&scene);
+        let e = encode_vertices(&vertices, bounds, 100, p, n);
+        assert_eq!(e.len(), 100);
+        assert_eq!(&e[96..99], &[0.0, 1.0, 0.0]);
+        assert_eq!(e[99], 0.0);
+    }
+
+    #[test]
+    fn vertex_encoding_fits_narrow_networks_only() {
+        let scene = cornell();
+        let wide = NeuralSettings {
+            encoding: Encoding::Vertices,
+            ..Default::default()
+        };
+        let e = wide.validate_for(&scene).unwrap_err();
+        assert!(e.contains("--neural-width 28 would fit"), "{e}");
+        let narrow = NeuralSettings { width: 28, ..wide };
+        narrow.validate_for(&scene).unwrap();
+        assert_eq!(narrow.shape_for(&scene).inputs, 100);
+        assert!(NeuralSettings::default().validate_for(&scene).is_ok());
+    }
+}
