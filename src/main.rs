@@ -145,6 +145,9 @@ struct NeuralArgs {
     /// Stop training after this many sample passes.
     #[arg(long)]
     neural_freeze_after: Option<u32>,
+    /// Restart the image after this many passes (they only train the network).
+    #[arg(long)]
+    neural_reset_after: Option<u32>,
 }
 
 impl NeuralArgs {
@@ -161,6 +164,7 @@ impl NeuralArgs {
             target: self.neural_target,
             encoding: self.neural_encoding,
             freeze_after: self.neural_freeze_after,
+            reset_after: self.neural_reset_after,
             ..Default::default()
         }
     }

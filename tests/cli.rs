@@ -563,6 +563,20 @@ fn bad_neural_options() {
         &[],
         &["--neural-encoding vertices", "vertices give"],
     );
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "neural",
+            "--spp",
+            "8",
+            "--neural-reset-after",
+            "8",
+        ],
+        &[],
+        &["--neural-reset-after"],
+    );
     // A batch whose activations exceed a storage buffer (128 MiB on lavapipe).
     expect_error(
         &dir,

@@ -158,6 +158,7 @@ fn small() -> NeuralSettings {
 /// the mixture pdf or the guided roulette.
 fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
     let scene = common::scene(scene_name);
+    let reset = settings.reset_after;
     let name = format!("{scene_name}-neural-nee{nee}");
     let guided = common::assert_converges_to_pt(
         &name,
@@ -175,6 +176,7 @@ fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
         common::assert_learning_shows(&name, &guided);
     }
     assert!(guided.stats.guide_bytes > 0);
+    assert_eq!(guided.stats.image_spp, spp - reset.unwrap_or(0));
 }
 
 #[test]
@@ -187,7 +189,8 @@ fn neural_with_nee_converges_to_pt_on_the_cornell_box() {
     unbiased("cornell-box", true, 256, small());
 }
 
-/// With the Q-learning target and sampling in proportion to Q.
+/// With the Q-learning target, sampling in proportion to Q, and the image
+/// restarted after 128 training passes.
 #[test]
 fn neural_converges_to_pt_on_the_indirectly_lit_room() {
     unbiased(
@@ -197,6 +200,7 @@ fn neural_converges_to_pt_on_the_indirectly_lit_room() {
         NeuralSettings {
             target: Target::Max,
             distribution: Distribution::Q,
+            reset_after: Some(128),
             ..small()
         },
     );

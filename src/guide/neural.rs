@@ -57,6 +57,9 @@ pub struct NeuralSettings {
     pub encoding: Encoding,
     /// Stop learning after this many passes (None: learn throughout).
     pub freeze_after: Option<u32>,
+    /// Reset the image after this many passes: the earlier passes only train
+    /// the network. Each pass is unbiased, so the image stays unbiased.
+    pub reset_after: Option<u32>,
     /// Q of every sector before training.
     pub initial_q: f32,
 }
@@ -75,6 +78,7 @@ impl Default for NeuralSettings {
             target: Target::Expected,
             encoding: Encoding::Frequency,
             freeze_after: None,
+            reset_after: None,
             initial_q: 1e-2,
         }
     }

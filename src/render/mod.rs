@@ -338,9 +338,9 @@ impl Renderer {
                 }
                 if let Some(guide) = guide {
                     guide.set_params(&mut params, learn);
-                    if settings.sarsa.reset_after == Some(index) {
-                        rec.fill(accum, 0);
-                    }
+                }
+                if settings.reset_after() == Some(index) {
+                    rec.fill(accum, 0);
                 }
                 let push = bytemuck::bytes_of(&params);
                 rec.dispatch(Pass {
@@ -510,14 +510,7 @@ impl Renderer {
             height: self.settings.height,
             seed: self.settings.seed,
             spp: done,
-            image_spp: done
-                - self
-                    .settings
-                    .sarsa
-                    .reset_after
-                    .filter(|_| self.guide.is_some())
-                    .unwrap_or(0)
-                    .min(done),
+            image_spp: done - self.settings.reset_after().unwrap_or(0).min(done),
             wall_seconds: wall,
             samples_per_second: paths as f64 / wall.max(1e-9),
             rays_per_second: rays as f64 / wall.max(1e-9),

@@ -75,6 +75,18 @@ pub struct RenderSettings {
     pub neural: NeuralSettings,
 }
 
+impl RenderSettings {
+    /// The pass before which the image restarts, if the method's guide is
+    /// trained by earlier passes only.
+    pub fn reset_after(&self) -> Option<u32> {
+        match self.method {
+            Method::Pt => None,
+            Method::Sarsa => self.sarsa.reset_after,
+            Method::Neural => self.neural.reset_after,
+        }
+    }
+}
+
 pub const MAX_RESOLUTION: u32 = 16384;
 pub const MAX_SPP: u32 = 1 << 20;
 pub const MAX_DEPTH: u32 = 1024;
@@ -121,19 +133,25 @@ impl RenderSettings {
             }
         };
         let method = o.method.unwrap_or(Method::Pt);
-        if method == Method::Sarsa {
-            o.sarsa.validate().map_err(SettingsError)?;
-            if let (Some(k), Budget::Samples(n)) = (o.sarsa.reset_after, budget) {
-                if k >= n {
-                    return bad(format!(
-                        "--sarsa-reset-after {k} leaves none of the {n} passes in the image"
-                    ));
-                }
+        let reset_after = match method {
+            Method::Pt => None,
+            Method::Sarsa => {
+                o.sarsa.validate().map_err(SettingsError)?;
+                o.sarsa.reset_after
             }
-        }
-        if method == Method::Neural {
-            o.neural.validate().map_err(SettingsError)?;
-            o.neural.validate_for(scene).map_err(SettingsError)?;
+            Method::Neural => {
+                o.neural.validate().map_err(SettingsError)?;
+                o.neural.validate_for(scene).map_err(SettingsError)?;
+                o.neural.reset_after
+            }
+        };
+        if let (Some(k), Budget::Samples(n)) = (reset_after, budget) {
+            if k >= n {
+                return bad(format!(
+                    "--{}-reset-after {k} leaves none of the {n} passes in the image",
+                    method.name()
+                ));
+            }
         }
         Ok(Self {
             method,
