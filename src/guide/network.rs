@@ -1,6 +1,7 @@
 //! The Neural-Q network on the GPU: its parameters and Adam moments, a batch
 //! of training transitions, and the passes that train on that batch
-//! (`mlp_train`, then `mlp_adam`). The maths is `guide::mlp`'s.
+//! (`mlp_train`, `mlp_adam` for the hidden layers, `mlp_adam_output`, then
+//! `mlp_batch` to empty it). The maths is `guide::mlp`'s.
 
 use super::mlp::{Adam, MlpShape};
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
@@ -21,7 +22,7 @@ pub struct Network {
     inputs: Buffer,
     targets: Buffer,
     /// The batch's state (`MlpBatch`).
-    count: Buffer,
+    batch_state: Buffer,
     acts: Buffer,
     deltas: Buffer,
     train: ComputePipeline,
@@ -67,7 +68,7 @@ impl Network {
             bounds_scale: [1.0; 4],
             ..Default::default()
         };
-        let count = Buffer::gpu_only_with(ctx, "mlp batch state", &[state])?;
+        let batch_state = Buffer::gpu_only_with(ctx, "mlp batch state", &[state])?;
         let acts = Buffer::gpu_only(ctx, "mlp batch activations", units * 4)?;
         let deltas = Buffer::gpu_only(ctx, "mlp batch deltas", units * 4)?;
         let push = size_of::<MlpPush>() as u32;
@@ -95,7 +96,7 @@ impl Network {
             (shaders::B_MLP_GRAD, &grad),
             (shaders::B_MLP_INPUTS, &inputs),
             (shaders::B_MLP_TARGETS, &targets),
-            (shaders::B_MLP_COUNT, &count),
+            (shaders::B_MLP_COUNT, &batch_state),
             (shaders::B_MLP_ACTS, &acts),
             (shaders::B_MLP_DELTAS, &deltas),
         ];
@@ -118,7 +119,7 @@ impl Network {
             grad,
             inputs,
             targets,
-            count,
+            batch_state,
             acts,
             deltas,
             train,
@@ -138,7 +139,7 @@ impl Network {
             (shaders::B_MLP_PARAMS, &self.params),
             (shaders::B_MLP_INPUTS, &self.inputs),
             (shaders::B_MLP_TARGETS, &self.targets),
-            (shaders::B_MLP_COUNT, &self.count),
+            (shaders::B_MLP_COUNT, &self.batch_state),
         ]
     }
 
@@ -212,9 +213,9 @@ impl Network {
             bounds_min: [bounds_min[0], bounds_min[1], bounds_min[2], 0.0],
             bounds_scale: [scale(0), scale(1), scale(2), 0.0],
         };
-        let staging = Buffer::upload(ctx, "mlp batch state (staging)", self.count.size())?;
+        let staging = Buffer::upload(ctx, "mlp batch state (staging)", self.batch_state.size())?;
         staging.write(&[state]);
-        ctx.submit(None, |rec| rec.copy(&staging, &self.count))
+        ctx.submit(None, |rec| rec.copy(&staging, &self.batch_state))
     }
 
     /// Replaces the batch (tests and tools): inputs row-major, one target each.
@@ -230,7 +231,7 @@ impl Network {
         let staged = [
             (bytemuck::cast_slice::<f32, u8>(inputs), &self.inputs),
             (bytemuck::cast_slice(targets), &self.targets),
-            (bytemuck::bytes_of(&rows), &self.count),
+            (bytemuck::bytes_of(&rows), &self.batch_state),
         ];
         let staging = staged
             .iter()
@@ -331,7 +332,7 @@ impl Network {
             &self.grad,
             &self.inputs,
             &self.targets,
-            &self.count,
+            &self.batch_state,
             &self.acts,
             &self.deltas,
         ]
