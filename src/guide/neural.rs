@@ -68,7 +68,7 @@ impl Default for NeuralSettings {
     fn default() -> Self {
         Self {
             grid: [12, 12],
-            width: 32,
+            width: 16,
             layers: 2,
             learning_rate: 5e-3,
             batch: 4096,
@@ -406,6 +406,7 @@ mod tests {
         let scene = cornell();
         let wide = NeuralSettings {
             encoding: Encoding::Vertices,
+            width: 32,
             ..Default::default()
         };
         let e = wide.validate_for(&scene).unwrap_err();
