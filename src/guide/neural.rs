@@ -6,7 +6,7 @@
 use super::mlp::{Adam, MlpShape};
 use super::network::Network;
 use super::sarsa::Distribution;
-use crate::gpu::{self, Buffer, GpuContext, Recorder};
+use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
 use crate::scene::Scene;
 use crate::shaders::{self, PassParams};
 use glam::Vec3;
@@ -189,6 +189,33 @@ impl NeuralSettings {
             return Err(format!("initial Q {} must be positive", self.initial_q));
         }
         self.shape().validate()
+    }
+
+    /// Checks the network for `scene` fits `device`: its workgroup memory,
+    /// and the batch's largest buffer (the activations; deltas match them).
+    pub fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String> {
+        let shape = self.shape_for(scene);
+        if shape.workgroup_bytes() > device.max_shared_memory {
+            return Err(format!(
+                "the network needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller --neural-width",
+                shape.workgroup_bytes() / 1024,
+                device.name,
+                device.max_shared_memory / 1024
+            ));
+        }
+        let bytes = self.batch as u64 * self.layers as u64 * self.width as u64 * 4;
+        if bytes > device.max_storage_buffer_range {
+            return Err(format!(
+                "a batch of {} transitions through {} layers of {} units needs {} MiB per buffer; device '{}' allows {} MiB: use a smaller --neural-batch",
+                self.batch,
+                self.layers,
+                self.width,
+                bytes >> 20,
+                device.name,
+                device.max_storage_buffer_range >> 20
+            ));
+        }
+        Ok(())
     }
 
     pub fn learns_in_pass(&self, index: u32) -> bool {

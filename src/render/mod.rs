@@ -214,33 +214,10 @@ impl Renderer {
             }
         }
         if settings.method == Method::Neural {
-            let shape = settings.neural.shape_for(scene);
-            let shared = ctx.info().max_shared_memory;
-            if shape.workgroup_bytes() > shared {
-                return Err(SettingsError(format!(
-                    "the network needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller --neural-width",
-                    shape.workgroup_bytes() / 1024,
-                    ctx.info().name,
-                    shared / 1024
-                ))
-                .into());
-            }
-            // The largest buffer is the batch's activations (deltas match it).
-            let n = &settings.neural;
-            let bytes = n.batch as u64 * n.layers as u64 * n.width as u64 * 4;
-            let limit = ctx.info().max_storage_buffer_range;
-            if bytes > limit {
-                return Err(SettingsError(format!(
-                    "a batch of {} transitions through {} layers of {} units needs {} MiB per buffer; device '{}' allows {} MiB: use a smaller --neural-batch",
-                    n.batch,
-                    n.layers,
-                    n.width,
-                    bytes >> 20,
-                    ctx.info().name,
-                    limit >> 20
-                ))
-                .into());
-            }
+            settings
+                .neural
+                .check_device(scene, ctx.info())
+                .map_err(SettingsError)?;
         }
         let guide = match settings.method {
             Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
@@ -267,16 +244,15 @@ impl Renderer {
             shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
         )?;
         let push = size_of::<PassParams>() as u32;
-        let trace = match &neural {
-            Some(n) => ComputePipeline::specialized(
-                ctx,
-                "trace",
-                trace_variant(ctx, &settings)?,
-                push,
-                &n.network.shape.constants(),
-            )?,
-            None => ComputePipeline::new(ctx, "trace", trace_variant(ctx, &settings)?, push)?,
-        };
+        // The neural kernel is built for its network's shape.
+        let constants = neural.as_ref().map(|n| n.network.shape.constants());
+        let trace = ComputePipeline::specialized(
+            ctx,
+            "trace",
+            trace_variant(ctx, &settings)?,
+            push,
+            constants.as_ref().map_or(&[][..], |c| &c[..]),
+        )?;
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([
@@ -329,10 +305,7 @@ impl Renderer {
             for index in first..first + count {
                 let mut params = base;
                 params.pass_index = index;
-                let learn = match settings.method {
-                    Method::Neural => settings.neural.learns_in_pass(index),
-                    _ => settings.sarsa.learns_in_pass(index),
-                };
+                let learn = settings.learns_in_pass(index);
                 if let Some(n) = neural.as_deref() {
                     n.set_params(&mut params, learn);
                 }

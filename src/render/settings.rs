@@ -76,6 +76,15 @@ pub struct RenderSettings {
 }
 
 impl RenderSettings {
+    /// Whether the method's guide learns in pass `index`.
+    pub fn learns_in_pass(&self, index: u32) -> bool {
+        match self.method {
+            Method::Pt => false,
+            Method::Sarsa => self.sarsa.learns_in_pass(index),
+            Method::Neural => self.neural.learns_in_pass(index),
+        }
+    }
+
     /// The pass before which the image restarts, if the method's guide is
     /// trained by earlier passes only.
     pub fn reset_after(&self) -> Option<u32> {
