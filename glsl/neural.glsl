@@ -137,6 +137,8 @@ vec3 neural_sample(float total, vec3 u, out uint sector, out float p_sector) {
 
 // Offers, with the batch's probability (u uniform), the transition from the
 // state (p, n) through sector k with its target to the training batch.
+// It encodes (p, n) over the network's input, which may hold the last
+// hidden layer: call it only once neural_w holds what sampling needs.
 void neural_offer(vec3 p, vec3 n, uint k, float target, float u) {
     if (u >= batch.probability) {
         return;
