@@ -98,7 +98,7 @@ fn gpu_training_step_matches_cpu() {
     // The first batch spans two of the output pass's chunks.
     for (step, rows) in [(1u32, 1500usize), (2, 200)] {
         let (x, targets) = batch(&mut rng, rows);
-        net.upload_batch(&ctx, &x, &targets).unwrap();
+        net.upload_batch(&x, &targets).unwrap();
         ctx.submit(None, |rec| net.record_training(rec, 1)).unwrap();
         common::assert_no_validation_errors(&ctx);
 
@@ -327,7 +327,7 @@ fn check_sampler(distribution: Distribution) {
             params[out.weight(o, i)] *= 40.0;
         }
     }
-    guide.network.upload_params(&ctx, &params).unwrap();
+    guide.network.upload_params(&params).unwrap();
     let (point, normal) = (Vec3::new(300.0, 200.0, 250.0), Vec3::new(0.0, 1.0, 0.0));
 
     let mut rng = Lcg(21);

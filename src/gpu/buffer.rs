@@ -112,6 +112,22 @@ impl Buffer {
         Ok(buffer)
     }
 
+    /// Overwrites the start of a device-local buffer with `data`, copied
+    /// through a staging buffer.
+    pub fn overwrite<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let staging = Self::upload(
+            &self.ctx,
+            &format!("{} (staging)", self.name),
+            bytes.len() as u64,
+        )?;
+        staging.write(data);
+        self.ctx.submit(None, |rec| rec.copy(&staging, self))
+    }
+
     /// The whole contents of a device-local buffer, copied through a readback buffer.
     pub fn download<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
         if self.mapped().is_some() {

@@ -198,7 +198,6 @@ impl Network {
     /// chance the first pass offers each transition.
     pub fn set_batch(
         &self,
-        ctx: &Arc<GpuContext>,
         probability: f32,
         bounds_min: [f32; 3],
         bounds_max: [f32; 3],
@@ -213,39 +212,16 @@ impl Network {
             bounds_min: [bounds_min[0], bounds_min[1], bounds_min[2], 0.0],
             bounds_scale: [scale(0), scale(1), scale(2), 0.0],
         };
-        let staging = Buffer::upload(ctx, "mlp batch state (staging)", self.batch_state.size())?;
-        staging.write(&[state]);
-        ctx.submit(None, |rec| rec.copy(&staging, &self.batch_state))
+        self.batch_state.overwrite(&[state])
     }
 
     /// Replaces the batch (tests and tools): inputs row-major, one target each.
-    pub fn upload_batch(
-        &self,
-        ctx: &Arc<GpuContext>,
-        inputs: &[f32],
-        targets: &[MlpTarget],
-    ) -> gpu::Result<()> {
+    pub fn upload_batch(&self, inputs: &[f32], targets: &[MlpTarget]) -> gpu::Result<()> {
         assert!(targets.len() <= self.capacity as usize);
         assert_eq!(inputs.len(), targets.len() * self.shape.inputs as usize);
-        let rows = targets.len() as u32;
-        let staged = [
-            (bytemuck::cast_slice::<f32, u8>(inputs), &self.inputs),
-            (bytemuck::cast_slice(targets), &self.targets),
-            (bytemuck::bytes_of(&rows), &self.batch_state),
-        ];
-        let staging = staged
-            .iter()
-            .map(|(bytes, _)| {
-                let b = Buffer::upload(ctx, "mlp batch (staging)", bytes.len().max(4) as u64)?;
-                b.write(bytes);
-                Ok(b)
-            })
-            .collect::<gpu::Result<Vec<_>>>()?;
-        ctx.submit(None, |rec| {
-            for (src, (_, dst)) in staging.iter().zip(&staged) {
-                rec.copy(src, dst);
-            }
-        })
+        self.inputs.overwrite(inputs)?;
+        self.targets.overwrite(targets)?;
+        self.batch_state.overwrite(&[targets.len() as u32])
     }
 
     /// The batch's input rows as the trace kernel or `upload_batch` left them.
@@ -254,11 +230,9 @@ impl Network {
     }
 
     /// Overwrites the parameters (tests and tools).
-    pub fn upload_params(&self, ctx: &Arc<GpuContext>, params: &[f32]) -> gpu::Result<()> {
+    pub fn upload_params(&self, params: &[f32]) -> gpu::Result<()> {
         assert_eq!(params.len(), self.shape.param_count());
-        let staging = Buffer::upload(ctx, "mlp parameters (staging)", self.params.size())?;
-        staging.write(params);
-        ctx.submit(None, |rec| rec.copy(&staging, &self.params))
+        self.params.overwrite(params)
     }
 
     pub fn download_params(&self) -> gpu::Result<Vec<f32>> {

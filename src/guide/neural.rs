@@ -316,7 +316,6 @@ impl NeuralGuide {
         let vertex_buffer = Buffer::gpu_only_with(ctx, "neural scene vertices", &padded)?;
         let probability = (settings.batch as f64 / (4.0 * pixels.max(1) as f64)).min(1.0);
         network.set_batch(
-            ctx,
             probability as f32,
             lo.into(),
             hi.into(),
