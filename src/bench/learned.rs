@@ -26,15 +26,22 @@ fn volume_colour(i: u32) -> Vec3 {
     0.25 + 0.75 * c
 }
 
-/// Each pixel coloured by the volume its first hit uses (shaded by the angle
-/// to the camera so shapes stay readable); misses are black.
-pub fn voronoi(
+/// A camera ray's first hit: the point a ray offset off the surface, on the
+/// side facing the camera, that side's normal, and the triangle.
+struct CameraHit {
+    position: Vec3,
+    normal: Vec3,
+    triangle: u32,
+    front: bool,
+}
+
+/// The first hit of each pixel's central camera ray, row by row.
+fn camera_hits(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
-    guide: &SarsaGuide,
     width: u32,
     height: u32,
-) -> Result<Image, RenderError> {
+) -> Result<Vec<Option<CameraHit>>, RenderError> {
     let cam = &scene.camera;
     let rays: Vec<(Vec3, Vec3)> = (0..height)
         .flat_map(|y| (0..width).map(move |x| (x, y)))
@@ -46,29 +53,58 @@ pub fn voronoi(
         })
         .collect();
     let hits = probe::trace_rays(ctx, scene, &rays)?;
-    let mut queries = Vec::new();
-    let mut shade = Vec::new();
-    for ((o, d), (hit, _)) in rays.iter().zip(&hits) {
-        if let Some((t, tri)) = hit {
-            let triangle = &scene.triangles[*tri as usize];
+    Ok(rays
+        .iter()
+        .zip(&hits)
+        .map(|((o, d), (hit, _))| {
+            let (t, tri) = (*hit)?;
+            let triangle = &scene.triangles[tri as usize];
             let n = Vec3::from(triangle.e1)
                 .cross(Vec3::from(triangle.e2))
                 .normalize();
             let front = n.dot(*d) < 0.0;
             let n = if front { n } else { -n };
-            queries.push(SurfacePoint {
-                position: *o + *d * *t + n * scene.ray_offset(),
-                triangle: *tri,
+            Some(CameraHit {
+                position: *o + *d * t + n * scene.ray_offset(),
+                normal: n,
+                triangle: tri,
                 front,
-            });
-            shade.push(0.35 + 0.65 * n.dot(-*d).abs());
-        } else {
-            queries.push(SurfacePoint {
-                position: Vec3::ZERO,
-                triangle: 0,
-                front: true,
-            });
-            shade.push(0.0);
+            })
+        })
+        .collect())
+}
+
+/// Each pixel coloured by the volume its first hit uses (shaded by the angle
+/// to the camera so shapes stay readable); misses are black.
+pub fn voronoi(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    width: u32,
+    height: u32,
+) -> Result<Image, RenderError> {
+    let cam = scene.camera.position;
+    let mut queries = Vec::new();
+    let mut shade = Vec::new();
+    for hit in camera_hits(ctx, scene, width, height)? {
+        match hit {
+            Some(h) => {
+                queries.push(SurfacePoint {
+                    position: h.position,
+                    triangle: h.triangle,
+                    front: h.front,
+                });
+                let d = (h.position - cam).normalize();
+                shade.push(0.35 + 0.65 * h.normal.dot(-d).abs());
+            }
+            None => {
+                queries.push(SurfacePoint {
+                    position: Vec3::ZERO,
+                    triangle: 0,
+                    front: true,
+                });
+                shade.push(0.0);
+            }
         }
     }
     let volumes = probe::nearest_volumes(ctx, scene, guide, &queries)?;
@@ -122,33 +158,14 @@ pub fn neural_rows(
     guide: &NeuralGuide,
     count: usize,
 ) -> Result<Vec<Vec<f32>>, RenderError> {
-    let cam = &scene.camera;
-    let size = 64;
-    let rays: Vec<(Vec3, Vec3)> = (0..size * size)
-        .map(|i| {
-            let (x, y) = ((i % size) as f32 + 0.5, (i / size) as f32 + 0.5);
-            (cam.position, cam.ray_direction(x, y, size, size))
-        })
-        .collect();
-    let hits = probe::trace_rays(ctx, scene, &rays)?;
-    let points: Vec<crate::shaders::Volume> = rays
-        .iter()
-        .zip(&hits)
-        .filter_map(|((o, d), (hit, _))| {
-            let (t, tri) = (*hit)?;
-            let triangle = &scene.triangles[tri as usize];
-            if triangle.light_pdf > 0.0 {
-                return None;
-            }
-            let n = Vec3::from(triangle.e1)
-                .cross(Vec3::from(triangle.e2))
-                .normalize();
-            let n = if n.dot(*d) < 0.0 { n } else { -n };
-            Some(crate::shaders::Volume {
-                position: (*o + *d * t + n * scene.ray_offset()).into(),
-                normal: n.into(),
-                ..Default::default()
-            })
+    let points: Vec<crate::shaders::Volume> = camera_hits(ctx, scene, 64, 64)?
+        .into_iter()
+        .flatten()
+        .filter(|h| scene.triangles[h.triangle as usize].light_pdf == 0.0)
+        .map(|h| crate::shaders::Volume {
+            position: h.position.into(),
+            normal: h.normal.into(),
+            ..Default::default()
         })
         .collect();
     let inputs: Vec<f32> = nearest_light(scene, &points, count)
