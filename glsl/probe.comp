@@ -37,7 +37,7 @@ void main() {
     } else if (params.probe_mode == PROBE_NEAREST_VOLUME) {
         // in[2i] = point, in[2i+1] = (triangle bits, front side?); out.x = volume index bits
         uint t = floatBitsToUint(probe_in[2u * i + 1u].x);
-        uint v = nearest_volume(triangles[t], probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
+        uint v = nearest_volume(load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
         probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
     } else if (params.probe_mode == PROBE_GUIDE_SAMPLE) {
         // in = (volume bits, u1, u2, u3); out = (local direction, pdf)

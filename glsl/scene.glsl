@@ -4,9 +4,32 @@
 
 #include "shared.h"
 
-layout(std430, set = 0, binding = B_NODES) readonly buffer Nodes { BvhNode nodes[]; };
-layout(std430, set = 0, binding = B_TRIANGLES) readonly buffer Triangles { Triangle triangles[]; };
-layout(std430, set = 0, binding = B_MATERIALS) readonly buffer Materials { Material materials[]; };
+// The scene's buffers are read as uniform texel buffers of raw uvec4 words:
+// lavapipe turns a texel fetch into one vector gather, where a storage
+// buffer read is a branching loop over SIMD lanes per 32-bit word.
+layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 2 per BvhNode
+layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 4 per Triangle
+layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
+
+BvhNode load_node(uint i) {
+    uvec4 a = texelFetch(node_texels, int(2u * i));
+    uvec4 b = texelFetch(node_texels, int(2u * i + 1u));
+    return BvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w);
+}
+
+Triangle load_triangle(uint i) {
+    uvec4 a = texelFetch(triangle_texels, int(4u * i));
+    uvec4 b = texelFetch(triangle_texels, int(4u * i + 1u));
+    uvec4 c = texelFetch(triangle_texels, int(4u * i + 2u));
+    uvec4 d = texelFetch(triangle_texels, int(4u * i + 3u));
+    return Triangle(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), uintBitsToFloat(b.w),
+                    uintBitsToFloat(c.xyz), uintBitsToFloat(c.w), d);
+}
+
+Material load_material(uint i) {
+    return Material(uintBitsToFloat(texelFetch(material_texels, int(2u * i))),
+                    uintBitsToFloat(texelFetch(material_texels, int(2u * i + 1u))));
+}
 
 struct Hit {
     float t;
@@ -65,14 +88,15 @@ Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
     uint stack[BVH_STACK_SIZE];
     uint top = 0u;
     uint node = 0u;
-    if (intersect_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, hit.t) == FAR) {
+    BvhNode root = load_node(0u);
+    if (intersect_box(o, inv_d, root.bmin, root.bmax, hit.t) == FAR) {
         return hit;
     }
     while (true) {
-        BvhNode n = nodes[node];
+        BvhNode n = load_node(node);
         if (n.count > 0u) {
             for (uint i = n.first; i < n.first + n.count; ++i) {
-                float t = intersect_triangle(o, d, triangles[i], hit.t);
+                float t = intersect_triangle(o, d, load_triangle(i), hit.t);
                 if (t > 0.0) {
                     hit.t = t;
                     hit.triangle = i;
@@ -84,8 +108,10 @@ Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
         } else {
             uint a = n.first;
             uint b = n.first + 1u;
-            float ta = intersect_box(o, inv_d, nodes[a].bmin, nodes[a].bmax, hit.t);
-            float tb = intersect_box(o, inv_d, nodes[b].bmin, nodes[b].bmax, hit.t);
+            BvhNode na = load_node(a);
+            BvhNode nb = load_node(b);
+            float ta = intersect_box(o, inv_d, na.bmin, na.bmax, hit.t);
+            float tb = intersect_box(o, inv_d, nb.bmin, nb.bmax, hit.t);
             if (ta > tb) {
                 float tt = ta; ta = tb; tb = tt;
                 uint tn = a; a = b; b = tn;
@@ -102,7 +128,8 @@ Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
         bool found = false;
         while (top > 0u) {
             uint candidate = stack[--top];
-            if (intersect_box(o, inv_d, nodes[candidate].bmin, nodes[candidate].bmax, hit.t) != FAR) {
+            BvhNode c = load_node(candidate);
+            if (intersect_box(o, inv_d, c.bmin, c.bmax, hit.t) != FAR) {
                 node = candidate;
                 found = true;
                 break;

@@ -48,7 +48,7 @@ void learn_bounce(bool has_prev, vec3 p, vec3 n, uint sector, float q, float tar
 #if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
 #define GUIDED
 #endif
-layout(std430, set = 0, binding = B_LIGHTS) readonly buffer Lights { Light lights[]; };
+layout(set = 0, binding = B_LIGHTS) uniform usamplerBuffer light_texels; // 1 per Light
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 
 float luminance(vec3 c) {
@@ -67,7 +67,7 @@ uint pick_light(float u) {
     uint hi = params.light_count - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (lights[mid].cdf > u) {
+        if (uintBitsToFloat(texelFetch(light_texels, int(mid)).y) > u) {
             hi = mid;
         } else {
             lo = mid + 1u;
@@ -152,8 +152,8 @@ void main() {
             break;
         }
         path_length += 1u;
-        Triangle tri = triangles[hit.triangle];
-        Material mat = materials[tri.material];
+        Triangle tri = load_triangle(hit.triangle);
+        Material mat = load_material(tri.material);
         vec3 n = normalize(cross(tri.e1, tri.e2));
         float cos_out = -dot(n, dir);
 
@@ -231,8 +231,7 @@ void main() {
         make_frame(ns, t, b);
 
         if (nee) {
-            Light light = lights[pick_light(rng_next(rng))];
-            Triangle lt = triangles[light.triangle];
+            Triangle lt = load_triangle(texelFetch(light_texels, int(pick_light(rng_next(rng)))).x);
             vec2 u = rng_next2(rng);
             if (u.x + u.y > 1.0) {
                 u = 1.0 - u;
@@ -257,7 +256,7 @@ void main() {
                     float scatter_pdf = bsdf_pdf(cos_x);
 #endif
                     float weight = power_heuristic(light_pdf, scatter_pdf);
-                    vec3 le = materials[lt.material].emission.rgb;
+                    vec3 le = load_material(lt.material).emission.rgb;
                     vec3 direct = albedo * INV_PI * cos_x * le * weight / light_pdf;
                     radiance += throughput * direct;
 #ifdef METHOD_NEURAL

@@ -1,4 +1,4 @@
-//! Storage buffers allocated through gpu-allocator, freed on `Drop`.
+//! Buffers allocated through gpu-allocator, freed on `Drop`.
 
 use super::{Error, GpuContext, Result};
 use ash::vk;
@@ -76,9 +76,11 @@ impl Buffer {
         })
     }
 
-    /// Device-local memory, filled and read through transfers.
+    /// Device-local memory, filled and read through transfers; shaders see it
+    /// as a storage buffer or a uniform texel buffer.
     pub fn gpu_only(ctx: &Arc<GpuContext>, name: &str, size: u64) -> Result<Self> {
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST;
         Self::new(ctx, name, size, MemoryLocation::GpuOnly, usage)
@@ -178,6 +180,10 @@ impl Buffer {
             )
         };
         out
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
     }
 
     pub fn size(&self) -> u64 {

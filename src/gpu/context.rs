@@ -32,6 +32,8 @@ pub struct DeviceInfo {
     pub timestamps: bool,
     pub timestamp_period_ns: f32,
     pub max_storage_buffer_range: u64,
+    /// Texels a uniform texel buffer view may span (16 bytes each here).
+    pub max_texel_buffer_elements: u64,
     pub max_shared_memory: u32,
     pub max_workgroup_count: [u32; 3],
     pub subgroup_size: u32,
@@ -169,6 +171,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         timestamps,
         timestamp_period_ns: props.limits.timestamp_period,
         max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+        max_texel_buffer_elements: props.limits.max_texel_buffer_elements as u64,
         max_shared_memory: props.limits.max_compute_shared_memory_size,
         max_workgroup_count: props.limits.max_compute_work_group_count,
         subgroup_size,

@@ -38,6 +38,13 @@ pub enum Error {
         limit: u64,
         device: String,
     },
+    #[error("buffer '{name}' needs {size} bytes but device '{device}' allows at most {limit} bytes per texel buffer view")]
+    TexelViewTooLarge {
+        name: String,
+        size: u64,
+        limit: u64,
+        device: String,
+    },
     #[error("shader '{0}' is not valid SPIR-V")]
     Spirv(String),
     #[error("descriptor set for '{pipeline}' lacks a buffer for binding {binding}")]

@@ -1,18 +1,19 @@
 //! Compute pipelines whose descriptor layout is reflected from their SPIR-V.
 
-use super::shader::{self, ShaderModule};
+use super::shader::{self, BindingKind, ShaderModule};
 use super::{GpuContext, Result};
 use ash::vk;
 use std::sync::Arc;
 
-/// A compute pipeline: every binding is a storage buffer in set 0, and all
-/// pipelines share one push-constant block of `push_size` bytes.
+/// A compute pipeline: every binding is a buffer in set 0 (a storage buffer or
+/// a uniform texel buffer), and all pipelines share one push-constant block of
+/// `push_size` bytes.
 pub struct ComputePipeline {
     ctx: Arc<GpuContext>,
     pub(super) raw: vk::Pipeline,
     pub(super) layout: vk::PipelineLayout,
     pub(super) set_layout: vk::DescriptorSetLayout,
-    pub(super) bindings: Vec<u32>,
+    pub(super) bindings: Vec<(u32, BindingKind)>,
     pub(super) push_size: u32,
     name: String,
 }
@@ -38,10 +39,10 @@ impl ComputePipeline {
 
         let layout_bindings: Vec<_> = bindings
             .iter()
-            .map(|&b| {
+            .map(|&(b, kind)| {
                 vk::DescriptorSetLayoutBinding::default()
                     .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_type(kind.descriptor_type())
                     .descriptor_count(1)
                     .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })

@@ -6,6 +6,11 @@ use ash::vk;
 const SPIRV_MAGIC: u32 = 0x0723_0203;
 const OP_DECORATE: u32 = 71;
 const DECORATION_BINDING: u32 = 33;
+const OP_TYPE_IMAGE: u32 = 25;
+const OP_TYPE_SAMPLED_IMAGE: u32 = 27;
+const OP_TYPE_POINTER: u32 = 32;
+const OP_VARIABLE: u32 = 59;
+const DIM_BUFFER: u32 = 5;
 
 /// SPIR-V words from the bytes `build.rs` wrote (alignment is not guaranteed).
 pub(super) fn words(name: &str, bytes: &[u8]) -> Result<Vec<u32>> {
@@ -22,24 +27,81 @@ pub(super) fn words(name: &str, bytes: &[u8]) -> Result<Vec<u32>> {
     Ok(words)
 }
 
-/// Descriptor bindings the shader declares, sorted. Every binding is a storage
-/// buffer in set 0, so the binding numbers are all the layout needs.
-pub(super) fn reflect_bindings(words: &[u32]) -> Vec<u32> {
-    let mut bindings = Vec::new();
+/// How a binding is declared in the shader.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum BindingKind {
+    /// `buffer { ... }`: a storage buffer.
+    StorageBuffer,
+    /// `uniform usamplerBuffer` (or any sampled buffer image): a uniform texel
+    /// buffer, read through a view of 16-byte `uvec4` texels.
+    UniformTexelBuffer,
+}
+
+impl BindingKind {
+    pub fn descriptor_type(self) -> vk::DescriptorType {
+        match self {
+            BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
+            BindingKind::UniformTexelBuffer => vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
+        }
+    }
+}
+
+/// Descriptor bindings the shader declares (all in set 0), sorted by number.
+/// A binding whose variable points to a sampled image of dimension Buffer is
+/// a uniform texel buffer; every other one is a storage buffer.
+pub(super) fn reflect_bindings(words: &[u32]) -> Vec<(u32, BindingKind)> {
+    use std::collections::HashMap;
+    let mut binding_of = HashMap::new(); // variable id -> binding
+    let mut variable_type = HashMap::new(); // variable id -> pointer type id
+    let mut pointee = HashMap::new(); // pointer type id -> type id
+    let mut sampled_image = HashMap::new(); // sampled image type id -> image type id
+    let mut buffer_images = std::collections::HashSet::new(); // image type ids of Dim Buffer
     let mut i = 5; // skip the header
     while i < words.len() {
         let count = (words[i] >> 16) as usize;
         let opcode = words[i] & 0xffff;
-        if count == 0 {
+        if count == 0 || i + count > words.len() {
             break;
         }
-        if opcode == OP_DECORATE && count == 4 && words[i + 2] == DECORATION_BINDING {
-            bindings.push(words[i + 3]);
+        let w = &words[i..i + count];
+        match opcode {
+            OP_DECORATE if count == 4 && w[2] == DECORATION_BINDING => {
+                binding_of.insert(w[1], w[3]);
+            }
+            OP_TYPE_IMAGE if count >= 4 && w[3] == DIM_BUFFER => {
+                buffer_images.insert(w[1]);
+            }
+            OP_TYPE_SAMPLED_IMAGE if count == 3 => {
+                sampled_image.insert(w[1], w[2]);
+            }
+            OP_TYPE_POINTER if count == 4 => {
+                pointee.insert(w[1], w[3]);
+            }
+            OP_VARIABLE if count >= 4 => {
+                variable_type.insert(w[2], w[1]);
+            }
+            _ => {}
         }
         i += count;
     }
-    bindings.sort_unstable();
-    bindings.dedup();
+    let mut bindings: Vec<(u32, BindingKind)> = binding_of
+        .iter()
+        .map(|(var, &binding)| {
+            let texel = variable_type
+                .get(var)
+                .and_then(|p| pointee.get(p))
+                .and_then(|t| sampled_image.get(t))
+                .is_some_and(|image| buffer_images.contains(image));
+            let kind = if texel {
+                BindingKind::UniformTexelBuffer
+            } else {
+                BindingKind::StorageBuffer
+            };
+            (binding, kind)
+        })
+        .collect();
+    bindings.sort_unstable_by_key(|&(b, _)| b);
+    bindings.dedup_by_key(|&mut (b, _)| b);
     bindings
 }
 
