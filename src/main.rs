@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use qtrace::bench::{self, Config, EvalPlan, SpeedPlan};
+use qtrace::bench::{self, Config, EvalPlan, SpeedEvent, SpeedPlan};
 use qtrace::gpu::{self, ContextOptions, GpuContext};
 use qtrace::guide::neural::{Encoding, Target};
 use qtrace::guide::sarsa::{Atomics, Distribution};
@@ -300,6 +300,10 @@ enum Command {
         /// Speed table as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// With --speed: also time this peer renderer on each scene (mitsuba:
+        /// Mitsuba 3 llvm_ad_rgb through scripts/mitsuba_speed.py), or none.
+        #[arg(long, default_value = "mitsuba", value_parser = ["mitsuba", "none"])]
+        peer: String,
         #[command(flatten)]
         device: DeviceArgs,
     },
@@ -544,7 +548,32 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
         "cost/hit",
         "zero %"
     );
-    let rows = bench::speed(&ctx, plan, &mut |r| {
+    let report = bench::speed(&ctx, plan, &mut |event| {
+        let r = match event {
+            SpeedEvent::Row(r) => r,
+            SpeedEvent::Peer(p) => {
+                let ratio = p.pt_nee_ratio.map_or(String::new(), |x| {
+                    format!("  (pt+nee does {x:.2}x its samples/s)")
+                });
+                println!(
+                    "{:<28} {:<10} {:>5} {:>9} {:>11.0} {:>9} {:>9}  mitsuba {} {}, JIT batch excluded{ratio}",
+                    p.scene.display().to_string(),
+                    "mitsuba",
+                    p.spp,
+                    "",
+                    p.samples_per_second,
+                    "",
+                    "",
+                    p.version,
+                    p.variant
+                );
+                return;
+            }
+            SpeedEvent::PeerMissing(why) => {
+                println!("mitsuba not measured: {why}");
+                return;
+            }
+        };
         let breakdown: Vec<String> = r
             .pass_breakdown_ms
             .iter()
@@ -567,7 +596,7 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
         );
     })?;
     if let Some(p) = json {
-        let text = serde_json::to_string_pretty(&rows)?;
+        let text = serde_json::to_string_pretty(&report)?;
         image::write_atomically(p, |tmp| {
             std::fs::write(tmp, &text).map_err(|e| e.to_string())
         })?;
@@ -682,6 +711,7 @@ fn run(cli: Cli) -> Result<()> {
             spp,
             repeats,
             json,
+            peer,
             device,
         } => {
             let (w, h) = if *quick { (64, 64) } else { (256, 256) };
@@ -694,6 +724,7 @@ fn run(cli: Cli) -> Result<()> {
                     height,
                     spp: *spp,
                     repeats: *repeats,
+                    peer: peer == "mitsuba",
                 };
                 return cmd_bench(&plan, json.as_deref(), device);
             }

@@ -210,6 +210,8 @@ fn speed_table_reports_every_pass_and_cost() {
             "4",
             "--repeats",
             "1",
+            "--peer",
+            "none",
             "--json",
         ])
         .arg(&json)
@@ -227,9 +229,10 @@ fn speed_table_reports_every_pass_and_cost() {
         stdout.contains("cost/hit"),
         "no per-hit cost column: {stdout}"
     );
-    let rows: serde_json::Value =
+    let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let rows = rows.as_array().unwrap();
+    assert_eq!(report["peers"].as_array().map(Vec::len), Some(0));
+    let rows = report["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
     let field =
         |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
@@ -265,4 +268,77 @@ fn speed_table_reports_every_pass_and_cost() {
         (pass - vertex * lengths).abs() < 1e-9 * pass,
         "per-hit cost {vertex} does not account for path lengths ({lengths}) in {pass}"
     );
+}
+
+/// `bench --speed` with a stand-in peer script (no Python, no Mitsuba): the
+/// JSON line it prints becomes a peer row with the pt+nee ratio, and a
+/// script that says it is not set up gives one line on how to set it up.
+#[test]
+fn speed_table_shows_the_peer_or_how_to_set_it_up() {
+    let dir = common::scratch("bench-peer");
+    let measured = dir.join("measured.sh");
+    std::fs::write(
+        &measured,
+        "echo '{\"renderer\": \"mitsuba\", \"version\": \"9.9\", \"variant\": \"llvm_ad_rgb\", \
+         \"samples_per_second\": 1000.0, \"samples_per_second_median\": 900.0}'\n",
+    )
+    .unwrap();
+    let missing = dir.join("missing.sh");
+    std::fs::write(
+        &missing,
+        "echo 'mitsuba_speed: install it like so' >&2\nexit 3\n",
+    )
+    .unwrap();
+    let run = |script: &std::path::Path, json: &std::path::Path| {
+        let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+            .args([
+                "bench",
+                "--speed",
+                "scenes/cornell-box.toml",
+                "--methods",
+                "pt,pt+nee",
+            ])
+            .args([
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--spp",
+                "2",
+                "--repeats",
+                "1",
+            ])
+            .arg("--json")
+            .arg(json)
+            .env("QTRACE_PEER_PYTHON", "sh")
+            .env("QTRACE_PEER_SCRIPT", script)
+            .current_dir(common::repo("."))
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout).to_string();
+        assert!(
+            output.status.success(),
+            "{stdout}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        (stdout, report)
+    };
+
+    let (stdout, report) = run(&measured, &dir.join("measured.json"));
+    assert!(stdout.contains("mitsuba 9.9 llvm_ad_rgb"), "{stdout}");
+    let peer = &report["peers"][0];
+    assert_eq!(peer["samples_per_second"].as_f64(), Some(1000.0));
+    let ours = report["rows"][1]["samples_per_second"].as_f64().unwrap();
+    let ratio = peer["pt_nee_ratio"].as_f64().unwrap();
+    assert!((ratio - ours / 1000.0).abs() < 1e-9 * ratio, "{report}");
+
+    let (stdout, report) = run(&missing, &dir.join("missing.json"));
+    assert!(
+        stdout.contains("mitsuba not measured: mitsuba_speed: install it like so"),
+        "{stdout}"
+    );
+    assert_eq!(report["peers"].as_array().map(Vec::len), Some(0));
+    assert!(report["peer_missing"].as_str().unwrap().contains("install"));
 }

@@ -4,6 +4,7 @@
 mod charts;
 pub mod eval;
 mod learned;
+pub mod peer;
 pub mod report;
 
 pub use eval::{evaluate, EvalPlan, EvalProgress, Report};
@@ -90,18 +91,39 @@ pub struct SpeedPlan<'a> {
     pub height: u32,
     pub spp: u32,
     pub repeats: u32,
+    /// Also time Mitsuba 3 on each scene (see [`peer`]).
+    pub peer: bool,
+}
+
+/// The speed table: our rows, and the peer's where it was measured.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SpeedReport {
+    pub rows: Vec<SpeedRow>,
+    pub peers: Vec<peer::PeerRow>,
+    /// Why the peer was not measured, if it was asked for and was not.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub peer_missing: Option<String>,
+}
+
+/// What [`speed`] reports as it goes.
+pub enum SpeedEvent<'a> {
+    Row(&'a SpeedRow),
+    Peer(&'a peer::PeerRow),
+    /// The peer could not run; said once.
+    PeerMissing(&'a str),
 }
 
 /// Renders every configuration on every scene `repeats` times, keeping each
-/// one's fastest run; `progress` hears of each finished row.
+/// one's fastest run, then the peer once per scene; `progress` hears of each.
 pub fn speed(
     ctx: &Arc<GpuContext>,
     plan: &SpeedPlan<'_>,
-    progress: &mut dyn FnMut(&SpeedRow),
-) -> Result<Vec<SpeedRow>, BenchError> {
-    let mut rows = Vec::new();
+    progress: &mut dyn FnMut(SpeedEvent<'_>),
+) -> Result<SpeedReport, BenchError> {
+    let mut report = SpeedReport::default();
     for path in plan.scenes {
         let scene = Scene::load(path)?;
+        let first_row = report.rows.len();
         let mut baseline = None;
         for config in plan.configs {
             let o = Overrides {
@@ -148,9 +170,34 @@ pub fn speed(
             row.pass_cost_ratio = row.pass_ms / base_ms;
             row.vertex_cost_ratio =
                 row.pass_cost_ratio * base_length / row.mean_path_length.max(1e-9);
-            progress(&row);
-            rows.push(row);
+            progress(SpeedEvent::Row(&row));
+            report.rows.push(row);
+        }
+        if plan.peer && report.peer_missing.is_none() {
+            let o = Overrides {
+                width: Some(plan.width),
+                height: Some(plan.height),
+                ..Default::default()
+            };
+            let max_depth = RenderSettings::resolve(&scene, &o)
+                .map_err(RenderError::from)?
+                .max_depth;
+            match peer::mitsuba(path, plan.width, plan.height, plan.spp, max_depth) {
+                Ok(mut p) => {
+                    p.pt_nee_ratio = report.rows[first_row..]
+                        .iter()
+                        .find(|r| r.config == "pt+nee")
+                        .map(|r| r.samples_per_second / p.samples_per_second);
+                    progress(SpeedEvent::Peer(&p));
+                    report.peers.push(p);
+                }
+                Err(e) => {
+                    let why = e.to_string();
+                    progress(SpeedEvent::PeerMissing(&why));
+                    report.peer_missing = Some(why);
+                }
+            }
         }
     }
-    Ok(rows)
+    Ok(report)
 }
