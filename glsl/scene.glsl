@@ -7,15 +7,9 @@
 // The scene's buffers are read as uniform texel buffers of raw uvec4 words:
 // lavapipe turns a texel fetch into one vector gather, where a storage
 // buffer read is a branching loop over SIMD lanes per 32-bit word.
-layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 2 per BvhNode
+layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 4 per BvhNode
 layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 4 per Triangle
 layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
-
-BvhNode load_node(uint i) {
-    uvec4 a = texelFetch(node_texels, int(2u * i));
-    uvec4 b = texelFetch(node_texels, int(2u * i + 1u));
-    return BvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w);
-}
 
 Triangle load_triangle(uint i) {
     uvec4 a = texelFetch(triangle_texels, int(4u * i));
@@ -81,61 +75,59 @@ vec3 safe_inverse(vec3 d) {
         abs(d.z) > tiny ? d.z : (d.z >= 0.0 ? tiny : -tiny));
 }
 
+// Tests the ray against leaf child `child` (BVH_LEAF | triangle) if its box
+// was entered, keeping the nearer hit.
+void hit_leaf(vec3 o, vec3 d, uint child, float entry, inout Hit hit) {
+    if ((child & BVH_LEAF) != 0u && entry != FAR) {
+        uint i = child & ~BVH_LEAF;
+        float t = intersect_triangle(o, d, load_triangle(i), hit.t);
+        if (t > 0.0) {
+            hit.t = t;
+            hit.triangle = i;
+        }
+    }
+}
+
 // Closest hit (any_hit = false) or any hit before tmax (shadow rays).
+// Each step visits one node: both children's boxes and the triangle of each
+// child that is a leaf. Every lane does the same work per step, which is
+// what pays on lavapipe, where a branch costs both of its sides.
 Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
     Hit hit = Hit(tmax, NO_HIT);
     vec3 inv_d = safe_inverse(d);
     uint stack[BVH_STACK_SIZE];
     uint top = 0u;
     uint node = 0u;
-    BvhNode root = load_node(0u);
-    if (intersect_box(o, inv_d, root.bmin, root.bmax, hit.t) == FAR) {
-        return hit;
-    }
     while (true) {
-        BvhNode n = load_node(node);
-        if (n.count > 0u) {
-            for (uint i = n.first; i < n.first + n.count; ++i) {
-                float t = intersect_triangle(o, d, load_triangle(i), hit.t);
-                if (t > 0.0) {
-                    hit.t = t;
-                    hit.triangle = i;
-                    if (any_hit) {
-                        return hit;
-                    }
-                }
-            }
+        uvec4 a = texelFetch(node_texels, int(4u * node));
+        uvec4 b = texelFetch(node_texels, int(4u * node + 1u));
+        uvec4 c = texelFetch(node_texels, int(4u * node + 2u));
+        uvec4 e = texelFetch(node_texels, int(4u * node + 3u));
+        uint c0 = a.w;
+        uint c1 = b.w;
+        float t0 = c0 == BVH_NO_CHILD ? FAR
+            : intersect_box(o, inv_d, uintBitsToFloat(a.xyz), uintBitsToFloat(b.xyz), hit.t);
+        float t1 = c1 == BVH_NO_CHILD ? FAR
+            : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
+        hit_leaf(o, d, c0, t0, hit);
+        hit_leaf(o, d, c1, t1, hit);
+        if (any_hit && hit.triangle != NO_HIT) {
+            return hit;
+        }
+        // Inner children entered: visit the nearer next, keep the other.
+        bool in0 = (c0 & BVH_LEAF) == 0u && t0 != FAR;
+        bool in1 = (c1 & BVH_LEAF) == 0u && t1 != FAR;
+        if (in0 && in1) {
+            bool near0 = t0 <= t1;
+            stack[top++] = near0 ? c1 : c0;
+            node = near0 ? c0 : c1;
+        } else if (in0 || in1) {
+            node = in0 ? c0 : c1;
+        } else if (top > 0u) {
+            // Its box was entered before hits found since then: it is tested
+            // against them at its children.
+            node = stack[--top];
         } else {
-            uint a = n.first;
-            uint b = n.first + 1u;
-            BvhNode na = load_node(a);
-            BvhNode nb = load_node(b);
-            float ta = intersect_box(o, inv_d, na.bmin, na.bmax, hit.t);
-            float tb = intersect_box(o, inv_d, nb.bmin, nb.bmax, hit.t);
-            if (ta > tb) {
-                float tt = ta; ta = tb; tb = tt;
-                uint tn = a; a = b; b = tn;
-            }
-            if (ta != FAR) {
-                if (tb != FAR) {
-                    stack[top++] = b;
-                }
-                node = a;
-                continue;
-            }
-        }
-        // Pop until a node the ray still reaches before the current hit.
-        bool found = false;
-        while (top > 0u) {
-            uint candidate = stack[--top];
-            BvhNode c = load_node(candidate);
-            if (intersect_box(o, inv_d, c.bmin, c.bmax, hit.t) != FAR) {
-                node = candidate;
-                found = true;
-                break;
-            }
-        }
-        if (!found) {
             break;
         }
     }

@@ -70,6 +70,12 @@
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
+// Most bounce steps one trace invocation takes: llvmpipe silently ends a loop
+// after 65 535 iterations.
+#define MAX_TRACE_STEPS 65000
+// BvhNode child references.
+#define BVH_LEAF 0x80000000
+#define BVH_NO_CHILD 0xffffffff
 // Longest BVH traversal stack the builder may produce.
 #define BVH_STACK_SIZE 64
 
@@ -80,7 +86,7 @@
 #define ENCODED_INPUTS 32
 
 // Bytes of each struct, checked on the Rust side too.
-#define SIZEOF_BVH_NODE 32
+#define SIZEOF_BVH_NODE 64
 #define SIZEOF_TRIANGLE 64
 #define SIZEOF_MATERIAL 32
 #define SIZEOF_LIGHT 16
@@ -94,13 +100,17 @@
 #define SIZEOF_MLP_PUSH 32
 #define SIZEOF_MLP_BATCH 48
 
-// Flattened BVH node. Interior: children at `first` and `first + 1`.
-// Leaf (count > 0): triangles first .. first + count.
+// A BVH node holds its two children's boxes. A child is another node's
+// index, BVH_LEAF | the index of its one triangle, or BVH_NO_CHILD.
 struct BvhNode {
-    vec3 bmin;
-    uint first;
-    vec3 bmax;
-    uint count;
+    vec3 bmin0;
+    uint child0;
+    vec3 bmax0;
+    uint child1;
+    vec3 bmin1;
+    uint pad0;
+    vec3 bmax1;
+    uint pad1;
 };
 
 // A triangle as v0 and two edges; the geometric normal is cross(e1, e2).
@@ -170,7 +180,7 @@ struct PassParams {
     uint flags;
     uint light_count;
     uint probe_mode;   // probe kernel only
-    uint item_count;   // probe kernel only
+    uint item_count;   // items of a probe or fold pass; trace and accumulate: samples per pixel
     uint volume_count; // guides: radiance volumes
     uint sector_grid;  // guides: a | (b << 16), n = a * b sectors
     float guide_epsilon; // guides: weight of cosine sampling in the mixture

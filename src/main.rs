@@ -511,11 +511,9 @@ fn cmd_inspect(path: &Path) -> Result<()> {
     );
     println!("environment  {:?}", scene.environment.to_array());
     println!(
-        "bvh          {} nodes, {} leaves, depth {}, {:.2} triangles/leaf",
+        "bvh          {} nodes of two child boxes, one triangle per leaf, depth {}",
         scene.nodes.len(),
-        scene.bvh_leaves,
         scene.bvh_depth,
-        scene.triangles.len() as f32 / scene.bvh_leaves.max(1) as f32
     );
     let c = &scene.camera;
     println!(

@@ -17,10 +17,14 @@ pub mod spirv {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct BvhNode {
-    pub bmin: [f32; 3],
-    pub first: u32,
-    pub bmax: [f32; 3],
-    pub count: u32,
+    pub bmin0: [f32; 3],
+    pub child0: u32,
+    pub bmax0: [f32; 3],
+    pub child1: u32,
+    pub bmin1: [f32; 3],
+    pub pad0: u32,
+    pub bmax1: [f32; 3],
+    pub pad1: u32,
 }
 
 #[repr(C)]

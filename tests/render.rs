@@ -3,7 +3,7 @@
 
 mod common;
 
-use qtrace::render::{Overrides, Sampling};
+use qtrace::render::{Overrides, RenderSettings, Renderer, Sampling};
 
 /// White furnace: every surface reflects all light (albedo 1) under a uniform
 /// environment of radiance 1, so every pixel's expected value is exactly 1.
@@ -74,6 +74,49 @@ fn same_seed_gives_the_same_image_and_other_seeds_do_not() {
     let a = run(11);
     assert_eq!(a, run(11), "same seed, different image");
     assert_ne!(a, run(12), "different seeds gave identical images");
+}
+
+/// A dispatch that traces several samples per pixel (each lane starting its
+/// next path as soon as one ends) gives exactly the image and per-pass stats
+/// of one dispatch per sample: checkpoints at every sample force the latter.
+#[test]
+fn several_samples_per_dispatch_change_nothing() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let settings = RenderSettings::resolve(
+        &scene,
+        &Overrides {
+            spp: Some(12),
+            width: Some(24),
+            height: Some(20),
+            nee: true,
+            seed: Some(3),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut shared = Renderer::new(&ctx, &scene, settings.clone()).unwrap();
+    let a = shared.run(&mut |_| {}).unwrap();
+    let every: Vec<u32> = (1..=12).collect();
+    let mut single = Renderer::new(&ctx, &scene, settings).unwrap();
+    let b = single
+        .run_with_checkpoints(&mut |_| {}, &every, &mut |_| {})
+        .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    assert_eq!(a.image, b.image);
+    let pass = |s: &qtrace::render::RenderStats| {
+        s.passes
+            .iter()
+            .map(|p| (p.rays, p.zero_contribution_fraction, p.mean_path_length))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(pass(&a.stats), pass(&b.stats));
+    assert_eq!(b.stats.trace_dispatches, 12);
+    assert!(
+        a.stats.trace_dispatches < 12,
+        "no dispatch was shared: {}",
+        a.stats.trace_dispatches
+    );
 }
 
 #[test]

@@ -94,6 +94,12 @@ impl Recorder<'_> {
 
     /// Records one compute pass: barrier, label, timestamps, dispatch.
     pub fn dispatch(&mut self, pass: Pass<'_>) {
+        self.dispatch_covering(pass, 1);
+    }
+
+    /// [`Recorder::dispatch`] for a pass that does the work of `passes` sample
+    /// passes at once: the profiler counts each a `1/passes` share of its time.
+    pub fn dispatch_covering(&mut self, pass: Pass<'_>, passes: u32) {
         let device = &self.ctx.device;
         // A pass may read or overwrite anything an earlier pass or copy wrote.
         self.barrier(
@@ -110,7 +116,7 @@ impl Recorder<'_> {
         let query = self
             .profiler
             .as_deref_mut()
-            .and_then(|p| p.begin(self.cmd, pass.name));
+            .and_then(|p| p.begin(self.cmd, pass.name, passes));
         unsafe {
             device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pass.pipeline.raw);
             device.cmd_bind_descriptor_sets(

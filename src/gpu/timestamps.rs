@@ -37,7 +37,7 @@ impl PassTiming {
 pub struct Profiler {
     ctx: Arc<GpuContext>,
     pool: Option<vk::QueryPool>,
-    pending: Vec<String>,
+    pending: Vec<(String, u32)>,
     timings: Vec<PassTiming>,
     valid_mask: u64,
 }
@@ -74,13 +74,15 @@ impl Profiler {
         }
     }
 
-    pub(super) fn begin(&mut self, cmd: vk::CommandBuffer, name: &str) -> Option<u32> {
+    /// A dispatch doing the work of `passes` passes counts as that many, each
+    /// with an equal share of its time.
+    pub(super) fn begin(&mut self, cmd: vk::CommandBuffer, name: &str, passes: u32) -> Option<u32> {
         let pool = self.pool?;
         let index = self.pending.len() as u32;
         if index >= MAX_TIMED_PASSES {
             return None;
         }
-        self.pending.push(name.to_string());
+        self.pending.push((name.to_string(), passes.max(1)));
         unsafe {
             self.ctx.device.cmd_write_timestamp(
                 cmd,
@@ -123,10 +125,10 @@ impl Profiler {
             )?
         };
         let period_ms = self.ctx.info().timestamp_period_ns as f64 * 1e-6;
-        for (i, name) in std::mem::take(&mut self.pending).into_iter().enumerate() {
+        for (i, (name, passes)) in std::mem::take(&mut self.pending).into_iter().enumerate() {
             let start = ticks[2 * i] & self.valid_mask;
             let end = ticks[2 * i + 1] & self.valid_mask;
-            let ms = end.saturating_sub(start) as f64 * period_ms;
+            let ms = end.saturating_sub(start) as f64 * period_ms / passes as f64;
             let t = match self.timings.iter_mut().find(|t| t.name == name) {
                 Some(t) => t,
                 None => {
@@ -138,11 +140,12 @@ impl Profiler {
                     self.timings.last_mut().unwrap()
                 }
             };
-            t.count += 1;
-            t.total_ms += ms;
+            t.count += passes as u64;
+            t.total_ms += ms * passes as f64;
             t.min_ms = t.min_ms.min(ms);
             t.max_ms = t.max_ms.max(ms);
-            t.samples.push(ms as f32);
+            t.samples
+                .extend(std::iter::repeat_n(ms as f32, passes as usize));
         }
         Ok(())
     }

@@ -144,6 +144,9 @@ pub struct Renderer {
     accum: Buffer,
     stats: Buffer,
     _samples: Buffer,
+    /// Most sample passes one trace dispatch may take (see `passes`).
+    samples_per_dispatch: u32,
+    trace_dispatches: u32,
     profiler: Profiler,
     guide: Option<SarsaGuide>,
     neural: Option<NeuralGuide>,
@@ -166,6 +169,18 @@ fn trace_variant(
         Method::Neural if settings.nee => spirv::TRACE_NEURAL_NEE,
         Method::Neural => spirv::TRACE_NEURAL,
     })
+}
+
+/// Most sample passes one trace dispatch takes: as many as a submit holds
+/// (MAX_BATCH), as the samples buffer can hold (one path sample per pixel
+/// each), and as keep a path's bounce steps under the kernel's step cap.
+fn samples_per_dispatch(settings: &RenderSettings, pixels: u64, device: &gpu::DeviceInfo) -> u32 {
+    let per_sample = pixels * size_of::<PathSample>() as u64;
+    let by_memory = (device.max_storage_buffer_range / per_sample.max(1)).max(1);
+    let by_steps = (shaders::MAX_TRACE_STEPS / (settings.max_depth + 2)).max(1);
+    (shaders::MAX_BATCH as u64)
+        .min(by_memory)
+        .min(by_steps as u64) as u32
 }
 
 fn groups(width: u32, height: u32) -> [u32; 3] {
@@ -235,8 +250,12 @@ impl Renderer {
             _ => None,
         };
         let gpu_scene = GpuScene::upload(ctx, scene, guide.as_ref().and_then(|g| g.lookup()))?;
-        let samples =
-            Buffer::gpu_only(ctx, "path samples", pixels * size_of::<PathSample>() as u64)?;
+        let samples_per_dispatch = samples_per_dispatch(&settings, pixels, ctx.info());
+        let samples = Buffer::gpu_only(
+            ctx,
+            "path samples",
+            samples_per_dispatch as u64 * pixels * size_of::<PathSample>() as u64,
+        )?;
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
         let stats = Buffer::readback(
             ctx,
@@ -282,15 +301,18 @@ impl Renderer {
             accum,
             stats,
             _samples: samples,
+            samples_per_dispatch,
+            trace_dispatches: 0,
             profiler: Profiler::new(ctx)?,
             guide,
             neural,
         })
     }
 
-    /// Runs one sample pass and returns its totals.
     /// Runs sample passes `first .. first + count` (count <= MAX_BATCH) in one
-    /// submit and returns each pass's totals.
+    /// submit and returns each pass's totals. Passes in which no guide learns
+    /// share trace dispatches (see [`samples_per_dispatch`]); a learning pass
+    /// has its own, since the next one samples from what it learned.
     fn passes(&mut self, first: u32, count: u32) -> Result<Vec<PassStats>, RenderError> {
         debug_assert!((1..=shaders::MAX_BATCH).contains(&count));
         self.stats
@@ -301,11 +323,26 @@ impl Renderer {
         let guide = self.guide.as_ref();
         let mut neural = self.neural.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
+        let most = self.samples_per_dispatch;
+        let dispatches = &mut self.trace_dispatches;
         self.ctx.submit(Some(&mut self.profiler), |rec| {
-            for index in first..first + count {
+            let end = first + count;
+            let mut index = first;
+            while index < end {
+                let learn = settings.learns_in_pass(index);
+                // A dispatch never spans a reset or a pass that learns.
+                let mut samples = 1;
+                while !learn
+                    && samples < most
+                    && index + samples < end
+                    && !settings.learns_in_pass(index + samples)
+                    && settings.reset_after() != Some(index + samples)
+                {
+                    samples += 1;
+                }
                 let mut params = base;
                 params.pass_index = index;
-                let learn = settings.learns_in_pass(index);
+                params.item_count = samples;
                 if let Some(n) = neural.as_deref() {
                     n.set_params(&mut params, learn);
                 }
@@ -316,20 +353,26 @@ impl Renderer {
                     rec.fill(accum, 0);
                 }
                 let push = bytemuck::bytes_of(&params);
-                rec.dispatch(Pass {
-                    name: "trace",
-                    pipeline: trace,
-                    set: trace_set,
-                    push,
-                    groups: g,
-                });
-                rec.dispatch(Pass {
-                    name: "accumulate",
-                    pipeline: accumulate,
-                    set: accumulate_set,
-                    push,
-                    groups: g,
-                });
+                rec.dispatch_covering(
+                    Pass {
+                        name: "trace",
+                        pipeline: trace,
+                        set: trace_set,
+                        push,
+                        groups: g,
+                    },
+                    samples,
+                );
+                rec.dispatch_covering(
+                    Pass {
+                        name: "accumulate",
+                        pipeline: accumulate,
+                        set: accumulate_set,
+                        push,
+                        groups: g,
+                    },
+                    samples,
+                );
                 // The next pass samples from what this one learned.
                 if let (Some(guide), true) = (guide, learn) {
                     guide.record_update(rec, &params);
@@ -337,6 +380,8 @@ impl Renderer {
                 if let (Some(n), true) = (neural.as_deref_mut(), learn) {
                     n.record_update(rec);
                 }
+                index += samples;
+                *dispatches += 1;
             }
         })?;
         let slots = self.stats.read::<PassStats>();
@@ -406,7 +451,8 @@ impl Renderer {
         let mut pass_seconds = 0.0f64;
         loop {
             // A batch never runs past the budget or the next checkpoint, and
-            // stays short enough (~0.1 s) for progress and time budgets.
+            // stays short enough (~0.25 s) for progress and time budgets; longer
+            // batches let passes that learn nothing share trace dispatches.
             let mut count = shaders::MAX_BATCH;
             if let Budget::Samples(n) = self.settings.budget {
                 count = count.min(n - done);
@@ -415,7 +461,7 @@ impl Renderer {
                 count = count.min(next - done);
             }
             if pass_seconds > 0.0 {
-                let mut seconds = 0.1f64;
+                let mut seconds = 0.25f64;
                 if let Budget::Seconds(t) = self.settings.budget {
                     seconds = seconds.min(t - (start.elapsed().as_secs_f64() - paused));
                 }
@@ -501,6 +547,7 @@ impl Renderer {
                 + self.neural.as_ref().map_or(0, |n| n.bytes()),
             guide_volumes: self.guide.as_ref().map_or(0, |g| g.volumes.len() as u64),
             passes: records,
+            trace_dispatches: self.trace_dispatches,
         };
         Ok(RenderOutput {
             image,

@@ -49,6 +49,9 @@ pub struct RenderStats {
     /// Radiance volumes of the Sarsa guide (0 otherwise).
     pub guide_volumes: u64,
     pub passes: Vec<PassRecord>,
+    /// Trace dispatches: fewer than `spp` where passes that learn nothing
+    /// shared them.
+    pub trace_dispatches: u32,
 }
 
 impl RenderStats {

@@ -1,11 +1,12 @@
-//! Binned-SAH BVH built on the host and flattened for the GPU: children of an
-//! interior node sit next to each other, so a node needs one index.
+//! Binned-SAH BVH built on the host and flattened for the GPU. Every node
+//! holds its two children's boxes, and every leaf is one triangle, so the
+//! traversal kernel visits interior nodes only and does the same work at each
+//! (on lavapipe both sides of a branch cost, so uniform steps are what pays).
 
-use crate::shaders::{BvhNode, BVH_STACK_SIZE};
+use crate::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD, BVH_STACK_SIZE};
 use glam::Vec3;
 
 const BINS: usize = 16;
-const MAX_LEAF: usize = 4;
 /// Past this depth nodes split at the median, which halves them: 32 more levels
 /// hold 2^32 triangles, so the depth (and the GPU traversal stack) stays below
 /// BVH_STACK_SIZE whatever the geometry.
@@ -38,12 +39,30 @@ impl Aabb {
 
 /// The flattened tree and the triangle order its leaves refer to.
 pub struct Bvh {
+    /// Interior nodes; node 0 is the root (it has one child, or none, when
+    /// the scene has fewer than two triangles).
     pub nodes: Vec<BvhNode>,
-    /// `order[i]` is the original index of the i-th triangle in leaf order.
+    /// `order[i]` is the original index of the triangle leaf `i` refers to.
     pub order: Vec<u32>,
+    /// Levels of interior nodes on the longest root-to-leaf path.
     pub depth: u32,
-    pub leaves: u32,
+    /// The box around every triangle.
+    pub bounds: (Vec3, Vec3),
 }
+
+/// A child as a node stores it: its box and reference.
+struct Child {
+    bounds: Aabb,
+    reference: u32,
+}
+
+const NO_CHILD: Child = Child {
+    bounds: Aabb {
+        min: Vec3::ZERO,
+        max: Vec3::ZERO,
+    },
+    reference: BVH_NO_CHILD,
+};
 
 struct Builder<'a> {
     bounds: &'a [Aabb],
@@ -51,7 +70,6 @@ struct Builder<'a> {
     order: Vec<u32>,
     nodes: Vec<BvhNode>,
     depth: u32,
-    leaves: u32,
 }
 
 pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
@@ -68,16 +86,37 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
         bounds: &bounds,
         centroids: &centroids,
         order: (0..triangles.len() as u32).collect(),
-        nodes: vec![BvhNode::default()],
+        nodes: Vec::new(),
         depth: 0,
-        leaves: 0,
     };
-    builder.split(0, 0, triangles.len(), 0);
+    let n = triangles.len();
+    let all = builder.range_bounds(0, n).0;
+    if n >= 2 {
+        builder.split(0, n, 0);
+    } else {
+        // The root always exists: one leaf child, or none.
+        let only = if n == 1 { builder.leaf(0) } else { NO_CHILD };
+        builder.nodes.push(node_of(&only, &NO_CHILD));
+        builder.depth = 1;
+    }
     Bvh {
         nodes: builder.nodes,
         order: builder.order,
         depth: builder.depth,
-        leaves: builder.leaves,
+        bounds: (all.min, all.max),
+    }
+}
+
+fn node_of(a: &Child, b: &Child) -> BvhNode {
+    BvhNode {
+        bmin0: a.bounds.min.into(),
+        child0: a.reference,
+        bmax0: a.bounds.max.into(),
+        child1: b.reference,
+        bmin1: b.bounds.min.into(),
+        pad0: 0,
+        bmax1: b.bounds.max.into(),
+        pad1: 0,
     }
 }
 
@@ -92,45 +131,41 @@ impl Builder<'_> {
         (b, c)
     }
 
-    fn split(&mut self, node: usize, start: usize, end: usize, depth: u32) {
-        self.depth = self.depth.max(depth);
-        let (bounds, centroid_bounds) = self.range_bounds(start, end);
-        let count = end - start;
-        self.nodes[node] = BvhNode {
-            bmin: bounds.min.into(),
-            first: start as u32,
-            bmax: bounds.max.into(),
-            count: count as u32,
-        };
-        if count <= MAX_LEAF {
-            self.leaves += 1;
-            return;
+    fn leaf(&self, position: usize) -> Child {
+        Child {
+            bounds: self.bounds[self.order[position] as usize],
+            reference: BVH_LEAF | position as u32,
         }
+    }
+
+    /// Builds the subtree of triangles `start..end` (at least two) and returns
+    /// its root node's index.
+    fn split(&mut self, start: usize, end: usize, depth: u32) -> u32 {
+        self.depth = self.depth.max(depth + 1);
+        let node = self.nodes.len();
+        self.nodes.push(BvhNode::default());
+        let centroid_bounds = self.range_bounds(start, end).1;
         let extent = centroid_bounds.max - centroid_bounds.min;
         let axis = extent.max_position();
-        if extent[axis] <= 0.0 {
-            // All centroids coincide: no split separates them.
-            self.leaves += 1;
-            return;
-        }
-        let mid = if depth >= MEDIAN_DEPTH {
+        let mid = if extent[axis] <= 0.0 || depth >= MEDIAN_DEPTH {
+            // Coinciding centroids (or a deep tree): halve by position.
             self.median_split(start, end, axis)
         } else {
-            match self.sah_split(start, end, axis, &centroid_bounds, bounds.area()) {
-                Some(mid) => mid,
-                None => {
-                    self.leaves += 1;
-                    return;
+            self.sah_split(start, end, axis, &centroid_bounds)
+        };
+        let children = [(start, mid), (mid, end)].map(|(s, e)| {
+            if e - s == 1 {
+                self.leaf(s)
+            } else {
+                let index = self.split(s, e, depth + 1);
+                Child {
+                    bounds: self.range_bounds(s, e).0,
+                    reference: index,
                 }
             }
-        };
-        let left = self.nodes.len();
-        self.nodes.push(BvhNode::default());
-        self.nodes.push(BvhNode::default());
-        self.nodes[node].first = left as u32;
-        self.nodes[node].count = 0;
-        self.split(left, start, mid, depth + 1);
-        self.split(left + 1, mid, end, depth + 1);
+        });
+        self.nodes[node] = node_of(&children[0], &children[1]);
+        node as u32
     }
 
     fn median_split(&mut self, start: usize, end: usize, axis: usize) -> usize {
@@ -142,16 +177,9 @@ impl Builder<'_> {
         mid
     }
 
-    /// Partitions at the cheapest of the bin planes on `axis`; `None` when a
-    /// leaf is cheaper than any split.
-    fn sah_split(
-        &mut self,
-        start: usize,
-        end: usize,
-        axis: usize,
-        cb: &Aabb,
-        parent_area: f32,
-    ) -> Option<usize> {
+    /// Partitions at the cheapest of the bin planes on `axis` (both sides
+    /// non-empty), or at the median when every centroid falls in one bin.
+    fn sah_split(&mut self, start: usize, end: usize, axis: usize, cb: &Aabb) -> usize {
         let lo = cb.min[axis];
         let scale = BINS as f32 / (cb.max[axis] - lo);
         let bin_of = |c: Vec3| (((c[axis] - lo) * scale) as usize).min(BINS - 1);
@@ -181,16 +209,8 @@ impl Builder<'_> {
                 best = (cost, k);
             }
         }
-        let count = end - start;
-        // Traversal step costs about as much as one triangle test.
-        let leaf_cost = count as f32 * parent_area;
-        let split_cost = parent_area + best.0;
-        if best.0 == f32::INFINITY || (count <= 2 * MAX_LEAF && split_cost >= leaf_cost) {
-            return if best.0 == f32::INFINITY {
-                Some(self.median_split(start, end, axis))
-            } else {
-                None
-            };
+        if best.0 == f32::INFINITY {
+            return self.median_split(start, end, axis);
         }
         let split_bin = best.1;
         let centroids = self.centroids;
@@ -202,7 +222,7 @@ impl Builder<'_> {
                 left += 1;
             }
         }
-        Some(start + left)
+        start + left
     }
 }
 
@@ -210,15 +230,60 @@ impl Builder<'_> {
 mod tests {
     use super::*;
 
+    fn check(tris: &[[Vec3; 3]]) {
+        let bvh = build(tris);
+        assert!(bvh.depth < BVH_STACK_SIZE);
+        let mut seen = vec![0u32; tris.len()];
+        for node in &bvh.nodes {
+            let children = [
+                (node.child0, node.bmin0, node.bmax0),
+                (node.child1, node.bmin1, node.bmax1),
+            ];
+            for (child, bmin, bmax) in children {
+                if child == BVH_NO_CHILD {
+                    continue;
+                }
+                let (bmin, bmax) = (Vec3::from(bmin), Vec3::from(bmax));
+                let leaves: Vec<usize> = if child & BVH_LEAF != 0 {
+                    let t = bvh.order[(child & !BVH_LEAF) as usize] as usize;
+                    seen[t] += 1;
+                    vec![t]
+                } else {
+                    // Every triangle under an interior child lies in its box.
+                    let mut under = Vec::new();
+                    let mut stack = vec![child];
+                    while let Some(c) = stack.pop() {
+                        let n = &bvh.nodes[c as usize];
+                        for r in [n.child0, n.child1] {
+                            if r == BVH_NO_CHILD {
+                            } else if r & BVH_LEAF != 0 {
+                                under.push(bvh.order[(r & !BVH_LEAF) as usize] as usize);
+                            } else {
+                                stack.push(r);
+                            }
+                        }
+                    }
+                    under
+                };
+                for t in leaves {
+                    for p in tris[t] {
+                        assert!(p.cmpge(bmin).all() && p.cmple(bmax).all());
+                    }
+                }
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
+    }
+
     #[test]
-    fn every_triangle_is_in_exactly_one_leaf_inside_its_node() {
+    fn every_triangle_is_in_exactly_one_leaf_inside_its_boxes() {
         let mut tris = Vec::new();
         let mut s = 1u32;
         let mut rnd = || {
             s = s.wrapping_mul(1664525).wrapping_add(1013904223);
             (s >> 8) as f32 / (1 << 24) as f32
         };
-        for _ in 0..5000 {
+        for _ in 0..2000 {
             let p = Vec3::new(rnd(), rnd(), rnd()) * 100.0;
             tris.push([
                 p,
@@ -226,23 +291,11 @@ mod tests {
                 p + Vec3::new(0.0, rnd(), rnd()),
             ]);
         }
-        let bvh = build(&tris);
-        assert!(bvh.depth < BVH_STACK_SIZE);
-        let mut seen = vec![0u32; tris.len()];
-        for node in &bvh.nodes {
-            if node.count > 0 {
-                for i in node.first..node.first + node.count {
-                    let t = bvh.order[i as usize] as usize;
-                    seen[t] += 1;
-                    for p in tris[t] {
-                        assert!(
-                            p.cmpge(Vec3::from(node.bmin)).all()
-                                && p.cmple(Vec3::from(node.bmax)).all()
-                        );
-                    }
-                }
-            }
-        }
-        assert!(seen.iter().all(|&c| c == 1));
+        check(&tris);
+        // Coinciding triangles, and the smallest scenes.
+        check(&vec![[Vec3::ZERO, Vec3::X, Vec3::Y]; 9]);
+        check(&tris[..1]);
+        check(&tris[..2]);
+        check(&[]);
     }
 }

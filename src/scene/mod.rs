@@ -105,7 +105,8 @@ pub struct Scene {
     pub lights: Vec<shaders::Light>,
     pub nodes: Vec<shaders::BvhNode>,
     pub bvh_depth: u32,
-    pub bvh_leaves: u32,
+    /// The box around every triangle.
+    pub bounds: (Vec3, Vec3),
     /// Diagonal of the scene's bounding box.
     pub extent: f32,
 }
@@ -144,10 +145,9 @@ impl Scene {
         self.extent * 1e-5
     }
 
-    /// The box around every triangle (the BVH root's).
+    /// The box around every triangle.
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        let root = &self.nodes[0];
-        (Vec3::from(root.bmin), Vec3::from(root.bmax))
+        self.bounds
     }
 
     /// Loads and validates a scene file and everything it names.
@@ -273,7 +273,7 @@ impl Scene {
             lights,
             nodes: bvh.nodes,
             bvh_depth: bvh.depth,
-            bvh_leaves: bvh.leaves,
+            bounds: bvh.bounds,
             extent,
         })
     }
