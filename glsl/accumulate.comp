@@ -1,25 +1,28 @@
 #version 460
-// Adds each pixel's path samples of the dispatch to the running sums and
+// Adds each pixel's path samples of the dispatch to its running sums and
 // totals each sample pass's stats into that pass's slot.
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
 
 #include "shared.h"
 
 layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 
 layout(push_constant) uniform Push { PassParams params; };
-layout(std430, set = 0, binding = B_SAMPLES) readonly buffer Samples { PathSample samples[]; };
+// Read as texels (2 per PathSample): one vector gather each on lavapipe.
+layout(set = 0, binding = B_SAMPLES) uniform usamplerBuffer sample_texels;
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
-layout(std430, set = 0, binding = B_STATS) buffer Stats { PassStats pass_stats[]; };
+// PassStats as words: paths, zero_paths, length_sum, rays, nan_paths,
+// td_count, td_sq_bits, pad.
+layout(std430, set = 0, binding = B_STATS) buffer Stats { uint stats_words[]; };
 
-// One global atomic per counter per workgroup instead of one per pixel.
-shared uint s_paths;
-shared uint s_zero;
-shared uint s_length;
-shared uint s_rays;
-shared uint s_nan;
-shared uint s_td_count;
-// Float sums reduce through an array: shared float atomics are optional.
-shared float s_td[TILE_X * TILE_Y];
+#define COUNTERS 6
+// Subgroups hold at least 4 invocations.
+#define MAX_SUBGROUPS (TILE_X * TILE_Y / 4)
+// Each subgroup's totals per sample of the dispatch, summed once at the end:
+// no barrier or shared atomic per sample.
+shared uint s_counts[MAX_BATCH][MAX_SUBGROUPS][COUNTERS];
+shared float s_td[MAX_BATCH][MAX_SUBGROUPS];
 
 void main() {
     uvec2 pixel = gl_GlobalInvocationID.xy;
@@ -27,61 +30,71 @@ void main() {
     uint index = pixel.y * params.width + pixel.x;
     uint pixels = params.width * params.height;
     // The trace pass wrote sample s of this dispatch at s * pixels + index.
-    uint count = max(params.item_count, 1u);
+    uint count = clamp(params.item_count, 1u, MAX_BATCH);
+    // The pixel's sums stay in registers over the dispatch's samples.
+    Accum a = Accum(vec4(0.0), vec4(0.0));
+    if (inside) {
+        a = accum[index];
+    }
     for (uint s = 0u; s < count; ++s) {
-        if (gl_LocalInvocationIndex == 0u) {
-            s_paths = 0u;
-            s_zero = 0u;
-            s_length = 0u;
-            s_rays = 0u;
-            s_nan = 0u;
-            s_td_count = 0u;
-        }
-        s_td[gl_LocalInvocationIndex] = 0.0;
-        barrier();
-
+        uint c[COUNTERS] = uint[COUNTERS](0u, 0u, 0u, 0u, 0u, 0u);
+        float td = 0.0;
         if (inside) {
-            PathSample ps = samples[s * pixels + index];
-            bool bad = any(isnan(ps.radiance)) || any(isinf(ps.radiance));
-            if (bad) {
+            uvec4 t0 = texelFetch(sample_texels, int(2u * (s * pixels + index)));
+            uvec4 t1 = texelFetch(sample_texels, int(2u * (s * pixels + index) + 1u));
+            vec3 radiance = uintBitsToFloat(t0.xyz);
+            if (any(isnan(radiance)) || any(isinf(radiance))) {
                 // Counted and left out rather than poisoning the pixel.
-                atomicAdd(s_nan, 1u);
+                c[4] = 1u;
             } else {
-                Accum a = accum[index];
-                a.sum += vec4(ps.radiance, 1.0);
-                a.sum_sq += vec4(ps.radiance * ps.radiance, 0.0);
-                accum[index] = a;
-                if ((ps.radiance.r + ps.radiance.g + ps.radiance.b) / 3.0 < 1e-4) {
-                    atomicAdd(s_zero, 1u);
-                }
+                a.sum += vec4(radiance, 1.0);
+                a.sum_sq += vec4(radiance * radiance, 0.0);
+                c[1] = (radiance.r + radiance.g + radiance.b) / 3.0 < 1e-4 ? 1u : 0u;
             }
-            atomicAdd(s_paths, 1u);
-            atomicAdd(s_length, ps.path_length);
-            atomicAdd(s_rays, ps.rays);
-            atomicAdd(s_td_count, ps.td_count);
-            s_td[gl_LocalInvocationIndex] = ps.td_sq_sum;
+            c[0] = 1u;
+            c[2] = t0.w;
+            c[3] = t1.x;
+            c[5] = t1.y;
+            td = uintBitsToFloat(t1.z);
         }
-        barrier();
-        for (uint width = (TILE_X * TILE_Y) / 2u; width > 0u; width /= 2u) {
-            if (gl_LocalInvocationIndex < width) {
-                s_td[gl_LocalInvocationIndex] += s_td[gl_LocalInvocationIndex + width];
+        for (uint k = 0u; k < COUNTERS; ++k) {
+            c[k] = subgroupAdd(c[k]);
+        }
+        td = subgroupAdd(td);
+        if (subgroupElect()) {
+            for (uint k = 0u; k < COUNTERS; ++k) {
+                s_counts[s][gl_SubgroupID][k] = c[k];
             }
-            barrier();
+            s_td[s][gl_SubgroupID] = td;
         }
+    }
+    if (inside) {
+        accum[index] = a;
+    }
+    barrier();
 
-        if (gl_LocalInvocationIndex == 0u) {
-            uint slot = (params.pass_index + s) % MAX_BATCH;
-            atomicAdd(pass_stats[slot].paths, s_paths);
-            atomicAdd(pass_stats[slot].zero_paths, s_zero);
-            atomicAdd(pass_stats[slot].length_sum, s_length);
-            atomicAdd(pass_stats[slot].rays, s_rays);
-            atomicAdd(pass_stats[slot].nan_paths, s_nan);
-            atomicAdd(pass_stats[slot].td_count, s_td_count);
-            if (s_td[0] != 0.0) {
-                // One float add per workgroup, by compare-and-swap on its bits.
-                uint seen = pass_stats[slot].td_sq_bits;
+    // One invocation per (sample, counter): sums the subgroups, then one
+    // global atomic per workgroup.
+    for (uint task = gl_LocalInvocationIndex; task < count * (COUNTERS + 1u); task += TILE_X * TILE_Y) {
+        uint s = task / (COUNTERS + 1u);
+        uint k = task % (COUNTERS + 1u);
+        uint word = ((params.pass_index + s) % MAX_BATCH) * (SIZEOF_PASS_STATS / 4u) + k;
+        if (k < COUNTERS) {
+            uint sum = 0u;
+            for (uint g = 0u; g < gl_NumSubgroups; ++g) {
+                sum += s_counts[s][g][k];
+            }
+            atomicAdd(stats_words[word], sum);
+        } else {
+            float sum = 0.0;
+            for (uint g = 0u; g < gl_NumSubgroups; ++g) {
+                sum += s_td[s][g];
+            }
+            if (sum != 0.0) {
+                // A float add by compare-and-swap on its bits.
+                uint seen = stats_words[word];
                 while (true) {
-                    uint found = atomicCompSwap(pass_stats[slot].td_sq_bits, seen, floatBitsToUint(uintBitsToFloat(seen) + s_td[0]));
+                    uint found = atomicCompSwap(stats_words[word], seen, floatBitsToUint(uintBitsToFloat(seen) + sum));
                     if (found == seen) {
                         break;
                     }
@@ -89,7 +102,5 @@ void main() {
                 }
             }
         }
-        // The counters are reset for the next sample only after they are read.
-        barrier();
     }
 }

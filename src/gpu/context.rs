@@ -37,6 +37,9 @@ pub struct DeviceInfo {
     pub max_shared_memory: u32,
     pub max_workgroup_count: [u32; 3],
     pub subgroup_size: u32,
+    /// Subgroup arithmetic (subgroupAdd) in compute shaders: the accumulate
+    /// pass totals its stats with it.
+    pub subgroup_arithmetic: bool,
     #[serde(skip)]
     rank: u32,
     #[serde(skip)]
@@ -175,6 +178,12 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         max_shared_memory: props.limits.max_compute_shared_memory_size,
         max_workgroup_count: props.limits.max_compute_work_group_count,
         subgroup_size,
+        subgroup_arithmetic: subgroup
+            .supported_stages
+            .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup
+                .supported_operations
+                .contains(vk::SubgroupFeatureFlags::ARITHMETIC),
         rank,
         queue_family,
     }

@@ -197,6 +197,12 @@ impl Renderer {
         scene: &Scene,
         settings: RenderSettings,
     ) -> Result<Self, RenderError> {
+        if !ctx.info().subgroup_arithmetic {
+            return Err(RenderError::Gpu(gpu::Error::MissingFeature {
+                device: ctx.info().name.clone(),
+                feature: "subgroup arithmetic in compute shaders".into(),
+            }));
+        }
         let max_groups = ctx.info().max_workgroup_count;
         let [gx, gy, _] = groups(settings.width, settings.height);
         if gx > max_groups[0] || gy > max_groups[1] {
