@@ -9,10 +9,12 @@
 #extension GL_EXT_shader_atomic_float : require
 #endif
 
-layout(std430, set = 0, binding = B_SECTORS) readonly buffer Sectors { SectorEntry sectors[]; };
+// The tables the trace kernel only reads are uniform texel buffers of raw
+// words (one vector gather per read on lavapipe; see scene.glsl).
+layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 1 per SectorEntry
 // Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), total weight of
-// its sector distribution); see guide_build.comp.
-layout(std430, set = 0, binding = B_VOLUME_SUMS) readonly buffer VolumeSums { vec2 volume_sums[]; };
+// its sector distribution), two volumes per texel; see guide_build.comp.
+layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
 #ifdef FLOAT_ATOMICS
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
 #else
@@ -26,11 +28,20 @@ layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct
 #else
 layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint direct_sum_bits[]; };
 #endif
-layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
-// The per-triangle lookup tables of src/guide/lookup.rs.
-layout(std430, set = 0, binding = B_LOOKUP_CELLS) readonly buffer LookupCells { uvec2 lookup_cells[]; };
-// (volume position, volume index bits) per list entry.
-layout(std430, set = 0, binding = B_LOOKUP_ITEMS) readonly buffer LookupItems { vec4 lookup_items[]; };
+layout(set = 0, binding = B_Q) uniform usamplerBuffer q_texels; // 4 Q per texel
+// The per-triangle lookup tables of src/guide/lookup.rs: cells (uvec2, two
+// per texel) and list entries (volume position, volume index bits).
+layout(set = 0, binding = B_LOOKUP_CELLS) uniform usamplerBuffer lookup_cell_texels;
+layout(set = 0, binding = B_LOOKUP_ITEMS) uniform usamplerBuffer lookup_item_texels;
+
+SectorEntry load_sector(uint i) {
+    uvec4 t = texelFetch(sector_texels, int(i));
+    return SectorEntry(uintBitsToFloat(t.x), t.y, uintBitsToFloat(t.z), uintBitsToFloat(t.w));
+}
+
+float load_q(uint i) {
+    return uintBitsToFloat(texelFetch(q_texels, int(i >> 2u))[i & 3u]);
+}
 
 
 // Exact nearest volume to p, a point shading the front (or back) side of
@@ -59,14 +70,15 @@ uint nearest_volume(Triangle tri, vec3 p, bool front) {
         uvec2 c = uvec2(clamp(uv * vec2(nu, nv), vec2(0.0), vec2(nu - 1u, nv - 1u)));
         cell += c.x + nu * c.y;
     }
-    uvec2 entry = lookup_cells[cell];
+    uvec4 pair = texelFetch(lookup_cell_texels, int(cell >> 1u));
+    uvec2 entry = (cell & 1u) == 0u ? pair.xy : pair.zw;
     if (entry.y == 0u) {
         return entry.x;
     }
     uint best = NO_VOLUME;
     float best_d2 = FAR;
     for (uint i = entry.x; i < entry.x + entry.y; ++i) {
-        vec4 item = lookup_items[i];
+        vec4 item = uintBitsToFloat(texelFetch(lookup_item_texels, int(i)));
         vec3 d = item.xyz - p;
         float d2 = dot(d, d);
         if (d2 < best_d2) {
@@ -79,7 +91,7 @@ uint nearest_volume(Triangle tri, vec3 p, bool front) {
 
 // P(sector k) of volume v's distribution.
 float sector_probability(uint v, uint k) {
-    return sectors[v * sector_count() + k].p;
+    return load_sector(v * sector_count() + k).p;
 }
 
 // Solid-angle pdf of the mixture of cosine and volume v's distribution.
@@ -105,7 +117,7 @@ vec3 guide_sample(uint v, vec3 u, out uint sector, out float p_sector) {
         // decides between the column's sector and its alias.
         float x = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon) * float(n);
         k = min(uint(x), n - 1u);
-        SectorEntry e = sectors[v * n + k];
+        SectorEntry e = load_sector(v * n + k);
         bool keep = x - float(k) < e.threshold;
         k = keep ? k : e.alias;
         p_sector = keep ? e.p : e.p_alias;
@@ -119,7 +131,11 @@ vec3 guide_sample(uint v, vec3 u, out uint sector, out float p_sector) {
 
 // A volume's sums, zero for NO_VOLUME.
 vec2 volume_sums_of(uint v) {
-    return v == NO_VOLUME ? vec2(0.0) : volume_sums[v];
+    if (v == NO_VOLUME) {
+        return vec2(0.0);
+    }
+    uvec4 pair = texelFetch(volume_sum_texels, int(v >> 1u));
+    return uintBitsToFloat((v & 1u) == 0u ? pair.xy : pair.zw);
 }
 
 // Expected Sarsa target for a bounce that reached a surface y whose volume

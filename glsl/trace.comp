@@ -21,7 +21,7 @@ void learn_bounce(uint volume, uint sector, float q, float target, inout float t
 #ifdef WITH_NEE
         // With NEE, q is the sampling table's Q, short of what NEE carries;
         // the loss compares with Q itself.
-        q = q_values[volume * sector_count() + sector];
+        q = load_q(volume * sector_count() + sector);
 #endif
         td_sq_sum += sarsa_record(volume, sector, target, q);
         td_count += 1u;

@@ -12,6 +12,8 @@ pub struct Buffer {
     pub(super) raw: vk::Buffer,
     allocation: Option<Allocation>,
     size: u64,
+    /// Bytes allocated: `size` rounded up to whole 16-byte texels.
+    capacity: u64,
     name: String,
 }
 
@@ -34,8 +36,10 @@ impl Buffer {
         }
         // Vulkan forbids empty buffers; an empty list still needs a binding.
         let size = size.max(16);
+        // Whole 16-byte texels, so a texel view reaches the last element.
+        let capacity = size.next_multiple_of(16);
         let info = vk::BufferCreateInfo::default()
-            .size(size)
+            .size(capacity)
             .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE);
         let device = &ctx.device;
@@ -72,6 +76,7 @@ impl Buffer {
             raw,
             allocation: Some(allocation),
             size,
+            capacity,
             name: name.into(),
         })
     }
@@ -184,6 +189,11 @@ impl Buffer {
 
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Bytes a texel view may cover (whole texels past `size`).
+    pub(super) fn capacity(&self) -> u64 {
+        self.capacity
     }
 
     pub fn size(&self) -> u64 {

@@ -115,11 +115,11 @@ impl DescriptorSet {
     /// A `uvec4` view of the whole of `buf`, owned (and destroyed) by this set.
     fn texel_view(&mut self, buf: &Buffer) -> Result<vk::BufferView> {
         let info = self.ctx.info();
-        let texels = buf.size() / TEXEL_BYTES;
+        let texels = buf.capacity() / TEXEL_BYTES;
         if texels > info.max_texel_buffer_elements {
             return Err(Error::TexelViewTooLarge {
                 name: buf.name().into(),
-                size: buf.size(),
+                size: buf.capacity(),
                 limit: info.max_texel_buffer_elements * TEXEL_BYTES,
                 device: info.name.clone(),
             });
