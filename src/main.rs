@@ -603,6 +603,28 @@ fn cmd_bench(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceArgs) -> 
     check_validation(&ctx)
 }
 
+/// The reference's own error beside the smallest one measured against it.
+fn reference_floor_line(s: &bench::eval::SceneReport) -> String {
+    match s.reference_rel_mse {
+        Some(floor) => {
+            let share = floor / s.smallest_rel_mse;
+            let advice = if share > 0.1 {
+                ": above a tenth, so it blurs the comparison; raise --reference-spp"
+            } else {
+                ""
+            };
+            format!(
+                "{}: the reference's own relMSE is about {floor:.2e}, {share:.2}x the smallest error measured against it ({:.2e}){advice}",
+                s.name, s.smallest_rel_mse
+            )
+        }
+        None => format!(
+            "{}: the reference's own error is unknown (a given reference, or one cached without it)",
+            s.name
+        ),
+    }
+}
+
 fn cmd_evaluate(mut plan: EvalPlan, device: &DeviceArgs) -> Result<()> {
     plan.spp_list.sort_unstable();
     plan.spp_list.dedup();
@@ -668,6 +690,7 @@ fn cmd_evaluate(mut plan: EvalPlan, device: &DeviceArgs) -> Result<()> {
                 r.rays_per_second / 1e6
             );
         }
+        println!("{}", reference_floor_line(s));
     }
     println!("report: {}", plan.out.join("index.html").display());
     check_validation(&ctx)

@@ -152,8 +152,18 @@ fn quick_bench_writes_the_report() {
         let v = summary[key].as_str().unwrap();
         assert!(["pt", "sarsa", "neural"].contains(&v), "{key}: {v}");
     }
+    // The reference's own error, from its variance: positive, and well below
+    // the 32-spp errors measured against it.
+    let scene = &json["scenes"][0];
+    let floor = scene["reference_rel_mse"].as_f64().unwrap();
+    let smallest = scene["smallest_rel_mse"].as_f64().unwrap();
+    assert!(
+        floor > 0.0 && floor < smallest,
+        "{floor} against {smallest}"
+    );
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     for needle in [
+        "Its own relMSE",
         "Summary",
         "cornell-box/sarsa/voronoi.png",
         "cornell-box/neural/hemispheres.png",
@@ -163,12 +173,18 @@ fn quick_bench_writes_the_report() {
         assert!(html.contains(needle), "index.html lacks {needle}");
     }
 
-    // A second run reuses the cached reference rather than rendering it again.
+    // A second run reuses the cached reference (and its error) rather than
+    // rendering it again.
     let cached: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
-    assert_eq!(cached.len(), 1);
+    assert_eq!(cached.len(), 2);
     let again = run();
     assert!(again.status.success());
-    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
+    let stdout = String::from_utf8_lossy(&again.stdout);
+    assert!(
+        stdout.contains("the reference's own relMSE is about"),
+        "{stdout}"
+    );
 }
 
 #[test]

@@ -113,6 +113,12 @@ pub struct SceneReport {
     pub height: u32,
     pub reference: String,
     pub reference_spp: Option<u32>,
+    /// The reference's own expected relMSE, from its per-pixel sample
+    /// variance (unknown for a given reference): it adds to every error.
+    pub reference_rel_mse: Option<f64>,
+    /// The smallest relMSE measured against the reference (at equal samples
+    /// or at equal time), to compare the reference's own error with.
+    pub smallest_rel_mse: f64,
     pub equal_time_seconds: f64,
     /// Where the crops look (fractions of width and height): the region where
     /// the first method's final image is farthest from the reference.
@@ -322,8 +328,8 @@ pub fn evaluate(
             plan.reference_spp,
             plan.seed.wrapping_add(7919),
         )?;
-        let (reference, reference_label, reference_spp) = match &plan.reference {
-            Some(r) => (Image::read_exr(r)?, r.display().to_string(), None),
+        let (reference, reference_label, reference_spp, reference_rel_mse) = match &plan.reference {
+            Some(r) => (Image::read_exr(r)?, r.display().to_string(), None, None),
             None => {
                 std::fs::create_dir_all(&plan.cache_dir)
                     .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
@@ -331,10 +337,15 @@ pub fn evaluate(
                 let cached = plan
                     .cache_dir
                     .join(format!("reference-{name}-{key:016x}.exr"));
-                let image = match Image::read_exr(&cached) {
+                // Its own error goes beside it, as the number alone.
+                let floor_file = cached.with_extension("relmse");
+                let cached_floor = std::fs::read_to_string(&floor_file)
+                    .ok()
+                    .and_then(|t| t.trim().parse::<f64>().ok());
+                let (image, floor) = match Image::read_exr(&cached) {
                     Ok(img) => {
                         done += reference_passes;
-                        img
+                        (img, cached_floor)
                     }
                     Err(_) => {
                         let message =
@@ -350,13 +361,18 @@ pub fn evaluate(
                         })?;
                         done += reference_passes;
                         out.image.write_exr(&cached)?;
-                        out.image
+                        let floor =
+                            image::expected_rel_mse(&out.image, &out.variance, out.stats.image_spp);
+                        std::fs::write(&floor_file, format!("{floor:e}\n"))
+                            .map_err(|e| BenchError::Io(floor_file.clone(), e.to_string()))?;
+                        (out.image, Some(floor))
                     }
                 };
                 (
                     image,
                     cached.display().to_string(),
                     Some(plan.reference_spp),
+                    floor,
                 )
             }
         };
@@ -531,6 +547,18 @@ pub fn evaluate(
             height: plan.height,
             reference: reference_label,
             reference_spp,
+            reference_rel_mse,
+            smallest_rel_mse: runs
+                .iter()
+                .flat_map(|r| {
+                    [
+                        r.checkpoints
+                            .last()
+                            .map_or(f64::INFINITY, |c| c.error.rel_mse),
+                        r.error_at_equal_time.rel_mse,
+                    ]
+                })
+                .fold(f64::INFINITY, f64::min),
             equal_time_seconds: equal_time,
             crop_centre,
             runs,

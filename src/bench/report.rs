@@ -286,14 +286,22 @@ fn write_html(
     for (s, scene_charts) in report.scenes.iter().zip(charts) {
         let _ = write!(
             h,
-            "<h2 id=\"{0}\">{0}</h2><p>{1}, {2}×{3}; reference: {4}{5}.</p>",
+            "<h2 id=\"{0}\">{0}</h2><p>{1}, {2}×{3}; reference: {4}{5}. {6}</p>",
             esc(&s.name),
             esc(&s.scene),
             s.width,
             s.height,
             esc(&s.reference),
             s.reference_spp
-                .map_or(String::new(), |n| format!(" (pt+nee, {n} spp)"))
+                .map_or(String::new(), |n| format!(" (pt+nee, {n} spp)")),
+            s.reference_rel_mse.map_or(
+                "Its own error is unknown.".to_string(),
+                |f| format!(
+                    "Its own relMSE, from its per-pixel variance, is about {f:.2e}: {:.2}× the smallest error measured against it ({:.2e}), and it adds to every error here.",
+                    f / s.smallest_rel_mse,
+                    s.smallest_rel_mse
+                )
+            )
         );
         h += "<table><tr><th>method</th><th>zero-contribution</th><th>mean path length</th><th>Mrays/s</th><th>samples/s</th>\
               <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>guide memory</th><th>GPU ms per pass</th></tr>";

@@ -140,6 +140,20 @@ pub struct ErrorMetrics {
     pub mape: f64,
 }
 
+/// The relMSE a mean of `spp` samples per pixel is expected to have against
+/// the true image, from each pixel's sample `variance` (per path): what a
+/// reference rendered so adds to every error measured against it.
+pub fn expected_rel_mse(mean: &Image, variance: &Image, spp: u32) -> f64 {
+    let mut rel = 0.0f64;
+    for (m, v) in mean.pixels.iter().zip(&variance.pixels) {
+        for c in 0..3 {
+            let y = m[c] as f64;
+            rel += v[c] as f64 / spp.max(1) as f64 / (y * y + 0.01);
+        }
+    }
+    rel / (3 * mean.pixels.len()).max(1) as f64
+}
+
 pub fn compare(image: &Image, reference: &Image) -> Result<ErrorMetrics, ImageError> {
     compare_named(image, "image", reference, "reference")
 }
@@ -220,6 +234,12 @@ mod tests {
         let m = compare(&a, &b).unwrap();
         assert!((m.mse - 1.0 / 3.0).abs() < 1e-12);
         assert!((m.rel_mse - 100.0 / 3.0).abs() < 1e-9);
+        // Variance 0.04 per path over 4 samples: 0.01 per pixel and channel.
+        let mut var = Image::new(1, 1);
+        var.pixels[0] = [0.04; 3];
+        let mut mean = Image::new(1, 1);
+        mean.pixels[0] = [0.3; 3];
+        assert!((expected_rel_mse(&mean, &var, 4) - 0.01 / 0.1).abs() < 1e-6);
         assert!((m.mape - 100.0 / 3.0).abs() < 1e-9);
     }
 }
