@@ -25,9 +25,8 @@ void main() {
         // in[2i] = origin, in[2i+1] = direction; out = (t, triangle bits, any-hit flag, 0)
         vec3 o = probe_in[2u * i].xyz;
         vec3 d = probe_in[2u * i + 1u].xyz;
-        Hit h = trace_ray(o, d, FAR, false);
-        Hit occl = trace_ray(o, d, FAR, true);
-        probe_out[i] = vec4(h.t, uintBitsToFloat(h.triangle), occl.triangle == NO_HIT ? 0.0 : 1.0, 0.0);
+        Hit h = trace_ray(o, d, FAR);
+        probe_out[i] = vec4(h.t, uintBitsToFloat(h.triangle), occluded(o, d, FAR) ? 1.0 : 0.0, 0.0);
     } else if (params.probe_mode == PROBE_HEMISPHERE) {
         // in = (u, v, grid a, grid b); out = (direction, sector of that direction)
         vec4 q = probe_in[i];

@@ -88,11 +88,11 @@ void hit_leaf(vec3 o, vec3 d, uint child, float entry, inout Hit hit) {
     }
 }
 
-// Closest hit (any_hit = false) or any hit before tmax (shadow rays).
-// Each step visits one node: both children's boxes and the triangle of each
-// child that is a leaf. Every lane does the same work per step, which is
-// what pays on lavapipe, where a branch costs both of its sides.
-Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
+// The nearest hit before tmax. Each step visits one node: both children's
+// boxes and the triangle of each child that is a leaf. Every lane does the
+// same work per step, which is what pays on lavapipe, where a branch costs
+// both of its sides.
+Hit trace_ray(vec3 o, vec3 d, float tmax) {
     Hit hit = Hit(tmax, NO_HIT);
     vec3 inv_d = safe_inverse(d);
     uint stack[BVH_STACK_SIZE];
@@ -111,9 +111,6 @@ Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
             : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
         hit_leaf(o, d, c0, t0, hit);
         hit_leaf(o, d, c1, t1, hit);
-        if (any_hit && hit.triangle != NO_HIT) {
-            return hit;
-        }
         // Inner children entered: visit the nearer next, keep the other.
         bool in0 = (c0 & BVH_LEAF) == 0u && t0 != FAR;
         bool in1 = (c1 & BVH_LEAF) == 0u && t1 != FAR;
@@ -132,6 +129,38 @@ Hit trace_ray(vec3 o, vec3 d, float tmax, bool any_hit) {
         }
     }
     return hit;
+}
+
+// Whether anything lies on the ray before tmax (shadow rays). Order does not
+// matter here, so the walk needs no stack: nodes are in depth-first order,
+// and each knows where to go once its subtree is done (BvhNode.escape). That
+// saves the per-lane stack writes and reads, which cost lavapipe more than
+// the sibling subtrees it then enters without testing their boxes first.
+bool occluded(vec3 o, vec3 d, float tmax) {
+    Hit hit = Hit(tmax, NO_HIT);
+    vec3 inv_d = safe_inverse(d);
+    uint node = 0u;
+    while (node != BVH_NO_CHILD) {
+        uvec4 a = texelFetch(node_texels, int(4u * node));
+        uvec4 b = texelFetch(node_texels, int(4u * node + 1u));
+        uvec4 c = texelFetch(node_texels, int(4u * node + 2u));
+        uvec4 e = texelFetch(node_texels, int(4u * node + 3u));
+        uint c0 = a.w;
+        uint c1 = b.w;
+        float t0 = c0 == BVH_NO_CHILD ? FAR
+            : intersect_box(o, inv_d, uintBitsToFloat(a.xyz), uintBitsToFloat(b.xyz), hit.t);
+        float t1 = c1 == BVH_NO_CHILD ? FAR
+            : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
+        hit_leaf(o, d, c0, t0, hit);
+        hit_leaf(o, d, c1, t1, hit);
+        if (hit.triangle != NO_HIT) {
+            return true;
+        }
+        bool in0 = (c0 & BVH_LEAF) == 0u && t0 != FAR;
+        bool in1 = (c1 & BVH_LEAF) == 0u && t1 != FAR;
+        node = in0 ? c0 : (in1 ? c1 : c.w);
+    }
+    return false;
 }
 
 #endif

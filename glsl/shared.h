@@ -101,16 +101,18 @@
 #define SIZEOF_MLP_BATCH 48
 
 // A BVH node holds its two children's boxes. A child is another node's
-// index, BVH_LEAF | the index of its one triangle, or BVH_NO_CHILD.
+// index, BVH_LEAF | the index of its one triangle, or BVH_NO_CHILD. Nodes are
+// in depth-first order; `escape` is the node after this one's subtree in
+// that order (BVH_NO_CHILD after the last), for walks without a stack.
 struct BvhNode {
     vec3 bmin0;
     uint child0;
     vec3 bmax0;
     uint child1;
     vec3 bmin1;
-    uint pad0;
+    uint escape;
     vec3 bmax1;
-    uint pad1;
+    uint pad;
 };
 
 // A triangle as v0 and two edges; the geometric normal is cross(e1, e2).

@@ -158,7 +158,7 @@ void begin_path(uint sample_index) {
 
 // Traces the path's current ray and scatters once; false when the path ended.
 bool bounce() {
-    Hit hit = trace_ray(origin, dir, FAR, false);
+    Hit hit = trace_ray(origin, dir, FAR);
     rays += 1u;
     if (hit.triangle == NO_HIT) {
         radiance += throughput * params.environment.rgb;
@@ -269,8 +269,7 @@ bool bounce() {
         float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
         if (cos_x > 0.0 && cos_y > 0.0) {
             rays += 1u;
-            Hit shadow = trace_ray(position, wi, dist * (1.0 - 1e-4) - eps, true);
-            if (shadow.triangle == NO_HIT) {
+            if (!occluded(position, wi, dist * (1.0 - 1e-4) - eps)) {
                 float light_pdf = lt.light_pdf * dist2 / cos_y;
 #if defined(METHOD_SARSA)
                 float scatter_pdf = guide_pdf(volume, vec3(dot(wi, t), dot(wi, b), cos_x));

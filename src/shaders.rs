@@ -22,9 +22,9 @@ pub struct BvhNode {
     pub bmax0: [f32; 3],
     pub child1: u32,
     pub bmin1: [f32; 3],
-    pub pad0: u32,
+    pub escape: u32,
     pub bmax1: [f32; 3],
-    pub pad1: u32,
+    pub pad: u32,
 }
 
 #[repr(C)]

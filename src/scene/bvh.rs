@@ -99,11 +99,28 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
         builder.nodes.push(node_of(&only, &NO_CHILD));
         builder.depth = 1;
     }
+    set_escapes(&mut builder.nodes);
     Bvh {
         nodes: builder.nodes,
         order: builder.order,
         depth: builder.depth,
         bounds: (all.min, all.max),
+    }
+}
+
+/// Where a walk goes once a node's subtree is done: an inner first child goes
+/// on to its sibling (if inner), anything else to where its parent goes. A
+/// parent comes before its children (depth-first order), so one pass does it.
+fn set_escapes(nodes: &mut [BvhNode]) {
+    let inner = |c: u32| c != BVH_NO_CHILD && c & BVH_LEAF == 0;
+    for n in 0..nodes.len() {
+        let (c0, c1, escape) = (nodes[n].child0, nodes[n].child1, nodes[n].escape);
+        if inner(c0) {
+            nodes[c0 as usize].escape = if inner(c1) { c1 } else { escape };
+        }
+        if inner(c1) {
+            nodes[c1 as usize].escape = escape;
+        }
     }
 }
 
@@ -114,9 +131,9 @@ fn node_of(a: &Child, b: &Child) -> BvhNode {
         bmax0: a.bounds.max.into(),
         child1: b.reference,
         bmin1: b.bounds.min.into(),
-        pad0: 0,
+        escape: BVH_NO_CHILD,
         bmax1: b.bounds.max.into(),
-        pad1: 0,
+        pad: 0,
     }
 }
 
@@ -273,6 +290,27 @@ mod tests {
             }
         }
         assert!(seen.iter().all(|&c| c == 1));
+        // A stackless walk that enters every inner child visits every node
+        // exactly once, in index order.
+        let mut order = Vec::new();
+        let mut node = if bvh.nodes.is_empty() {
+            BVH_NO_CHILD
+        } else {
+            0
+        };
+        while node != BVH_NO_CHILD {
+            order.push(node);
+            let n = &bvh.nodes[node as usize];
+            let inner = |c: u32| c != BVH_NO_CHILD && c & BVH_LEAF == 0;
+            node = if inner(n.child0) {
+                n.child0
+            } else if inner(n.child1) {
+                n.child1
+            } else {
+                n.escape
+            };
+        }
+        assert_eq!(order, (0..bvh.nodes.len() as u32).collect::<Vec<_>>());
     }
 
     #[test]
