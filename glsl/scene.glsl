@@ -7,7 +7,7 @@
 // The scene's buffers are read as uniform texel buffers of raw uvec4 words:
 // lavapipe turns a texel fetch into one vector gather, where a storage
 // buffer read is a branching loop over SIMD lanes per 32-bit word.
-layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 4 per BvhNode
+layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 6 per BvhNode
 layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 4 per Triangle
 layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
 
@@ -88,21 +88,26 @@ void hit_leaf(vec3 o, vec3 d, uint child, float entry, inout Hit hit) {
     }
 }
 
-// The nearest hit before tmax. Each step visits one node: both children's
-// boxes and the triangle of each child that is a leaf. Every lane does the
-// same work per step, which is what pays on lavapipe, where a branch costs
-// both of its sides.
-Hit trace_ray(vec3 o, vec3 d, float tmax) {
+// The nearest hit before tmax (any_hit false), or any hit (shadow rays).
+// Each step visits one node: both children's boxes and the triangle of each
+// child that is a leaf, so every lane does the same work per step (lavapipe
+// runs both sides of a branch). The walk goes to the first child the ray
+// meets along the node's axis if its box was entered, else to the other,
+// else on to the node's escape for the ray's octant: no stack, whose
+// per-lane writes and reads cost lavapipe more than the sibling subtrees the
+// walk then enters without testing their boxes first (see BvhNode).
+Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
     Hit hit = Hit(tmax, NO_HIT);
     vec3 inv_d = safe_inverse(d);
-    uint stack[BVH_STACK_SIZE];
-    uint top = 0u;
+    uint octant = (d.x < 0.0 ? 1u : 0u) | (d.y < 0.0 ? 2u : 0u) | (d.z < 0.0 ? 4u : 0u);
     uint node = 0u;
-    while (true) {
-        uvec4 a = texelFetch(node_texels, int(4u * node));
-        uvec4 b = texelFetch(node_texels, int(4u * node + 1u));
-        uvec4 c = texelFetch(node_texels, int(4u * node + 2u));
-        uvec4 e = texelFetch(node_texels, int(4u * node + 3u));
+    while (node != BVH_NO_CHILD) {
+        int base = int(6u * node);
+        uvec4 a = texelFetch(node_texels, base);
+        uvec4 b = texelFetch(node_texels, base + 1);
+        uvec4 c = texelFetch(node_texels, base + 2);
+        uvec4 e = texelFetch(node_texels, base + 3);
+        uint escape = texelFetch(node_texels, base + 4 + int(octant >> 2u))[octant & 3u];
         uint c0 = a.w;
         uint c1 = b.w;
         float t0 = c0 == BVH_NO_CHILD ? FAR
@@ -111,56 +116,26 @@ Hit trace_ray(vec3 o, vec3 d, float tmax) {
             : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
         hit_leaf(o, d, c0, t0, hit);
         hit_leaf(o, d, c1, t1, hit);
-        // Inner children entered: visit the nearer next, keep the other.
-        bool in0 = (c0 & BVH_LEAF) == 0u && t0 != FAR;
-        bool in1 = (c1 & BVH_LEAF) == 0u && t1 != FAR;
-        if (in0 && in1) {
-            bool near0 = t0 <= t1;
-            stack[top++] = near0 ? c1 : c0;
-            node = near0 ? c0 : c1;
-        } else if (in0 || in1) {
-            node = in0 ? c0 : c1;
-        } else if (top > 0u) {
-            // Its box was entered before hits found since then: it is tested
-            // against them at its children.
-            node = stack[--top];
-        } else {
+        if (any_hit && hit.triangle != NO_HIT) {
             break;
         }
+        bool swap = ((octant >> c.w) & 1u) != 0u;
+        uint first = swap ? c1 : c0;
+        uint second = swap ? c0 : c1;
+        bool in_first = (first & BVH_LEAF) == 0u && (swap ? t1 : t0) != FAR;
+        bool in_second = (second & BVH_LEAF) == 0u && (swap ? t0 : t1) != FAR;
+        node = in_first ? first : (in_second ? second : escape);
     }
     return hit;
 }
 
-// Whether anything lies on the ray before tmax (shadow rays). Order does not
-// matter here, so the walk needs no stack: nodes are in depth-first order,
-// and each knows where to go once its subtree is done (BvhNode.escape). That
-// saves the per-lane stack writes and reads, which cost lavapipe more than
-// the sibling subtrees it then enters without testing their boxes first.
+Hit trace_ray(vec3 o, vec3 d, float tmax) {
+    return walk_bvh(o, d, tmax, false);
+}
+
+// Whether anything lies on the ray before tmax.
 bool occluded(vec3 o, vec3 d, float tmax) {
-    Hit hit = Hit(tmax, NO_HIT);
-    vec3 inv_d = safe_inverse(d);
-    uint node = 0u;
-    while (node != BVH_NO_CHILD) {
-        uvec4 a = texelFetch(node_texels, int(4u * node));
-        uvec4 b = texelFetch(node_texels, int(4u * node + 1u));
-        uvec4 c = texelFetch(node_texels, int(4u * node + 2u));
-        uvec4 e = texelFetch(node_texels, int(4u * node + 3u));
-        uint c0 = a.w;
-        uint c1 = b.w;
-        float t0 = c0 == BVH_NO_CHILD ? FAR
-            : intersect_box(o, inv_d, uintBitsToFloat(a.xyz), uintBitsToFloat(b.xyz), hit.t);
-        float t1 = c1 == BVH_NO_CHILD ? FAR
-            : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
-        hit_leaf(o, d, c0, t0, hit);
-        hit_leaf(o, d, c1, t1, hit);
-        if (hit.triangle != NO_HIT) {
-            return true;
-        }
-        bool in0 = (c0 & BVH_LEAF) == 0u && t0 != FAR;
-        bool in1 = (c1 & BVH_LEAF) == 0u && t1 != FAR;
-        node = in0 ? c0 : (in1 ? c1 : c.w);
-    }
-    return false;
+    return walk_bvh(o, d, tmax, true).triangle != NO_HIT;
 }
 
 #endif

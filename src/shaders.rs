@@ -22,9 +22,10 @@ pub struct BvhNode {
     pub bmax0: [f32; 3],
     pub child1: u32,
     pub bmin1: [f32; 3],
-    pub escape: u32,
+    pub axis: u32,
     pub bmax1: [f32; 3],
     pub pad: u32,
+    pub escapes: [u32; 8],
 }
 
 #[repr(C)]

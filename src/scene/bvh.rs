@@ -3,14 +3,14 @@
 //! traversal kernel visits interior nodes only and does the same work at each
 //! (on lavapipe both sides of a branch cost, so uniform steps are what pays).
 
-use crate::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD, BVH_STACK_SIZE};
+use crate::shaders::{BvhNode, BVH_LEAF, BVH_MAX_DEPTH, BVH_NO_CHILD};
 use glam::Vec3;
 
 const BINS: usize = 16;
 /// Past this depth nodes split at the median, which halves them: 32 more levels
-/// hold 2^32 triangles, so the depth (and the GPU traversal stack) stays below
-/// BVH_STACK_SIZE whatever the geometry.
-const MEDIAN_DEPTH: u32 = BVH_STACK_SIZE - 33;
+/// hold 2^32 triangles, so the depth stays below
+/// BVH_MAX_DEPTH whatever the geometry.
+const MEDIAN_DEPTH: u32 = BVH_MAX_DEPTH - 33;
 
 #[derive(Clone, Copy)]
 struct Aabb {
@@ -108,18 +108,35 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
     }
 }
 
-/// Where a walk goes once a node's subtree is done: an inner first child goes
-/// on to its sibling (if inner), anything else to where its parent goes. A
-/// parent comes before its children (depth-first order), so one pass does it.
+/// The children of `node` in the order a ray of direction octant `octant`
+/// meets them along the node's axis (child 0 holds the lower side).
+pub fn ordered_children(node: &BvhNode, octant: usize) -> [u32; 2] {
+    if (octant >> node.axis) & 1 == 0 {
+        [node.child0, node.child1]
+    } else {
+        [node.child1, node.child0]
+    }
+}
+
+fn inner(c: u32) -> bool {
+    c != BVH_NO_CHILD && c & BVH_LEAF == 0
+}
+
+/// Where a walk in direction octant `o` goes once a node's subtree is done:
+/// the first inner child goes on to its sibling (if inner), anything else to
+/// where its parent goes. A parent comes before its children, so one pass
+/// per octant does it.
 fn set_escapes(nodes: &mut [BvhNode]) {
-    let inner = |c: u32| c != BVH_NO_CHILD && c & BVH_LEAF == 0;
-    for n in 0..nodes.len() {
-        let (c0, c1, escape) = (nodes[n].child0, nodes[n].child1, nodes[n].escape);
-        if inner(c0) {
-            nodes[c0 as usize].escape = if inner(c1) { c1 } else { escape };
-        }
-        if inner(c1) {
-            nodes[c1 as usize].escape = escape;
+    for o in 0..8 {
+        for n in 0..nodes.len() {
+            let [first, second] = ordered_children(&nodes[n], o);
+            let escape = nodes[n].escapes[o];
+            if inner(first) {
+                nodes[first as usize].escapes[o] = if inner(second) { second } else { escape };
+            }
+            if inner(second) {
+                nodes[second as usize].escapes[o] = escape;
+            }
         }
     }
 }
@@ -131,9 +148,10 @@ fn node_of(a: &Child, b: &Child) -> BvhNode {
         bmax0: a.bounds.max.into(),
         child1: b.reference,
         bmin1: b.bounds.min.into(),
-        escape: BVH_NO_CHILD,
+        axis: 0,
         bmax1: b.bounds.max.into(),
         pad: 0,
+        escapes: [BVH_NO_CHILD; 8],
     }
 }
 
@@ -181,7 +199,10 @@ impl Builder<'_> {
                 }
             }
         });
-        self.nodes[node] = node_of(&children[0], &children[1]);
+        self.nodes[node] = BvhNode {
+            axis: axis as u32,
+            ..node_of(&children[0], &children[1])
+        };
         node as u32
     }
 
@@ -249,7 +270,7 @@ mod tests {
 
     fn check(tris: &[[Vec3; 3]]) {
         let bvh = build(tris);
-        assert!(bvh.depth < BVH_STACK_SIZE);
+        assert!(bvh.depth < BVH_MAX_DEPTH);
         let mut seen = vec![0u32; tris.len()];
         for node in &bvh.nodes {
             let children = [
@@ -290,27 +311,27 @@ mod tests {
             }
         }
         assert!(seen.iter().all(|&c| c == 1));
-        // A stackless walk that enters every inner child visits every node
-        // exactly once, in index order.
-        let mut order = Vec::new();
-        let mut node = if bvh.nodes.is_empty() {
-            BVH_NO_CHILD
-        } else {
-            0
-        };
-        while node != BVH_NO_CHILD {
-            order.push(node);
-            let n = &bvh.nodes[node as usize];
-            let inner = |c: u32| c != BVH_NO_CHILD && c & BVH_LEAF == 0;
-            node = if inner(n.child0) {
-                n.child0
-            } else if inner(n.child1) {
-                n.child1
+        // In every octant, a stackless walk that enters every inner child
+        // visits every node exactly once.
+        for o in 0..8 {
+            let mut order = Vec::new();
+            let mut node = if bvh.nodes.is_empty() {
+                BVH_NO_CHILD
             } else {
-                n.escape
+                0
             };
+            while node != BVH_NO_CHILD {
+                order.push(node);
+                let n = &bvh.nodes[node as usize];
+                node = match ordered_children(n, o) {
+                    [f, _] if inner(f) => f,
+                    [_, s] if inner(s) => s,
+                    _ => n.escapes[o],
+                };
+            }
+            order.sort_unstable();
+            assert_eq!(order, (0..bvh.nodes.len() as u32).collect::<Vec<_>>());
         }
-        assert_eq!(order, (0..bvh.nodes.len() as u32).collect::<Vec<_>>());
     }
 
     #[test]
