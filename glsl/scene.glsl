@@ -7,7 +7,7 @@
 // The scene's buffers are read as uniform texel buffers of raw uvec4 words:
 // lavapipe turns a texel fetch into one vector gather, where a storage
 // buffer read is a branching loop over SIMD lanes per 32-bit word.
-layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 6 per BvhNode
+layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 8 per BvhNode
 layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 4 per Triangle
 layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
 
@@ -75,56 +75,56 @@ vec3 safe_inverse(vec3 d) {
         abs(d.z) > tiny ? d.z : (d.z >= 0.0 ? tiny : -tiny));
 }
 
-// Tests the ray against leaf child `child` (BVH_LEAF | triangle) if its box
-// was entered, keeping the nearer hit.
-void hit_leaf(vec3 o, vec3 d, uint child, float entry, inout Hit hit) {
-    if ((child & BVH_LEAF) != 0u && entry != FAR) {
-        uint i = child & ~BVH_LEAF;
-        float t = intersect_triangle(o, d, load_triangle(i), hit.t);
+// Visits child `c` of a node: a leaf's triangle (v0 = p, e1 = q, e2 = r),
+// keeping the nearer hit, or an inner child's box (min p, max q). Returns the
+// box's entry distance; FAR for a missed box, a leaf or no child.
+float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, inout Hit hit) {
+    if (c == BVH_NO_CHILD) {
+        return FAR;
+    }
+    if ((c & BVH_LEAF) != 0u) {
+        float t = intersect_triangle(o, d, Triangle(p, 0u, q, 0.0, r, 0.0, uvec4(0u)), hit.t);
         if (t > 0.0) {
             hit.t = t;
-            hit.triangle = i;
+            hit.triangle = c & ~BVH_LEAF;
         }
+        return FAR;
     }
+    return intersect_box(o, inv_d, p, q, hit.t);
 }
 
 // The nearest hit before tmax (any_hit false), or any hit (shadow rays).
-// Each step visits one node: both children's boxes and the triangle of each
-// child that is a leaf, so every lane does the same work per step (lavapipe
-// runs both sides of a branch). The walk goes to the first child the ray
-// meets along the node's axis if its box was entered, else to the other,
-// else on to the node's escape for the ray's octant: no stack, whose
-// per-lane writes and reads cost lavapipe more than the sibling subtrees the
-// walk then enters without testing their boxes first (see BvhNode).
+// Each step reads one node and visits both its children, so every lane does
+// the same work per step (lavapipe runs both sides of a branch). The walk
+// goes to the first child the ray meets along the node's axis if its box was
+// entered, else to the other, else on to the node's escape for the ray's
+// octant: no stack, whose per-lane writes and reads cost lavapipe more than
+// the sibling subtrees the walk then enters without testing their boxes.
 Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
     Hit hit = Hit(tmax, NO_HIT);
     vec3 inv_d = safe_inverse(d);
     uint octant = (d.x < 0.0 ? 1u : 0u) | (d.y < 0.0 ? 2u : 0u) | (d.z < 0.0 ? 4u : 0u);
     uint node = 0u;
     while (node != BVH_NO_CHILD) {
-        int base = int(6u * node);
-        uvec4 a = texelFetch(node_texels, base);
-        uvec4 b = texelFetch(node_texels, base + 1);
-        uvec4 c = texelFetch(node_texels, base + 2);
-        uvec4 e = texelFetch(node_texels, base + 3);
-        uint escape = texelFetch(node_texels, base + 4 + int(octant >> 2u))[octant & 3u];
-        uint c0 = a.w;
-        uint c1 = b.w;
-        float t0 = c0 == BVH_NO_CHILD ? FAR
-            : intersect_box(o, inv_d, uintBitsToFloat(a.xyz), uintBitsToFloat(b.xyz), hit.t);
-        float t1 = c1 == BVH_NO_CHILD ? FAR
-            : intersect_box(o, inv_d, uintBitsToFloat(c.xyz), uintBitsToFloat(e.xyz), hit.t);
-        hit_leaf(o, d, c0, t0, hit);
-        hit_leaf(o, d, c1, t1, hit);
+        int base = int(8u * node);
+        uvec4 a0 = texelFetch(node_texels, base);
+        uvec4 b0 = texelFetch(node_texels, base + 1);
+        uvec4 k0 = texelFetch(node_texels, base + 2);
+        uvec4 a1 = texelFetch(node_texels, base + 3);
+        uvec4 b1 = texelFetch(node_texels, base + 4);
+        uvec4 k1 = texelFetch(node_texels, base + 5);
+        uint escape = texelFetch(node_texels, base + 6 + int(octant >> 2u))[octant & 3u];
+        float t0 = visit_child(o, d, inv_d, a0.w, uintBitsToFloat(a0.xyz), uintBitsToFloat(b0.xyz),
+                               uintBitsToFloat(k0.xyz), hit);
+        float t1 = visit_child(o, d, inv_d, a1.w, uintBitsToFloat(a1.xyz), uintBitsToFloat(b1.xyz),
+                               uintBitsToFloat(k1.xyz), hit);
         if (any_hit && hit.triangle != NO_HIT) {
             break;
         }
-        bool swap = ((octant >> c.w) & 1u) != 0u;
-        uint first = swap ? c1 : c0;
-        uint second = swap ? c0 : c1;
-        bool in_first = (first & BVH_LEAF) == 0u && (swap ? t1 : t0) != FAR;
-        bool in_second = (second & BVH_LEAF) == 0u && (swap ? t0 : t1) != FAR;
-        node = in_first ? first : (in_second ? second : escape);
+        bool swap = ((octant >> b0.w) & 1u) != 0u;
+        uint first = swap ? a1.w : a0.w;
+        uint second = swap ? a0.w : a1.w;
+        node = (swap ? t1 : t0) != FAR ? first : ((swap ? t0 : t1) != FAR ? second : escape);
     }
     return hit;
 }

@@ -86,7 +86,7 @@
 #define ENCODED_INPUTS 32
 
 // Bytes of each struct, checked on the Rust side too.
-#define SIZEOF_BVH_NODE 96
+#define SIZEOF_BVH_NODE 128
 #define SIZEOF_TRIANGLE 64
 #define SIZEOF_MATERIAL 32
 #define SIZEOF_LIGHT 16
@@ -100,26 +100,30 @@
 #define SIZEOF_MLP_PUSH 32
 #define SIZEOF_MLP_BATCH 48
 
-// A BVH node holds its two children's boxes. A child is another node's
-// index, BVH_LEAF | the index of its one triangle, or BVH_NO_CHILD. `axis`
-// is the axis the node split: child 0 holds the lower side. Walks visit the
-// children in the order a ray's direction meets them along that axis, so
-// each of the 8 direction octants has a depth-first order of the nodes, and
-// `escapes[octant]` is the node after this one's subtree in it
-// (BVH_NO_CHILD after the last): the walk needs no stack.
+// A BVH node holds its two children. A child is another node's index (its
+// box is a = min, b = max), BVH_LEAF | the index of its one triangle (held
+// here as a = v0, b = e1, c = e2, so a step reads one node), or
+// BVH_NO_CHILD. `axis` is the axis the node split: child 0 holds the lower
+// side. Walks visit the children in the order a ray's direction meets them
+// along that axis, so each of the 8 direction octants has a depth-first
+// order of the nodes, and `escapes[octant]` is the node after this one's
+// subtree in it (BVH_NO_CHILD after the last): the walk needs no stack.
 struct BvhNode {
-    vec3 bmin0;
+    vec3 a0;
     uint child0;
-    vec3 bmax0;
-    uint child1;
-    vec3 bmin1;
+    vec3 b0;
     uint axis;
-    vec3 bmax1;
-    uint pad;
+    vec3 c0;
+    uint pad0;
+    vec3 a1;
+    uint child1;
+    vec3 b1;
+    uint pad1;
+    vec3 c1;
+    uint pad2;
     uvec4 escapes_lo;  // octants 0-3; octant = (d.x < 0) | (d.y < 0) << 1 | (d.z < 0) << 2
     uvec4 escapes_hi;  // octants 4-7
-};
-// A triangle as v0 and two edges; the geometric normal is cross(e1, e2).
+};// A triangle as v0 and two edges; the geometric normal is cross(e1, e2).
 struct Triangle {
     vec3 v0;
     uint material;

@@ -17,14 +17,18 @@ pub mod spirv {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct BvhNode {
-    pub bmin0: [f32; 3],
+    pub a0: [f32; 3],
     pub child0: u32,
-    pub bmax0: [f32; 3],
-    pub child1: u32,
-    pub bmin1: [f32; 3],
+    pub b0: [f32; 3],
     pub axis: u32,
-    pub bmax1: [f32; 3],
-    pub pad: u32,
+    pub c0: [f32; 3],
+    pub pad0: u32,
+    pub a1: [f32; 3],
+    pub child1: u32,
+    pub b1: [f32; 3],
+    pub pad1: u32,
+    pub c1: [f32; 3],
+    pub pad2: u32,
     pub escapes: [u32; 8],
 }
 

@@ -1,7 +1,8 @@
-//! Binned-SAH BVH built on the host and flattened for the GPU. Every node
-//! holds its two children's boxes, and every leaf is one triangle, so the
-//! traversal kernel visits interior nodes only and does the same work at each
-//! (on lavapipe both sides of a branch cost, so uniform steps are what pays).
+//! Binned-SAH BVH built on the host and flattened for the GPU. Every leaf is
+//! one triangle, and every node holds its two children: an inner child's box,
+//! or a leaf's triangle itself. The traversal kernel visits inner nodes only,
+//! reads one node per step and does the same work at each (on lavapipe both
+//! sides of a branch cost, so uniform steps are what pays).
 
 use crate::shaders::{BvhNode, BVH_LEAF, BVH_MAX_DEPTH, BVH_NO_CHILD};
 use glam::Vec3;
@@ -50,21 +51,20 @@ pub struct Bvh {
     pub bounds: (Vec3, Vec3),
 }
 
-/// A child as a node stores it: its box and reference.
+/// A child as a node stores it: three points (an inner child's box min and
+/// max, or a leaf triangle's v0, e1 and e2) and its reference.
 struct Child {
-    bounds: Aabb,
+    points: [Vec3; 3],
     reference: u32,
 }
 
 const NO_CHILD: Child = Child {
-    bounds: Aabb {
-        min: Vec3::ZERO,
-        max: Vec3::ZERO,
-    },
+    points: [Vec3::ZERO; 3],
     reference: BVH_NO_CHILD,
 };
 
 struct Builder<'a> {
+    triangles: &'a [[Vec3; 3]],
     bounds: &'a [Aabb],
     centroids: &'a [Vec3],
     order: Vec<u32>,
@@ -83,6 +83,7 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
         .collect();
     let centroids: Vec<Vec3> = bounds.iter().map(|b| 0.5 * (b.min + b.max)).collect();
     let mut builder = Builder {
+        triangles,
         bounds: &bounds,
         centroids: &centroids,
         order: (0..triangles.len() as u32).collect(),
@@ -143,14 +144,18 @@ fn set_escapes(nodes: &mut [BvhNode]) {
 
 fn node_of(a: &Child, b: &Child) -> BvhNode {
     BvhNode {
-        bmin0: a.bounds.min.into(),
+        a0: a.points[0].into(),
         child0: a.reference,
-        bmax0: a.bounds.max.into(),
-        child1: b.reference,
-        bmin1: b.bounds.min.into(),
+        b0: a.points[1].into(),
         axis: 0,
-        bmax1: b.bounds.max.into(),
-        pad: 0,
+        c0: a.points[2].into(),
+        pad0: 0,
+        a1: b.points[0].into(),
+        child1: b.reference,
+        b1: b.points[1].into(),
+        pad1: 0,
+        c1: b.points[2].into(),
+        pad2: 0,
         escapes: [BVH_NO_CHILD; 8],
     }
 }
@@ -167,8 +172,9 @@ impl Builder<'_> {
     }
 
     fn leaf(&self, position: usize) -> Child {
+        let [v0, v1, v2] = self.triangles[self.order[position] as usize];
         Child {
-            bounds: self.bounds[self.order[position] as usize],
+            points: [v0, v1 - v0, v2 - v0],
             reference: BVH_LEAF | position as u32,
         }
     }
@@ -193,8 +199,9 @@ impl Builder<'_> {
                 self.leaf(s)
             } else {
                 let index = self.split(s, e, depth + 1);
+                let b = self.range_bounds(s, e).0;
                 Child {
-                    bounds: self.range_bounds(s, e).0,
+                    points: [b.min, b.max, Vec3::ZERO],
                     reference: index,
                 }
             }
@@ -274,18 +281,21 @@ mod tests {
         let mut seen = vec![0u32; tris.len()];
         for node in &bvh.nodes {
             let children = [
-                (node.child0, node.bmin0, node.bmax0),
-                (node.child1, node.bmin1, node.bmax1),
+                (node.child0, node.a0, node.b0, node.c0),
+                (node.child1, node.a1, node.b1, node.c1),
             ];
-            for (child, bmin, bmax) in children {
+            for (child, a, b, c) in children {
                 if child == BVH_NO_CHILD {
                     continue;
                 }
-                let (bmin, bmax) = (Vec3::from(bmin), Vec3::from(bmax));
+                let (bmin, bmax) = (Vec3::from(a), Vec3::from(b));
                 let leaves: Vec<usize> = if child & BVH_LEAF != 0 {
+                    // A leaf holds its triangle as v0, e1, e2.
                     let t = bvh.order[(child & !BVH_LEAF) as usize] as usize;
                     seen[t] += 1;
-                    vec![t]
+                    let [v0, v1, v2] = tris[t];
+                    assert_eq!((bmin, bmax, Vec3::from(c)), (v0, v1 - v0, v2 - v0));
+                    vec![]
                 } else {
                     // Every triangle under an interior child lies in its box.
                     let mut under = Vec::new();
