@@ -245,6 +245,12 @@ pub struct EvalProgress<'a> {
     pub total: u64,
 }
 
+/// The reference's own relMSE and its sample count, beside its cached image.
+fn write_floor(path: &Path, floor: f64, spp: u32) -> Result<(), BenchError> {
+    std::fs::write(path, format!("{floor:e} {spp}\n"))
+        .map_err(|e| BenchError::Io(path.to_path_buf(), e.to_string()))
+}
+
 fn render_settings(
     scene: &Scene,
     plan: &EvalPlan,
@@ -328,54 +334,56 @@ pub fn evaluate(
             plan.reference_spp,
             plan.seed.wrapping_add(7919),
         )?;
-        let (reference, reference_label, reference_spp, reference_rel_mse) = match &plan.reference {
-            Some(r) => (Image::read_exr(r)?, r.display().to_string(), None, None),
-            None => {
-                std::fs::create_dir_all(&plan.cache_dir)
-                    .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
-                let key = scene_key(path, &scene, plan, ref_settings.max_depth);
-                let cached = plan
-                    .cache_dir
-                    .join(format!("reference-{name}-{key:016x}.exr"));
-                // Its own error goes beside it, as the number alone.
-                let floor_file = cached.with_extension("relmse");
-                let cached_floor = std::fs::read_to_string(&floor_file)
-                    .ok()
-                    .and_then(|t| t.trim().parse::<f64>().ok());
-                let (image, floor) = match Image::read_exr(&cached) {
-                    Ok(img) => {
-                        done += reference_passes;
-                        (img, cached_floor)
-                    }
-                    Err(_) => {
-                        let message =
-                            format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
-                        let start = done;
-                        let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
-                        let out = renderer.run(&mut |pr| {
-                            progress(&EvalProgress {
-                                message: &message,
-                                done: start + pr.passes_done as u64,
-                                total,
-                            })
-                        })?;
-                        done += reference_passes;
-                        out.image.write_exr(&cached)?;
-                        let floor =
-                            image::expected_rel_mse(&out.image, &out.variance, out.stats.image_spp);
-                        std::fs::write(&floor_file, format!("{floor:e}\n"))
-                            .map_err(|e| BenchError::Io(floor_file.clone(), e.to_string()))?;
-                        (out.image, Some(floor))
-                    }
-                };
-                (
-                    image,
-                    cached.display().to_string(),
-                    Some(plan.reference_spp),
-                    floor,
-                )
-            }
-        };
+        let (mut reference, reference_label, mut reference_spp, mut reference_rel_mse) =
+            match &plan.reference {
+                Some(r) => (Image::read_exr(r)?, r.display().to_string(), None, None),
+                None => {
+                    std::fs::create_dir_all(&plan.cache_dir)
+                        .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
+                    let key = scene_key(path, &scene, plan, ref_settings.max_depth);
+                    let cached = plan
+                        .cache_dir
+                        .join(format!("reference-{name}-{key:016x}.exr"));
+                    // Its own error goes beside it, as the number alone.
+                    let floor_file = cached.with_extension("relmse");
+                    let cached_floor = std::fs::read_to_string(&floor_file).ok().and_then(|t| {
+                        let mut words = t.split_whitespace();
+                        let floor = words.next()?.parse::<f64>().ok()?;
+                        Some((floor, words.next()?.parse::<u32>().ok()?))
+                    });
+                    let (image, floor) = match Image::read_exr(&cached) {
+                        Ok(img) => {
+                            done += reference_passes;
+                            (img, cached_floor)
+                        }
+                        Err(_) => {
+                            let message =
+                                format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
+                            let start = done;
+                            let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
+                            let out = renderer.run(&mut |pr| {
+                                progress(&EvalProgress {
+                                    message: &message,
+                                    done: start + pr.passes_done as u64,
+                                    total,
+                                })
+                            })?;
+                            done += reference_passes;
+                            out.image.write_exr(&cached)?;
+                            let spp = out.stats.image_spp;
+                            let floor = image::expected_rel_mse(&out.image, &out.variance, spp);
+                            write_floor(&floor_file, floor, spp)?;
+                            (out.image, Some((floor, spp)))
+                        }
+                    };
+                    (
+                        image,
+                        cached.display().to_string(),
+                        Some(floor.map_or(plan.reference_spp, |f| f.1)),
+                        floor.map(|f| f.0),
+                    )
+                }
+            };
         if (reference.width, reference.height) != (plan.width as usize, plan.height as usize) {
             return Err(BenchError::Io(
                 PathBuf::from(&reference_label),
@@ -388,6 +396,8 @@ pub fn evaluate(
         write_image(&reference, &dir, "reference", &plan.out)?;
 
         let mut runs = Vec::new();
+        // Every checkpoint's image, to measure again if the reference is refined.
+        let mut images: Vec<Vec<Image>> = Vec::new();
         let mut crop_centre = [0.5, 0.5];
         for config in &plan.configs {
             let label = config.label();
@@ -397,6 +407,7 @@ pub fn evaluate(
             let settings = render_settings(&scene, plan, config, max_spp, plan.seed)?;
             let mut renderer = Renderer::new(ctx, &scene, settings)?;
             let mut rows: Vec<CheckpointRow> = Vec::new();
+            let mut kept: Vec<Image> = Vec::new();
             let mut failure: Option<BenchError> = None;
             let message = format!("{name}: {label}");
             let start = done;
@@ -433,6 +444,7 @@ pub fn evaluate(
                     } else {
                         (None, None)
                     };
+                    kept.push(c.image.clone());
                     rows.push(CheckpointRow {
                         spp: c.spp,
                         seconds: c.seconds,
@@ -496,6 +508,7 @@ pub fn evaluate(
                 }
                 (None, None) => None,
             };
+            images.push(kept);
             let s = out.stats;
             runs.push(RunReport {
                 config: label,
@@ -515,6 +528,65 @@ pub fn evaluate(
                 },
                 learned,
             });
+        }
+
+        // A reference rendered here is refined until its own error is under
+        // a tenth of the smallest error measured against it (or it has 8x
+        // its samples); then every error is measured again.
+        if let (Some(first_floor), Some(first_spp), None) =
+            (reference_rel_mse, reference_spp, plan.reference.as_ref())
+        {
+            let smallest = |runs: &[RunReport]| {
+                runs.iter()
+                    .filter_map(|r| r.checkpoints.last().map(|c| c.error.rel_mse))
+                    .fold(f64::INFINITY, f64::min)
+            };
+            let (mut floor, mut spp) = (first_floor, first_spp);
+            let cap = plan.reference_spp.saturating_mul(8);
+            while floor > 0.1 * smallest(&runs) && spp < cap {
+                let more = spp.min(cap - spp);
+                let settings = render_settings(
+                    &scene,
+                    plan,
+                    &pt,
+                    more,
+                    plan.seed.wrapping_add(7919).wrapping_add(spp),
+                )?;
+                let message = format!("{name}: refining the reference to {} spp", spp + more);
+                let out = Renderer::new(ctx, &scene, settings)?.run(&mut |pr| {
+                    progress(&EvalProgress {
+                        message: &message,
+                        done,
+                        total: total.max(done + pr.passes_done as u64),
+                    })
+                })?;
+                let added = image::expected_rel_mse(&out.image, &out.variance, more);
+                let (n1, n2) = (spp as f64, more as f64);
+                for (p, q) in reference.pixels.iter_mut().zip(&out.image.pixels) {
+                    for c in 0..3 {
+                        p[c] = ((p[c] as f64 * n1 + q[c] as f64 * n2) / (n1 + n2)) as f32;
+                    }
+                }
+                // Each floor is a variance over a sample count: pool them.
+                floor = (n1 * n1 * floor + n2 * n2 * added) / ((n1 + n2) * (n1 + n2));
+                spp += more;
+                for (run, kept) in runs.iter_mut().zip(&images) {
+                    for (row, img) in run.checkpoints.iter_mut().zip(kept) {
+                        row.error = image::compare(img, &reference)?;
+                    }
+                }
+            }
+            if spp != first_spp {
+                let cached = PathBuf::from(&reference_label);
+                reference.write_exr(&cached)?;
+                write_floor(&cached.with_extension("relmse"), floor, spp)?;
+                write_image(&reference, &dir, "reference", &plan.out)?;
+                if let Some(last) = images.first().and_then(|k| k.last()) {
+                    crop_centre = worst_block(last, &reference);
+                }
+            }
+            reference_rel_mse = Some(floor);
+            reference_spp = Some(spp);
         }
 
         // Equal time: the budget the fastest configuration needed for all its samples.
