@@ -77,8 +77,6 @@
 // BvhNode child references.
 #define BVH_LEAF 0x80000000
 #define BVH_NO_CHILD 0xffffffff
-// Deepest BVH the builder may produce (median splits below that).
-#define BVH_MAX_DEPTH 64
 
 // Neural-Q state encoding: position and normal, then sin and cos of the
 // position at this many octaves.

@@ -197,10 +197,13 @@ impl Renderer {
         scene: &Scene,
         settings: RenderSettings,
     ) -> Result<Self, RenderError> {
-        if !ctx.info().subgroup_arithmetic {
+        // The accumulate pass totals its stats per subgroup, in workgroup
+        // memory sized for subgroups of at least 4 invocations.
+        if !ctx.info().subgroup_arithmetic || ctx.info().subgroup_size < 4 {
             return Err(RenderError::Gpu(gpu::Error::MissingFeature {
                 device: ctx.info().name.clone(),
-                feature: "subgroup arithmetic in compute shaders".into(),
+                feature: "subgroup arithmetic in compute shaders, with subgroups of 4 or more"
+                    .into(),
             }));
         }
         let max_groups = ctx.info().max_workgroup_count;

@@ -4,14 +4,15 @@
 //! reads one node per step and does the same work at each (on lavapipe both
 //! sides of a branch cost, so uniform steps are what pays).
 
-use crate::shaders::{BvhNode, BVH_LEAF, BVH_MAX_DEPTH, BVH_NO_CHILD};
+use crate::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD};
 use glam::Vec3;
 
 const BINS: usize = 16;
+/// Deepest tree the builder makes (the recursion stays shallow).
+const MAX_DEPTH: u32 = 64;
 /// Past this depth nodes split at the median, which halves them: 32 more levels
-/// hold 2^32 triangles, so the depth stays below
-/// BVH_MAX_DEPTH whatever the geometry.
-const MEDIAN_DEPTH: u32 = BVH_MAX_DEPTH - 33;
+/// hold 2^32 triangles, so the depth stays below MAX_DEPTH whatever the geometry.
+const MEDIAN_DEPTH: u32 = MAX_DEPTH - 33;
 
 #[derive(Clone, Copy)]
 struct Aabb {
@@ -91,15 +92,15 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
         depth: 0,
     };
     let n = triangles.len();
-    let all = builder.range_bounds(0, n).0;
-    if n >= 2 {
-        builder.split(0, n, 0);
+    let all = if n >= 2 {
+        builder.split(0, n, 0).1
     } else {
         // The root always exists: one leaf child, or none.
         let only = if n == 1 { builder.leaf(0) } else { NO_CHILD };
         builder.nodes.push(node_of(&only, &NO_CHILD));
         builder.depth = 1;
-    }
+        builder.range_bounds(0, n).0
+    };
     set_escapes(&mut builder.nodes);
     Bvh {
         nodes: builder.nodes,
@@ -180,12 +181,12 @@ impl Builder<'_> {
     }
 
     /// Builds the subtree of triangles `start..end` (at least two) and returns
-    /// its root node's index.
-    fn split(&mut self, start: usize, end: usize, depth: u32) -> u32 {
+    /// its root node's index and box.
+    fn split(&mut self, start: usize, end: usize, depth: u32) -> (u32, Aabb) {
         self.depth = self.depth.max(depth + 1);
         let node = self.nodes.len();
         self.nodes.push(BvhNode::default());
-        let centroid_bounds = self.range_bounds(start, end).1;
+        let (bounds, centroid_bounds) = self.range_bounds(start, end);
         let extent = centroid_bounds.max - centroid_bounds.min;
         let axis = extent.max_position();
         let mid = if extent[axis] <= 0.0 || depth >= MEDIAN_DEPTH {
@@ -198,8 +199,7 @@ impl Builder<'_> {
             if e - s == 1 {
                 self.leaf(s)
             } else {
-                let index = self.split(s, e, depth + 1);
-                let b = self.range_bounds(s, e).0;
+                let (index, b) = self.split(s, e, depth + 1);
                 Child {
                     points: [b.min, b.max, Vec3::ZERO],
                     reference: index,
@@ -210,7 +210,7 @@ impl Builder<'_> {
             axis: axis as u32,
             ..node_of(&children[0], &children[1])
         };
-        node as u32
+        (node as u32, bounds)
     }
 
     fn median_split(&mut self, start: usize, end: usize, axis: usize) -> usize {
@@ -277,7 +277,7 @@ mod tests {
 
     fn check(tris: &[[Vec3; 3]]) {
         let bvh = build(tris);
-        assert!(bvh.depth < BVH_MAX_DEPTH);
+        assert!(bvh.depth < MAX_DEPTH);
         let mut seen = vec![0u32; tris.len()];
         for node in &bvh.nodes {
             let children = [
