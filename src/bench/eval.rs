@@ -245,7 +245,15 @@ pub struct EvalProgress<'a> {
     pub total: u64,
 }
 
-/// The reference's own relMSE and its sample count, beside its cached image.
+/// The reference's own relMSE and its sample count, beside its cached image
+/// (none for a reference cached without them).
+fn read_floor(path: &Path) -> Option<(f64, u32)> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let mut words = text.split_whitespace();
+    let floor = words.next()?.parse().ok()?;
+    Some((floor, words.next()?.parse().ok()?))
+}
+
 fn write_floor(path: &Path, floor: f64, spp: u32) -> Result<(), BenchError> {
     std::fs::write(path, format!("{floor:e} {spp}\n"))
         .map_err(|e| BenchError::Io(path.to_path_buf(), e.to_string()))
@@ -344,13 +352,8 @@ pub fn evaluate(
                     let cached = plan
                         .cache_dir
                         .join(format!("reference-{name}-{key:016x}.exr"));
-                    // Its own error goes beside it, as the number alone.
                     let floor_file = cached.with_extension("relmse");
-                    let cached_floor = std::fs::read_to_string(&floor_file).ok().and_then(|t| {
-                        let mut words = t.split_whitespace();
-                        let floor = words.next()?.parse::<f64>().ok()?;
-                        Some((floor, words.next()?.parse::<u32>().ok()?))
-                    });
+                    let cached_floor = read_floor(&floor_file);
                     let (image, floor) = match Image::read_exr(&cached) {
                         Ok(img) => {
                             done += reference_passes;
