@@ -26,8 +26,8 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ),
     ("trace", "trace_neural", &["METHOD_NEURAL"]),
     ("trace", "trace_neural_nee", &["METHOD_NEURAL", "WITH_NEE"]),
-    ("probe", "probe", &["FLOAT_ATOMICS"]),
-    ("probe", "probe_cas", &[]),
+    ("sarsa_probe", "sarsa_probe", &["FLOAT_ATOMICS"]),
+    ("sarsa_probe", "sarsa_probe_cas", &[]),
 ];
 
 fn main() {

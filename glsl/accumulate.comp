@@ -5,6 +5,7 @@
 #extension GL_KHR_shader_subgroup_arithmetic : require
 
 #include "shared.h"
+#include "atomics.glsl"
 
 layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 
@@ -91,15 +92,7 @@ void main() {
                 sum += s_td[s][g];
             }
             if (sum != 0.0) {
-                // A float add by compare-and-swap on its bits.
-                uint seen = stats_words[word];
-                while (true) {
-                    uint found = atomicCompSwap(stats_words[word], seen, floatBitsToUint(uintBitsToFloat(seen) + sum));
-                    if (found == seen) {
-                        break;
-                    }
-                    seen = found;
-                }
+                CAS_ADD_FLOAT(stats_words[word], sum);
             }
         }
     }

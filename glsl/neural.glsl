@@ -1,7 +1,8 @@
-// Neural-Q guiding in the trace kernel: the state encoding, inference of
-// every sector's Q at a path vertex, mixture sampling from it, and offering
-// transitions to the training batch. Needs shared.h, sampling.glsl, rng.glsl
-// and the `params` push constants; the sector grid must have MLP_OUTPUTS sectors.
+// The Neural-Q guide (SPEC 4.3) behind the guide seam of guide.glsl: the
+// state encoding, inference of every sector's Q at a path vertex, sector
+// sampling from it, and offering transitions to the training batch. Needs
+// shared.h, sampling.glsl, bsdf.glsl and the `params` push constants; the
+// sector grid must have MLP_OUTPUTS sectors.
 #ifndef QTRACE_NEURAL_GLSL
 #define QTRACE_NEURAL_GLSL
 
@@ -60,11 +61,23 @@ void neural_encode(vec3 p, vec3 n) {
 // theta. (Kept, not recomputed: measured 20% faster on llvmpipe.)
 float neural_w[MLP_OUTPUTS];
 
-// Infers Q at p (normal n) into neural_w. Returns the weights' total and
-// what the bounce target takes from Q: (2 pi / n) sum_j Q_j cos(theta_j)
-// (expected), or max_j Q_j cos(theta_j) (Q-learning); times albedo / pi it
-// is the target of a bounce that reached p.
-vec2 neural_infer(vec3 p, vec3 n) {
+// What the guide knows at a path vertex: the state (p, n), the total of
+// the sector weights it inferred into neural_w (negative: the vertex before
+// the camera ray, which has no state) and (2 pi / n) sum_j Q_j cos(theta_j)
+// (expected target), or max_j Q_j cos(theta_j) (Q-learning).
+struct GuideVertex {
+    vec3 p;
+    vec3 n;
+    float total;
+    float reach;
+};
+
+GuideVertex guide_none() {
+    return GuideVertex(vec3(0.0), vec3(0.0), -1.0, 0.0);
+}
+
+// Infers Q at p (normal n) into neural_w.
+GuideVertex neural_infer(vec3 p, vec3 n) {
     neural_encode(p, n);
     mlp_hidden_layers();
     uint a = grid_a();
@@ -90,49 +103,46 @@ vec2 neural_infer(vec3 p, vec3 n) {
         }
     }
     float reach = (params.flags & FLAG_MAX_TARGET) != 0u ? best : sum * 2.0 * PI / float(MLP_OUTPUTS);
-    return vec2(total, reach);
+    return GuideVertex(p, n, total, reach);
 }
 
-// Q of sector k from its weight (the inverse of neural_infer's choice).
-float neural_q(uint k, float w) {
-    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
+GuideVertex guide_at(uint triangle, Triangle tri, vec3 p, vec3 n, bool front) {
+    return neural_infer(p, n);
 }
 
-// Solid-angle pdf of the mixture for a local direction in a sector of
-// probability p_sector; pure cosine where the weights are all zero.
-float neural_mixture_pdf(float total, float p_sector, float cos_theta) {
-    float eps = total > 0.0 ? params.guide_epsilon : 1.0;
-    return mixture_density(eps, p_sector, MLP_OUTPUTS, cos_theta);
+bool guide_covers(GuideVertex g) {
+    return g.total > 0.0;
 }
 
-float neural_pdf(float total, vec3 local) {
-    float p = total > 0.0 ? neural_w[hemisphere_sector(local, grid_a(), grid_b())] / total : 0.0;
-    return neural_mixture_pdf(total, p, local.z);
+float guide_total(GuideVertex g) {
+    return g.total;
 }
 
-// A local direction from the mixture, its sector and the sector's
-// probability; u = three uniform numbers.
-vec3 neural_sample(float total, vec3 u, out uint sector, out float p_sector) {
-    bool guided = total > 0.0 && u.z >= params.guide_epsilon;
+float guide_irradiance(GuideVertex g) {
+    return g.reach;
+}
+
+float guide_sector_probability(GuideVertex g, uint k) {
+    return neural_w[k] / g.total;
+}
+
+// Inverse CDF by a scan; rounding past the end falls to the last sector of
+// non-zero weight, never to one the pdf calls impossible.
+uint guide_pick_sector(GuideVertex g, float u, out float p) {
+    float x = u * g.total;
+    float acc = 0.0;
     uint k = 0u;
-    if (guided) {
-        // Inverse CDF by a scan; rounding past the end falls to the last
-        // sector of non-zero weight, never to one the pdf calls impossible.
-        float x = (u.z - params.guide_epsilon) / (1.0 - params.guide_epsilon) * total;
-        float acc = 0.0;
-        for (uint j = 0u; j < MLP_OUTPUTS; j++) {
-            if (neural_w[j] > 0.0) {
-                k = j;
-            }
-            acc += neural_w[j];
-            if (x < acc) {
-                break;
-            }
+    for (uint j = 0u; j < MLP_OUTPUTS; j++) {
+        if (neural_w[j] > 0.0) {
+            k = j;
+        }
+        acc += neural_w[j];
+        if (x < acc) {
+            break;
         }
     }
-    vec3 local = mixture_direction(guided, k, u.xy, grid_a(), grid_b(), sector);
-    p_sector = total > 0.0 ? neural_w[sector] / total : 0.0;
-    return local;
+    p = neural_w[k] / g.total;
+    return k;
 }
 
 // Offers, with the batch's probability (u uniform), the transition from the
@@ -152,6 +162,25 @@ void neural_offer(vec3 p, vec3 n, uint k, float target, float u) {
         batch_inputs[slot * MLP_IN4 + i] = MLP_V(i);
     }
     batch_targets[slot] = MlpTarget(k, target, 0.0, 0.0);
+}
+
+// Q learns all the light that reaches `from` through sector k beyond NEE at
+// `from`: what the vertex it reached reflects, NEE there included.
+void guide_learn(GuideVertex from, uint k, float q, float reflected, float direct,
+                 inout float td_sq_sum, inout uint td_count, inout uint rng) {
+    if (from.total >= 0.0) {
+        float target = reflected + direct;
+        float td = target - q;
+        td_sq_sum += td * td;
+        td_count += 1u;
+        neural_offer(from.p, from.n, k, target, rng_next(rng));
+    }
+}
+
+// With NEE, of an emitter it reached, only the MIS share scattering brings.
+void guide_learn_emitter(GuideVertex from, uint k, float q, float le, float mis_weight,
+                         inout float td_sq_sum, inout uint td_count, inout uint rng) {
+    guide_learn(from, k, q, le * mis_weight, 0.0, td_sq_sum, td_count, rng);
 }
 
 #endif

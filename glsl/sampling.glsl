@@ -84,43 +84,6 @@ uint hemisphere_sector(vec3 w, uint a, uint b) {
     return square_sector(hemisphere_to_square(w), a, b);
 }
 
-// Solid-angle pdf of the one-sample mixture eps * cosine + (1 - eps) * guide
-// for a local direction with cos(theta) = cos_theta in a sector of
-// probability p_sector among n; the guide's density there is p_sector n / (2 pi).
-float mixture_density(float eps, float p_sector, uint n, float cos_theta) {
-    if (cos_theta <= 0.0) {
-        return 0.0;
-    }
-    return eps * cos_theta * INV_PI + (1.0 - eps) * p_sector * float(n) * 0.5 * INV_PI;
-}
-
-// A local direction of the mixture's guided branch (uniform inside sector k)
-// or its cosine branch, from u; sets the sector it lies in. Both branches go
-// through one concentric map, so SIMD lanes that took different branches
-// share it.
-vec3 mixture_direction(bool guided, uint k, vec2 u, uint a, uint b, out uint sector) {
-    vec2 s = u;
-    if (guided) {
-        // Keep clear of the cell's edges: rounding in the map must not move the
-        // direction into a neighbouring sector, so that k is the sector a pdf
-        // lookup finds for it. (The strip left out is 2e-5 of the cell.)
-        vec2 inner = clamp(u, vec2(1e-5), vec2(1.0 - 1e-5));
-        s = vec2((float(k % a) + inner.x) / float(a), (float(k / a) + inner.y) / float(b));
-    }
-    vec2 d = square_to_disk(s);
-    float r2 = dot(d, d);
-    if (guided) {
-        sector = k;
-        return vec3(d * sqrt(max(0.0, 2.0 - r2)), 1.0 - r2);
-    }
-    // Cosine sample (Malley). The concentric map keeps the angle, so its
-    // equal-area square point is the disk's square point scaled by
-    // 1 / sqrt(1 + z): the sector needs no inverse map.
-    float z = sqrt(max(0.0, 1.0 - r2));
-    sector = square_sector(0.5 + (u - 0.5) / sqrt(1.0 + z), a, b);
-    return vec3(d, z);
-}
-
 // Cosine-weighted direction (Malley's method on the concentric disk).
 vec3 sample_cosine(vec2 u) {
     vec2 d = square_to_disk(u);

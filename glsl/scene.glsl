@@ -8,16 +8,15 @@
 // lavapipe turns a texel fetch into one vector gather, where a storage
 // buffer read is a branching loop over SIMD lanes per 32-bit word.
 layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 8 per BvhNode
-layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 4 per Triangle
+layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 3 per Triangle
 layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
 
 Triangle load_triangle(uint i) {
-    uvec4 a = texelFetch(triangle_texels, int(4u * i));
-    uvec4 b = texelFetch(triangle_texels, int(4u * i + 1u));
-    uvec4 c = texelFetch(triangle_texels, int(4u * i + 2u));
-    uvec4 d = texelFetch(triangle_texels, int(4u * i + 3u));
+    uvec4 a = texelFetch(triangle_texels, int(3u * i));
+    uvec4 b = texelFetch(triangle_texels, int(3u * i + 1u));
+    uvec4 c = texelFetch(triangle_texels, int(3u * i + 2u));
     return Triangle(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), uintBitsToFloat(b.w),
-                    uintBitsToFloat(c.xyz), uintBitsToFloat(c.w), d);
+                    uintBitsToFloat(c.xyz), uintBitsToFloat(c.w));
 }
 
 Material load_material(uint i) {
@@ -83,7 +82,7 @@ float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, in
         return FAR;
     }
     if ((c & BVH_LEAF) != 0u) {
-        float t = intersect_triangle(o, d, Triangle(p, 0u, q, 0.0, r, 0.0, uvec4(0u)), hit.t);
+        float t = intersect_triangle(o, d, Triangle(p, 0u, q, 0.0, r, 0.0), hit.t);
         if (t > 0.0) {
             hit.t = t;
             hit.triangle = c & ~BVH_LEAF;

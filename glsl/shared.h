@@ -40,6 +40,7 @@
 #define B_MLP_OUTPUTS 26
 #define B_MLP_COUNT 27
 #define B_NEURAL_VERTICES 28
+#define B_LOOKUP_TRIANGLES 29
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -60,8 +61,6 @@
 #define PROBE_GUIDE_SAMPLE 3
 #define PROBE_SARSA_UPDATE 4
 
-// Volume.axis of a k-d tree node without children.
-#define KD_LEAF 3
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
 
@@ -86,14 +85,13 @@
 
 // Bytes of each struct, checked on the Rust side too.
 #define SIZEOF_BVH_NODE 128
-#define SIZEOF_TRIANGLE 64
+#define SIZEOF_TRIANGLE 48
 #define SIZEOF_MATERIAL 32
 #define SIZEOF_LIGHT 16
 #define SIZEOF_PATH_SAMPLE 32
 #define SIZEOF_ACCUM 32
 #define SIZEOF_PASS_STATS 32
 #define SIZEOF_PASS_PARAMS 128
-#define SIZEOF_VOLUME 32
 #define SIZEOF_SECTOR_ENTRY 16
 #define SIZEOF_MLP_TARGET 16
 #define SIZEOF_MLP_PUSH 32
@@ -130,7 +128,6 @@ struct Triangle {
     float light_pdf;   // P(choose this light) / area; 0 for non-emitters
     vec3 e2;
     float area;
-    uvec4 lookup;      // guides: its lookup cells, or its two sides' volumes (src/guide/lookup.rs)
 };
 
 struct Material {
@@ -193,15 +190,6 @@ struct PassParams {
     uint volume_count; // guides: radiance volumes
     uint sector_grid;  // guides: a | (b << 16), n = a * b sectors
     float guide_epsilon; // guides: weight of cosine sampling in the mixture
-};
-
-// A radiance volume, stored as a node of an implicit k-d tree (see
-// src/guide/volumes.rs): the node of range [lo, hi) sits at (lo + hi) / 2.
-struct Volume {
-    vec3 position;
-    uint axis;         // splitting coordinate, or KD_LEAF
-    vec3 normal;
-    float pad;
 };
 
 // One sector of a volume's sampling distribution, as an alias table (Walker):

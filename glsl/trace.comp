@@ -11,49 +11,20 @@ layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 
-#ifdef METHOD_SARSA
-#include "guide.glsl"
-
-// Records the target of the bounce that just landed, if it left from a volume,
-// and adds its squared TD error to the path's loss.
-void learn_bounce(uint volume, uint sector, float q, float target, inout float td_sq_sum, inout uint td_count) {
-    if (volume != NO_VOLUME) {
-#ifdef WITH_NEE
-        // With NEE, q is the sampling table's Q, short of what NEE carries;
-        // the loss compares with Q itself.
-        q = load_q(volume * sector_count() + sector);
-#endif
-        td_sq_sum += sarsa_record(volume, sector, target, q);
-        td_count += 1u;
-    }
-}
-#endif
-
-#ifdef METHOD_NEURAL
-#include "neural.glsl"
-
-// Scores the bounce that just landed, if there was one, and offers it to
-// the training batch.
-void learn_bounce(bool has_prev, vec3 p, vec3 n, uint sector, float q, float target,
-                  inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    if (has_prev) {
-        float td = target - q;
-        td_sq_sum += td * td;
-        td_count += 1u;
-        neural_offer(p, n, sector, target, rng_next(rng));
-    }
-}
-#endif
+#include "bsdf.glsl"
 
 #if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
 #define GUIDED
+#ifdef METHOD_SARSA
+#include "sarsa.glsl"
+#else
+#include "neural.glsl"
 #endif
+#include "guide.glsl"
+#endif
+
 layout(set = 0, binding = B_LIGHTS) uniform usamplerBuffer light_texels; // 1 per Light
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
-
-float luminance(vec3 c) {
-    return dot(c, vec3(0.2126, 0.7152, 0.0722));
-}
 
 float power_heuristic(float a, float b) {
     float a2 = a * a;
@@ -76,14 +47,6 @@ uint pick_light(float u) {
     return lo;
 }
 
-// Solid-angle pdf of choosing direction `local` (z = cos theta) by BSDF sampling.
-float bsdf_pdf(float cos_theta) {
-    if (cos_theta <= 0.0) {
-        return 0.0;
-    }
-    return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : cos_theta * INV_PI;
-}
-
 // The state of the path being traced, shared by begin_path and bounce.
 uvec2 pixel;
 uint rng;
@@ -102,23 +65,15 @@ const bool nee = false;
 #endif
 float eps;
 #ifdef GUIDED
-// The previous bounce's sector and the Q the guide gave it, to update once
-// its ray lands.
+// The vertex the path's ray left from, the sector it took there and the Q
+// the guide gave that sector, to learn from once the ray lands.
+GuideVertex prev_vertex;
 uint prev_sector;
 float prev_q;
 bool learn;
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
 float path_estimate;
-#endif
-#ifdef METHOD_SARSA
-uint prev_volume;
-#endif
-#ifdef METHOD_NEURAL
-// The previous bounce's state, to offer its transition once it lands.
-bool has_prev;
-vec3 prev_position;
-vec3 prev_normal;
 #endif
 uint td_count;
 float td_sq_sum;
@@ -140,17 +95,10 @@ void begin_path(uint sample_index) {
     rays = 0u;
     prev_bsdf_pdf = 0.0;
 #ifdef GUIDED
+    prev_vertex = guide_none();
     prev_sector = 0u;
     prev_q = 0.0;
     path_estimate = 0.0;
-#endif
-#ifdef METHOD_SARSA
-    prev_volume = NO_VOLUME;
-#endif
-#ifdef METHOD_NEURAL
-    has_prev = false;
-    prev_position = vec3(0.0);
-    prev_normal = vec3(0.0);
 #endif
     td_count = 0u;
     td_sq_sum = 0.0;
@@ -162,15 +110,10 @@ bool bounce() {
     rays += 1u;
     if (hit.triangle == NO_HIT) {
         radiance += throughput * params.environment.rgb;
-#ifdef METHOD_SARSA
+#ifdef GUIDED
         if (learn) {
-            learn_bounce(prev_volume, prev_sector, prev_q, luminance(params.environment.rgb), td_sq_sum, td_count);
-        }
-#endif
-#ifdef METHOD_NEURAL
-        if (learn) {
-            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q,
-                         luminance(params.environment.rgb), td_sq_sum, td_count, rng);
+            guide_learn(prev_vertex, prev_sector, prev_q, luminance(params.environment.rgb), 0.0,
+                        td_sq_sum, td_count, rng);
         }
 #endif
         return false;
@@ -191,68 +134,41 @@ bool bounce() {
             }
             radiance += throughput * mat.emission.rgb * weight;
         }
-#ifdef METHOD_SARSA
+#ifdef GUIDED
         if (learn) {
             float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
-            learn_bounce(prev_volume, prev_sector, prev_q, le, td_sq_sum, td_count);
-#ifdef WITH_NEE
-            if (nee && prev_volume != NO_VOLUME) {
-                sarsa_record_direct(prev_volume, prev_sector, le * (1.0 - weight));
-            }
-#endif
-        }
-#endif
-#ifdef METHOD_NEURAL
-        if (learn) {
-            // With NEE, Q learns what scattering brings beyond NEE: of an
-            // emitter it hits, its MIS share (see the NEE target below).
-            float le = cos_out > 0.0 ? luminance(mat.emission.rgb) * weight : 0.0;
-            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, le,
-                         td_sq_sum, td_count, rng);
+            guide_learn_emitter(prev_vertex, prev_sector, prev_q, le, weight, td_sq_sum, td_count, rng);
         }
 #endif
         return false;
     }
 
-    // Diffuse surfaces scatter on both sides: shade with the normal facing the ray.
+    // Shade in the frame of the normal facing the ray (materials are two-sided).
     vec3 ns = cos_out > 0.0 ? n : -n;
     vec3 position = origin + hit.t * dir + ns * eps;
-    vec3 albedo = mat.albedo.rgb;
-#ifdef METHOD_SARSA
-    uint volume = nearest_volume(tri, position, cos_out > 0.0);
-    vec2 sums = volume_sums_of(volume);
-    float outgoing = sarsa_surface_target(sums, luminance(albedo));
+    Bsdf bsdf = bsdf_of(mat);
+    vec3 t;
+    vec3 b;
+    make_frame(ns, t, b);
+    vec3 wo = vec3(-dot(dir, t), -dot(dir, b), abs(cos_out));
+#ifdef GUIDED
+    GuideVertex here = guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
+    // What this vertex is expected to send back along the ray: the landed
+    // bounce's target, which NEE here adds to (see guide_learn).
+    float reflected = bsdf_reflect(bsdf, wo, guide_irradiance(here));
     if (depth == 0u) {
-        path_estimate = outgoing;
+        path_estimate = reflected;
     }
-    if (learn) {
-        learn_bounce(prev_volume, prev_sector, prev_q, outgoing, td_sq_sum, td_count);
-    }
-    bool guided_here = volume != NO_VOLUME;
-#endif
-#ifdef METHOD_NEURAL
-    vec2 inferred = neural_infer(position, ns);
-    float total = inferred.x;
-    float outgoing = luminance(albedo) * INV_PI * inferred.y;
-    if (depth == 0u) {
-        path_estimate = outgoing;
-    }
-    // The landed bounce's target; NEE at this vertex adds to it below.
-    float pending_target = outgoing;
-    bool guided_here = total > 0.0;
+    float direct_lum = 0.0;
 #endif
     if (depth >= params.max_depth) {
-#ifdef METHOD_NEURAL
+#ifdef GUIDED
         if (learn) {
-            learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q,
-                         pending_target, td_sq_sum, td_count, rng);
+            guide_learn(prev_vertex, prev_sector, prev_q, reflected, 0.0, td_sq_sum, td_count, rng);
         }
 #endif
         return false;
     }
-    vec3 t;
-    vec3 b;
-    make_frame(ns, t, b);
 
     if (nee) {
         Triangle lt = load_triangle(texelFetch(light_texels, int(pick_light(rng_next(rng)))).x);
@@ -271,61 +187,42 @@ bool bounce() {
             rays += 1u;
             if (!occluded(position, wi, dist * (1.0 - 1e-4) - eps)) {
                 float light_pdf = lt.light_pdf * dist2 / cos_y;
-#if defined(METHOD_SARSA)
-                float scatter_pdf = guide_pdf(volume, vec3(dot(wi, t), dot(wi, b), cos_x));
-#elif defined(METHOD_NEURAL)
-                float scatter_pdf = neural_pdf(total, vec3(dot(wi, t), dot(wi, b), cos_x));
+                vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
+#ifdef GUIDED
+                float scatter_pdf = mixture_pdf(here, bsdf, wo, wi_local);
 #else
-                float scatter_pdf = bsdf_pdf(cos_x);
+                float scatter_pdf = bsdf_pdf(bsdf, wo, wi_local);
 #endif
                 float weight = power_heuristic(light_pdf, scatter_pdf);
                 vec3 le = load_material(lt.material).emission.rgb;
-                vec3 direct = albedo * INV_PI * cos_x * le * weight / light_pdf;
+                vec3 direct = bsdf_eval(bsdf, wo, wi_local) * le * weight / light_pdf;
                 radiance += throughput * direct;
-#ifdef METHOD_NEURAL
-                // The light reaching the previous vertex from here
-                // includes what NEE brings here.
-                pending_target += luminance(direct);
+#ifdef GUIDED
+                direct_lum = luminance(direct);
 #endif
             }
         }
     }
-#ifdef METHOD_NEURAL
+#ifdef GUIDED
     if (learn) {
-        learn_bounce(has_prev, prev_position, prev_normal, prev_sector, prev_q, pending_target,
-                     td_sq_sum, td_count, rng);
+        guide_learn(prev_vertex, prev_sector, prev_q, reflected, direct_lum, td_sq_sum, td_count, rng);
     }
-#endif
-
-#ifdef METHOD_SARSA
-    // Guided sampling: the mixture of cosine and the volume's sector distribution.
     uint sector;
     float p_sector;
-    vec3 local = guide_sample(volume, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
-    float pdf = mixture_pdf(volume, p_sector, local.z);
-    prev_volume = volume;
+    vec3 local = mixture_sample(here, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+    float pdf = mixture_pdf_in(here, bsdf, wo, local, p_sector);
+    prev_vertex = here;
     prev_sector = sector;
-    prev_q = sector_q(sums, sector, p_sector);
-#elif defined(METHOD_NEURAL)
-    uint sector;
-    float p_sector;
-    vec3 local = neural_sample(total, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
-    float pdf = neural_mixture_pdf(total, p_sector, local.z);
-    prev_sector = sector;
-    prev_q = neural_q(sector, p_sector * total);
-    prev_position = position;
-    prev_normal = ns;
-    has_prev = true;
+    prev_q = guide_q(here, sector, p_sector);
 #else
-    // BSDF sampling: cosine-weighted, or uniform (the equal-area map).
-    vec2 u = rng_next2(rng);
-    vec3 local = (params.flags & FLAG_UNIFORM) != 0u ? square_to_hemisphere(u) : sample_cosine(u);
-    float pdf = bsdf_pdf(local.z);
+    vec2 square;
+    vec3 local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
+    float pdf = bsdf_pdf(bsdf, wo, local);
 #endif
     if (pdf <= 0.0) {
         return false;
     }
-    throughput *= albedo * INV_PI * local.z / pdf;
+    throughput *= bsdf_eval(bsdf, wo, local) / pdf;
     prev_bsdf_pdf = pdf;
     dir = normalize(local.x * t + local.y * b + local.z * ns);
     origin = position;
@@ -340,7 +237,7 @@ bool bounce() {
         // against the estimate for the whole path (weight window at 1).
         // Never below the throughput rule, so a Q that underestimates ends
         // no more of a path's continuations than that rule would.
-        if (guided_here && path_estimate > 0.0) {
+        if (guide_covers(here) && path_estimate > 0.0) {
             float expected = luminance(throughput) * prev_q;
             q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
         }

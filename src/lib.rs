@@ -5,6 +5,7 @@
 #![deny(unsafe_code)]
 
 pub mod bench;
+pub mod cli;
 #[allow(unsafe_code)]
 pub mod gpu;
 pub mod guide;

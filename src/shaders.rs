@@ -41,9 +41,6 @@ pub struct Triangle {
     pub light_pdf: f32,
     pub e2: [f32; 3],
     pub area: f32,
-    /// Guides: where this triangle's lookup cells start and their grid, or
-    /// its two sides' volumes (see `guide::lookup`).
-    pub lookup: [u32; 4],
 }
 
 #[repr(C)]
@@ -116,15 +113,6 @@ pub struct PassParams {
     pub guide_epsilon: f32,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
-pub struct Volume {
-    pub position: [f32; 3],
-    pub axis: u32,
-    pub normal: [f32; 3],
-    pub pad: f32,
-}
-
 const _: () = assert!(size_of::<BvhNode>() == SIZEOF_BVH_NODE as usize);
 const _: () = assert!(size_of::<Triangle>() == SIZEOF_TRIANGLE as usize);
 const _: () = assert!(size_of::<Material>() == SIZEOF_MATERIAL as usize);
@@ -133,7 +121,6 @@ const _: () = assert!(size_of::<PathSample>() == SIZEOF_PATH_SAMPLE as usize);
 const _: () = assert!(size_of::<Accum>() == SIZEOF_ACCUM as usize);
 const _: () = assert!(size_of::<PassStats>() == SIZEOF_PASS_STATS as usize);
 const _: () = assert!(size_of::<PassParams>() == SIZEOF_PASS_PARAMS as usize);
-const _: () = assert!(size_of::<Volume>() == SIZEOF_VOLUME as usize);
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]

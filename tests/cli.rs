@@ -365,14 +365,14 @@ fn sarsa_render_reports_its_guide() {
             "16",
             "--height",
             "16",
-            "--sarsa-volumes",
-            "64",
+            "--set",
+            "sarsa.volumes=64",
         ])
         .args([
-            "--sarsa-sectors",
-            "6x6",
-            "--sarsa-atomics",
-            "cas",
+            "--set",
+            "sarsa.grid=[6, 6]",
+            "--set",
+            "sarsa.atomics=cas",
             "--validation",
             "-o",
         ])
@@ -402,28 +402,28 @@ fn bad_sarsa_options() {
     expect_error(
         &dir,
         &scene,
-        &["--method", "sarsa", "--sarsa-epsilon", "0"],
+        &["--method", "sarsa", "--set", "sarsa.epsilon=0"],
         &[],
         &["epsilon"],
     );
     expect_error(
         &dir,
         &scene,
-        &["--method", "sarsa", "--sarsa-sectors", "0x5"],
+        &["--method", "sarsa", "--set", "sarsa.grid=[0, 5]"],
         &[],
-        &["grid"],
+        &["[sarsa] grid"],
     );
     expect_error(
         &dir,
         &scene,
-        &["--method", "sarsa", "--sarsa-sectors", "twelve"],
+        &["--method", "sarsa", "--set", "sarsa.grid=twelve"],
         &[],
-        &["AxB"],
+        &["[sarsa]", "grid"],
     );
     expect_error(
         &dir,
         &scene,
-        &["--method", "sarsa", "--sarsa-memory-mib", "0.0001"],
+        &["--method", "sarsa", "--set", "sarsa.memory_mib=0.0001"],
         &[],
         &["memory"],
     );
@@ -435,8 +435,8 @@ fn bad_sarsa_options() {
             "sarsa",
             "--spp",
             "8",
-            "--sarsa-reset-after",
-            "8",
+            "--set",
+            "sarsa.reset_after=8",
         ],
         &[],
         &["reset"],
@@ -444,7 +444,7 @@ fn bad_sarsa_options() {
     expect_error(
         &dir,
         &scene,
-        &["--method", "sarsa", "--sarsa-volumes", "4000000"],
+        &["--method", "sarsa", "--set", "sarsa.volumes=4000000"],
         &[],
         &["fewer volumes"],
     );
@@ -491,12 +491,12 @@ fn neural_render_reports_loss_and_training_passes() {
             "16",
             "--height",
             "16",
-            "--neural-width",
-            "8",
-            "--neural-sectors",
-            "4x4",
-            "--neural-target",
-            "max",
+            "--set",
+            "neural.width=8",
+            "--set",
+            "neural.grid=[4, 4]",
+            "--set",
+            "neural.target=max",
             "--validation",
             "-o",
         ])
@@ -530,21 +530,24 @@ fn neural_render_reports_loss_and_training_passes() {
 fn bad_neural_options() {
     let dir = scratch("bad-neural");
     let scene = dir.join("cornell-box.toml");
-    for (option, value, message) in [
-        ("--neural-width", "100", "width"),
-        ("--neural-width", "6", "width"),
-        ("--neural-lr", "0", "lr"),
-        ("--neural-batch", "0", "batch"),
-        ("--neural-epsilon", "0", "epsilon"),
-        ("--neural-sectors", "0x4", "sectors"),
-        ("--neural-layers", "0", "layers"),
+    for (set, message) in [
+        ("neural.width=100", "width"),
+        ("neural.width=6", "width"),
+        ("neural.learning_rate=0", "learning_rate"),
+        ("neural.batch=0", "batch"),
+        ("neural.epsilon=0", "epsilon"),
+        ("neural.grid=[0, 4]", "grid"),
+        ("neural.layers=0", "layers"),
+        ("neural.layers=-1", "layers"),
+        ("neural.encoding=fourier", "encoding"),
+        ("neural.widht=8", "unknown field"),
     ] {
         expect_error(
             &dir,
             &scene,
-            &["--method", "neural", option, value],
+            &["--method", "neural", "--set", set],
             &[],
-            &[message],
+            &["[neural]", message],
         );
     }
     // The Cornell box's 32 vertices, encoded, overflow a 64-wide network's
@@ -555,13 +558,17 @@ fn bad_neural_options() {
         &[
             "--method",
             "neural",
-            "--neural-encoding",
-            "vertices",
-            "--neural-width",
-            "64",
+            "--set",
+            "neural.encoding=vertices",
+            "--set",
+            "neural.width=64",
         ],
         &[],
-        &["--neural-encoding vertices", "vertices give"],
+        &[
+            "encoding = \"vertices\"",
+            "vertices give",
+            "width = 28 would fit",
+        ],
     );
     expect_error(
         &dir,
@@ -571,11 +578,11 @@ fn bad_neural_options() {
             "neural",
             "--spp",
             "8",
-            "--neural-reset-after",
-            "8",
+            "--set",
+            "neural.reset_after=8",
         ],
         &[],
-        &["--neural-reset-after"],
+        &["[neural] reset_after"],
     );
     // A batch whose activations exceed a storage buffer (128 MiB on lavapipe).
     expect_error(
@@ -584,14 +591,101 @@ fn bad_neural_options() {
         &[
             "--method",
             "neural",
-            "--neural-batch",
-            "262144",
-            "--neural-width",
-            "64",
-            "--neural-layers",
-            "8",
+            "--set",
+            "neural.batch=262144",
+            "--set",
+            "neural.width=64",
+            "--set",
+            "neural.layers=8",
         ],
         &[],
-        &["--neural-batch", "MiB"],
+        &["batch in [neural]", "MiB"],
     );
+}
+
+/// Guide settings come from the scene's table, then --guide-config, then
+/// --set, key by key; the stats JSON gives back every key, and those
+/// settings, as a config file, render the same guide again.
+#[test]
+fn guide_settings_layer_and_round_trip() {
+    let dir = scratch("guide-config");
+    let scene = dir.join("cornell-box.toml");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        format!("{text}\n[sarsa]\nepsilon = 0.4\nvolumes = 64\nfreeze_after = 2\n"),
+    )
+    .unwrap();
+    let config = dir.join("guides.toml");
+    std::fs::write(
+        &config,
+        "[sarsa]\nepsilon = 0.3\ngrid = [6, 6]\n\n[neural]\nwidth = 8\n",
+    )
+    .unwrap();
+    let render = |extra: &[&str], json: &Path| {
+        let output = qtrace()
+            .arg("render")
+            .arg(&scene)
+            .args([
+                "--method", "sarsa", "--spp", "3", "--width", "16", "--height", "16",
+            ])
+            .args(extra)
+            .arg("-o")
+            .arg(dir.join("g.exr"))
+            .arg("--stats")
+            .arg(json)
+            .output()
+            .unwrap();
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        stats["guide"]["sarsa"].clone()
+    };
+    let first = dir.join("first.json");
+    let config_arg = config.to_str().unwrap();
+    let g = render(
+        &["--guide-config", config_arg, "--set", "sarsa.grid=[4, 5]"],
+        &first,
+    );
+    assert_eq!(g["epsilon"], 0.3, "{g}");
+    assert_eq!(g["grid"], serde_json::json!([4, 5]), "{g}");
+    assert_eq!(g["volumes"], 64, "{g}");
+    assert_eq!(g["freeze_after"], 2, "{g}");
+    assert_eq!(g["atomics"], "auto", "{g}");
+
+    // The reported settings as a config file give the same guide.
+    let table: toml::Table = serde_json::from_value(g.clone()).unwrap();
+    let mut file = toml::Table::new();
+    file.insert("sarsa".into(), toml::Value::Table(table));
+    let again = dir.join("again.toml");
+    std::fs::write(&again, toml::to_string(&file).unwrap()).unwrap();
+    let g2 = render(
+        &["--guide-config", again.to_str().unwrap()],
+        &dir.join("second.json"),
+    );
+    assert_eq!(g, g2);
+
+    // A config table that is no guide, and a --set for another guide, are errors.
+    std::fs::write(&config, "[sarsaa]\nepsilon = 0.3\n").unwrap();
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--guide-config", config_arg],
+        &[],
+        &["sarsaa", "not a guide table"],
+    );
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "sarsa", "--set", "neural.width=8"],
+        &[],
+        &["neural", "method is sarsa"],
+    );
+    // A typo in the scene's own table fails whatever the method.
+    std::fs::write(&scene, format!("{text}\n[neural]\nwidht = 8\n")).unwrap();
+    expect_error(&dir, &scene, &[], &[], &["[neural]", "widht"]);
 }

@@ -9,8 +9,7 @@ use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
 use qtrace::guide::neural::{encode, scene_vertices, Encoding, Target};
-use qtrace::guide::sarsa::Distribution;
-use qtrace::guide::{NeuralGuide, NeuralSettings};
+use qtrace::guide::{Common, Distribution, GuideSettings, NeuralGuide, NeuralSettings};
 use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
 use qtrace::sampling;
 use qtrace::shaders::MlpTarget;
@@ -158,7 +157,7 @@ fn small() -> NeuralSettings {
 /// the mixture pdf or the guided roulette.
 fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
     let scene = common::scene(scene_name);
-    let reset = settings.reset_after;
+    let reset = settings.common.reset_after;
     let name = format!("{scene_name}-neural-nee{nee}");
     let guided = common::assert_converges_to_pt(
         &name,
@@ -168,7 +167,7 @@ fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
             spp: Some(spp),
             nee,
             seed: Some(300),
-            neural: settings,
+            guide: Some(GuideSettings::Neural(settings)),
             ..Default::default()
         },
     );
@@ -199,8 +198,11 @@ fn neural_converges_to_pt_on_the_indirectly_lit_room() {
         1024,
         NeuralSettings {
             target: Target::Max,
-            distribution: Distribution::Q,
-            reset_after: Some(128),
+            common: Common {
+                distribution: Distribution::Q,
+                reset_after: Some(128),
+                ..Default::default()
+            },
             ..small()
         },
     );
@@ -218,7 +220,7 @@ fn neural_matches_the_white_furnace() {
         Overrides {
             method: Some(Method::Neural),
             spp: Some(128),
-            neural: small(),
+            guide: Some(GuideSettings::Neural(small())),
             ..Default::default()
         },
     );
@@ -236,17 +238,17 @@ fn check_offers(encoding: Encoding) {
         spp: Some(1),
         width: Some(32),
         height: Some(32),
-        neural: NeuralSettings {
+        guide: Some(GuideSettings::Neural(NeuralSettings {
             encoding,
             ..small()
-        },
+        })),
         ..Default::default()
     };
     let settings = RenderSettings::resolve(&scene, &o).unwrap();
     let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
     renderer.run(&mut |_| {}).unwrap();
     common::assert_no_validation_errors(&ctx);
-    let guide = renderer.neural().unwrap();
+    let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
     let inputs = guide.network.download_inputs().unwrap();
     let (lo, hi) = scene.bounds();
     let vertices = scene_vertices(&scene);
@@ -313,8 +315,11 @@ fn check_sampler(distribution: Distribution) {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let settings = NeuralSettings {
-        epsilon: 0.25,
-        distribution,
+        common: Common {
+            epsilon: 0.25,
+            distribution,
+            ..Default::default()
+        },
         ..small()
     };
     let guide = NeuralGuide::new(&ctx, &scene, &settings, 1, 1024).unwrap();
@@ -337,7 +342,7 @@ fn check_sampler(distribution: Distribution) {
     let samples = probe::neural_samples(&ctx, &scene, &guide, point, normal, &uniforms).unwrap();
     common::assert_no_validation_errors(&ctx);
 
-    let [a, b] = settings.grid;
+    let [a, b] = settings.common.grid;
     let q = shape.forward(&params, &encode(scene.bounds(), point, normal));
     let w: Vec<f64> = q
         .iter()
@@ -352,7 +357,12 @@ fn check_sampler(distribution: Distribution) {
     // Lumpy indeed: the test would pass a near-uniform sampler otherwise.
     let largest = p.iter().cloned().fold(0.0, f64::max);
     assert!(largest > 5.0 / p.len() as f64, "largest P(k) {largest}");
-    common::assert_mixture_sampler(&samples, &p, settings.epsilon as f64, settings.grid);
+    common::assert_mixture_sampler(
+        &samples,
+        &p,
+        settings.common.epsilon as f64,
+        settings.common.grid,
+    );
 }
 
 #[test]

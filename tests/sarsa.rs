@@ -9,6 +9,7 @@ use glam::{Vec2, Vec3};
 use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
+use qtrace::guide::{Common, GuideSettings};
 use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
@@ -168,10 +169,13 @@ fn guided_sampler_matches_its_pdf() {
     let scene = common::scene("cornell-box");
     let s = SarsaSettings {
         volumes: Some(4),
-        epsilon: 0.25,
+        common: Common {
+            epsilon: 0.25,
+            ..Default::default()
+        },
         ..Default::default()
     };
-    let (a, b) = (s.grid[0] as usize, s.grid[1] as usize);
+    let (a, b) = (s.common.grid[0] as usize, s.common.grid[1] as usize);
     let n = a * b;
     let guide = SarsaGuide::new(&ctx, &scene, &s, 1).unwrap();
     // A lumpy distribution: a few bright sectors, many dim ones, some zero.
@@ -194,7 +198,7 @@ fn guided_sampler_matches_its_pdf() {
         .collect();
     let samples = probe::guide_samples(&ctx, &scene, &guide, v as u32, &uniforms).unwrap();
     common::assert_no_validation_errors(&ctx);
-    common::assert_mixture_sampler(&samples, &p, s.epsilon as f64, s.grid);
+    common::assert_mixture_sampler(&samples, &p, s.common.epsilon as f64, s.common.grid);
 }
 
 /// cos θ at the centre of each sector.
@@ -258,7 +262,10 @@ fn check_update(atomics: Atomics) {
     let scene = common::scene("cornell-box");
     let s = SarsaSettings {
         volumes: Some(6),
-        grid: [4, 3],
+        common: Common {
+            grid: [4, 3],
+            ..Default::default()
+        },
         atomics,
         ..Default::default()
     };
@@ -288,7 +295,7 @@ fn check_update(atomics: Atomics) {
         }
         let seen_before = seen.clone();
         let gpu_targets = probe::sarsa_updates(&ctx, &scene, &guide, &batch).unwrap();
-        let cpu_targets = cpu_update(&mut q, &mut seen, &batch, n, s.grid);
+        let cpu_targets = cpu_update(&mut q, &mut seen, &batch, n, s.common.grid);
         for (i, (g, c)) in gpu_targets.iter().zip(&cpu_targets).enumerate() {
             assert!(
                 (g - c).abs() <= 1e-4 * c.abs() + 1e-6,
@@ -316,7 +323,7 @@ fn check_update(atomics: Atomics) {
             );
         }
         // And the distribution is Q·cos θ_k normalised (the default).
-        let cos = sector_cosines(n, s.grid);
+        let cos = sector_cosines(n, s.common.grid);
         let probs = guide.download_probabilities().unwrap();
         for v in 0..6 {
             let w = |k: usize| q[v * n + k] as f64 * cos[k];
@@ -354,12 +361,15 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after
             spp: Some(spp),
             nee,
             seed: Some(200),
-            sarsa: SarsaSettings {
+            guide: Some(GuideSettings::Sarsa(SarsaSettings {
                 volumes: Some(512),
                 atomics,
-                reset_after,
+                common: Common {
+                    reset_after,
+                    ..Default::default()
+                },
                 ..Default::default()
-            },
+            })),
             ..Default::default()
         },
     );
@@ -403,10 +413,10 @@ fn sarsa_matches_the_white_furnace() {
         Overrides {
             method: Some(Method::Sarsa),
             spp: Some(256),
-            sarsa: SarsaSettings {
+            guide: Some(GuideSettings::Sarsa(SarsaSettings {
                 volumes: Some(256),
                 ..Default::default()
-            },
+            })),
             ..Default::default()
         },
     );

@@ -4,6 +4,7 @@
 
 use super::{learned, BenchError, Config};
 use crate::gpu::{GpuContext, PassTiming};
+use crate::guide::Guide;
 use crate::image::{self, ErrorMetrics, Image};
 use crate::render::{Checkpoint, Method, Overrides, PassRecord, RenderSettings, Renderer};
 use crate::scene::Scene;
@@ -41,6 +42,30 @@ impl EvalPlan {
             out,
             cache_dir: default_cache_dir(),
         }
+    }
+
+    /// Sorts and dedups the sample counts, and checks the plan is one a
+    /// bench can run; the message names the option.
+    pub fn validate(&mut self) -> Result<(), String> {
+        self.spp_list.sort_unstable();
+        self.spp_list.dedup();
+        let max = crate::render::settings::MAX_SPP;
+        if self.spp_list.first() == Some(&0) || self.spp_list.last().is_some_and(|&n| n > max) {
+            return Err(format!("--spp-list values must lie in 1..={max}"));
+        }
+        if self.spp_list.is_empty() || self.configs.is_empty() {
+            return Err("bench needs at least one method and one sample count".into());
+        }
+        if self.reference.is_some() && self.scenes.len() != 1 {
+            return Err(
+                "--reference applies to one scene; give one scene or let bench render references"
+                    .into(),
+            );
+        }
+        if self.reference_spp == 0 {
+            return Err("--reference-spp must be at least 1".into());
+        }
+        Ok(())
     }
 }
 
@@ -465,8 +490,8 @@ pub fn evaluate(
             if runs.is_empty() {
                 crop_centre = worst_block(&out.image, &reference);
             }
-            let learned = match (renderer.guide(), renderer.neural()) {
-                (Some(guide), _) => {
+            let learned = match renderer.guide() {
+                Some(Guide::Sarsa(guide)) => {
                     let voronoi = learned::voronoi(
                         ctx,
                         &scene,
@@ -480,7 +505,7 @@ pub fn evaluate(
                         .download_q()
                         .map_err(|e| BenchError::Render(e.into()))?;
                     let rows = learned::volume_rows(guide, &q, &volumes);
-                    let hemis = learned::hemispheres(guide.settings.grid, &rows, 96);
+                    let hemis = learned::hemispheres(guide.settings.common.grid, &rows, 96);
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
                         voronoi: Some(vpng),
@@ -496,9 +521,9 @@ pub fn evaluate(
                         ),
                     })
                 }
-                (None, Some(neural)) => {
+                Some(Guide::Neural(neural)) => {
                     let rows = learned::neural_rows(ctx, &scene, neural, 6)?;
-                    let hemis = learned::hemispheres(neural.settings.grid, &rows, 96);
+                    let hemis = learned::hemispheres(neural.settings.common.grid, &rows, 96);
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
                         voronoi: None,
@@ -509,7 +534,7 @@ pub fn evaluate(
                         ),
                     })
                 }
-                (None, None) => None,
+                None => None,
             };
             images.push(kept);
             let s = out.stats;

@@ -119,7 +119,11 @@ pub fn voronoi(
 }
 
 /// Indices of the `count` points nearest to the centre of the brightest light.
-fn nearest_light(scene: &Scene, points: &[crate::shaders::Volume], count: usize) -> Vec<u32> {
+fn nearest_light(
+    scene: &Scene,
+    points: &[crate::guide::volumes::Volume],
+    count: usize,
+) -> Vec<u32> {
     let Some(light) = scene.lights.iter().max_by(|a, b| a.pdf.total_cmp(&b.pdf)) else {
         return (0..count.min(points.len()) as u32).collect();
     };
@@ -158,11 +162,11 @@ pub fn neural_rows(
     guide: &NeuralGuide,
     count: usize,
 ) -> Result<Vec<Vec<f32>>, RenderError> {
-    let points: Vec<crate::shaders::Volume> = camera_hits(ctx, scene, 64, 64)?
+    let points: Vec<crate::guide::volumes::Volume> = camera_hits(ctx, scene, 64, 64)?
         .into_iter()
         .flatten()
         .filter(|h| scene.triangles[h.triangle as usize].light_pdf == 0.0)
-        .map(|h| crate::shaders::Volume {
+        .map(|h| crate::guide::volumes::Volume {
             position: h.position.into(),
             normal: h.normal.into(),
             ..Default::default()

@@ -11,9 +11,10 @@
 //! barycentric coordinates and scans at most that list: no normal tests, no
 //! tree walk.
 
+use super::volumes::Volume;
 use super::volumes::{faces_same_way, nearest_where, within_box_distance};
 use crate::scene::Scene;
-use crate::shaders::{Triangle, Volume, NO_VOLUME};
+use crate::shaders::{Triangle, NO_VOLUME};
 use glam::{Vec2, Vec3};
 
 /// Most cells along one edge of a triangle.
@@ -23,7 +24,7 @@ const MAX_CELLS_PER_EDGE: f32 = 64.0;
 const MAX_CELLS: f64 = (8 << 20) as f64;
 
 pub struct VolumeLookup {
-    /// Per triangle (its `Triangle::lookup`): its front side's first cell
+    /// Per triangle: its front side's first cell
     /// (the back side's follow) and `nu | nv << 16`, the cells along e1 and
     /// e2; or, with that word 0, no cells and the front and back sides'
     /// volumes in the last two words.
@@ -148,15 +149,6 @@ impl VolumeLookup {
             })
     }
 
-    /// `triangles` with their lookup words filled in.
-    pub fn stamp(&self, triangles: &[Triangle]) -> Vec<Triangle> {
-        triangles
-            .iter()
-            .zip(&self.triangles)
-            .map(|(t, &lookup)| Triangle { lookup, ..*t })
-            .collect()
-    }
-
     /// Mean number of volumes a cell holds (1 for a cell with one answer).
     pub fn mean_candidates(&self) -> f64 {
         let total: u64 = self.cells.iter().map(|c| c[1].max(1) as u64).sum();
@@ -168,10 +160,11 @@ impl VolumeLookup {
         self.triangles.iter().filter(|t| t[1] == 0).count()
     }
 
-    /// Bytes of the cell and list tables on the device (the per-triangle
-    /// words live in the triangles' own padding).
+    /// Bytes of the per-triangle, cell and list tables on the device.
     pub fn bytes(&self) -> u64 {
-        8 * self.cells.len() as u64 + 16 * self.items.len() as u64
+        16 * self.triangles.len() as u64
+            + 8 * self.cells.len() as u64
+            + 16 * self.items.len() as u64
     }
 }
 

@@ -1,5 +1,9 @@
 //! Learned guides: where light comes from, learned while rendering, used to
 //! importance-sample bounce directions.
+//!
+//! One seam: [`GuideSettings`] says which guide and how (a `[sarsa]` or
+//! `[neural]` table), [`Guide`] is its state on the device with everything a
+//! render asks of it. In the trace kernel the same seam is `glsl/guide.glsl`.
 
 pub mod lookup;
 pub mod mlp;
@@ -10,3 +14,342 @@ pub mod volumes;
 
 pub use neural::{NeuralGuide, NeuralSettings};
 pub use sarsa::{SarsaGuide, SarsaSettings};
+
+use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
+use crate::scene::Scene;
+use crate::shaders::{self, spirv, PassParams};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// What a guide's sampler draws sectors in proportion to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Distribution {
+    /// P(k) ∝ Q(k).
+    Q,
+    /// P(k) ∝ Q(k) cos θ_k.
+    #[default]
+    Qcos,
+}
+
+/// Settings every guide has, beside its own, in its `[sarsa]` or `[neural]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Common {
+    /// Sector grid a × b over the unit square; n = a·b sectors.
+    pub grid: [u32; 2],
+    /// Weight of BSDF sampling in the one-sample mixture (keeps every pdf > 0).
+    pub epsilon: f32,
+    pub distribution: Distribution,
+    /// Stop learning after this many passes (None: learn throughout).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub freeze_after: Option<u32>,
+    /// Reset the image after this many passes: the earlier passes only train
+    /// the guide. Each pass is unbiased, so the image stays unbiased.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reset_after: Option<u32>,
+    /// Q of every sector before any update.
+    pub initial_q: f32,
+}
+
+impl Default for Common {
+    fn default() -> Self {
+        Self {
+            grid: [12, 12],
+            // Measured: 0.5 halved the error of 0.3 on the door-ajar scene (fewer
+            // fireflies: the weight per bounce is at most albedo / epsilon) and
+            // beat it on the Cornell box and the indirectly lit room.
+            epsilon: 0.5,
+            // Q·cos is the integrand of a diffuse bounce; it beat ∝ Q in MSE.
+            distribution: Distribution::Qcos,
+            freeze_after: None,
+            reset_after: None,
+            initial_q: 1e-2,
+        }
+    }
+}
+
+impl Common {
+    pub fn sectors(&self) -> u32 {
+        self.grid[0] * self.grid[1]
+    }
+
+    /// Checks ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let [a, b] = self.grid;
+        if !(1..=64).contains(&a) || !(1..=64).contains(&b) {
+            return Err(format!("grid = [{a}, {b}]: each side must lie in 1..=64"));
+        }
+        if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
+            return Err(format!(
+                "epsilon = {} must lie in (0, 1]: BSDF sampling keeps every direction possible, so the estimator unbiased",
+                self.epsilon
+            ));
+        }
+        if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
+            return Err(format!("initial_q = {} must be positive", self.initial_q));
+        }
+        Ok(())
+    }
+
+    /// Whether pass `index` learns.
+    pub fn learns_in_pass(&self, index: u32) -> bool {
+        self.freeze_after.is_none_or(|k| index < k)
+    }
+
+    /// The push constants every guided kernel reads: the grid, epsilon, and
+    /// the learn and distribution flags.
+    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
+        let [a, b] = self.grid;
+        p.sector_grid = a | (b << 16);
+        p.guide_epsilon = self.epsilon;
+        p.flags &= !(shaders::FLAG_LEARN | shaders::FLAG_COS_DISTRIBUTION);
+        if learn {
+            p.flags |= shaders::FLAG_LEARN;
+        }
+        if self.distribution == Distribution::Qcos {
+            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
+        }
+    }
+}
+
+/// Which guide a render uses, and its settings.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GuideSettings {
+    Sarsa(SarsaSettings),
+    Neural(NeuralSettings),
+}
+
+/// Names of the guides, as methods and as tables.
+pub const GUIDES: [&str; 2] = ["sarsa", "neural"];
+
+impl GuideSettings {
+    /// The method (and table) name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Sarsa(_) => "sarsa",
+            Self::Neural(_) => "neural",
+        }
+    }
+
+    pub fn common(&self) -> &Common {
+        match self {
+            Self::Sarsa(s) => &s.common,
+            Self::Neural(n) => &n.common,
+        }
+    }
+
+    /// The guide `name`'s settings from its table (keys missing: defaults).
+    pub fn from_table(name: &str, table: &toml::Table) -> Result<Self, String> {
+        let value = toml::Value::Table(table.clone());
+        let e = |e: toml::de::Error, keys: toml::Table| {
+            let keys: Vec<&str> = keys.keys().map(|k| k.as_str()).collect();
+            format!("[{name}] {} (keys: {})", e.message(), keys.join(", "))
+        };
+        match name {
+            "sarsa" => value
+                .try_into()
+                .map(Self::Sarsa)
+                .map_err(|x| e(x, Self::Sarsa(Default::default()).to_table())),
+            "neural" => value
+                .try_into()
+                .map(Self::Neural)
+                .map_err(|x| e(x, Self::Neural(Default::default()).to_table())),
+            _ => Err(format!("no guide named '{name}' (guides: sarsa, neural)")),
+        }
+    }
+
+    /// The settings as their table, every key written out.
+    pub fn to_table(&self) -> toml::Table {
+        let value = match self {
+            Self::Sarsa(s) => toml::Value::try_from(s),
+            Self::Neural(n) => toml::Value::try_from(n),
+        };
+        match value {
+            Ok(toml::Value::Table(t)) => t,
+            _ => unreachable!("guide settings serialize to a table"),
+        }
+    }
+
+    /// Checks ranges, and that the guide fits `scene`; the message names the table and key.
+    pub fn validate(&self, scene: &Scene) -> Result<(), String> {
+        let checked = self.common().validate().and_then(|()| match self {
+            Self::Sarsa(s) => s.validate(),
+            Self::Neural(n) => n.validate().and_then(|()| n.validate_for(scene)),
+        });
+        checked.map_err(|e| format!("[{}] {e}", self.name()))
+    }
+
+    /// Checks the guide fits `device`'s memory limits, before building it.
+    pub fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String> {
+        match self {
+            Self::Sarsa(s) => s.check_device(scene, device),
+            Self::Neural(n) => n.check_device(scene, device),
+        }
+    }
+
+    /// SPIR-V of the trace kernel of this guide on `device`.
+    pub fn trace_spirv(&self, device: &DeviceInfo, nee: bool) -> gpu::Result<&'static [u8]> {
+        Ok(match self {
+            Self::Sarsa(s) => match (s.use_float_atomics(device)?, nee) {
+                (true, false) => spirv::TRACE_SARSA,
+                (false, false) => spirv::TRACE_SARSA_CAS,
+                (true, true) => spirv::TRACE_SARSA_NEE,
+                (false, true) => spirv::TRACE_SARSA_NEE_CAS,
+            },
+            Self::Neural(_) if nee => spirv::TRACE_NEURAL_NEE,
+            Self::Neural(_) => spirv::TRACE_NEURAL,
+        })
+    }
+
+    /// These settings for a `width` × `height` image (Sarsa's default volume
+    /// count follows the image).
+    pub fn for_image(&self, width: u32, height: u32) -> Self {
+        match self {
+            Self::Sarsa(s) => Self::Sarsa(s.for_image(width, height)),
+            n => n.clone(),
+        }
+    }
+}
+
+/// A guide's state on the device and the passes it adds to a render.
+pub enum Guide {
+    Sarsa(SarsaGuide),
+    Neural(NeuralGuide),
+}
+
+impl Guide {
+    /// Builds the guide for `scene`, for a render of `pixels` pixels.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        settings: &GuideSettings,
+        seed: u32,
+        pixels: u64,
+    ) -> gpu::Result<Self> {
+        Ok(match settings {
+            GuideSettings::Sarsa(s) => Self::Sarsa(SarsaGuide::new(ctx, scene, s, seed)?),
+            GuideSettings::Neural(n) => {
+                Self::Neural(NeuralGuide::new(ctx, scene, n, seed, pixels)?)
+            }
+        })
+    }
+
+    /// Specialization constants of its trace kernel.
+    pub fn constants(&self) -> Vec<u32> {
+        match self {
+            Self::Sarsa(_) => Vec::new(),
+            Self::Neural(n) => n.network.shape.constants().to_vec(),
+        }
+    }
+
+    /// Buffers its trace kernel binds.
+    pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
+        match self {
+            Self::Sarsa(s) => s.bindings().to_vec(),
+            Self::Neural(n) => n.bindings().to_vec(),
+        }
+    }
+
+    /// Fills its part of a pass's push constants; `learn` turns updates on.
+    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
+        match self {
+            Self::Sarsa(s) => s.set_params(p, learn),
+            Self::Neural(n) => n.set_params(p, learn),
+        }
+    }
+
+    /// Records what turns a learning pass's transitions into the guide the
+    /// next pass samples from.
+    pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
+        match self {
+            Self::Sarsa(s) => s.record_update(rec, params),
+            Self::Neural(n) => n.record_update(rec),
+        }
+    }
+
+    /// Device memory it holds.
+    pub fn bytes(&self) -> u64 {
+        match self {
+            Self::Sarsa(s) => s.bytes(),
+            Self::Neural(n) => n.bytes(),
+        }
+    }
+
+    /// Radiance volumes (Sarsa), else 0.
+    pub fn volume_count(&self) -> u64 {
+        match self {
+            Self::Sarsa(s) => s.volumes.len() as u64,
+            Self::Neural(_) => 0,
+        }
+    }
+
+    pub fn sarsa(&self) -> Option<&SarsaGuide> {
+        match self {
+            Self::Sarsa(s) => Some(s),
+            Self::Neural(_) => None,
+        }
+    }
+
+    pub fn neural(&self) -> Option<&NeuralGuide> {
+        match self {
+            Self::Neural(n) => Some(n),
+            Self::Sarsa(_) => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_round_trip_through_their_tables() {
+        let sarsa = GuideSettings::Sarsa(SarsaSettings {
+            common: Common {
+                grid: [6, 8],
+                epsilon: 0.25,
+                distribution: Distribution::Q,
+                freeze_after: Some(3),
+                reset_after: Some(2),
+                initial_q: 0.5,
+            },
+            volumes: Some(77),
+            density: None,
+            memory_mib: Some(3.5),
+            atomics: sarsa::Atomics::Cas,
+        });
+        let neural = GuideSettings::Neural(NeuralSettings {
+            width: 8,
+            layers: 3,
+            learning_rate: 1e-3,
+            batch: 100,
+            steps: 2,
+            target: neural::Target::Max,
+            encoding: neural::Encoding::Vertices,
+            ..Default::default()
+        });
+        for g in [sarsa, neural] {
+            let text = toml::to_string(&g.to_table()).unwrap();
+            let back = GuideSettings::from_table(g.name(), &toml::from_str(&text).unwrap());
+            assert_eq!(back.as_ref(), Ok(&g), "{text}");
+        }
+    }
+
+    #[test]
+    fn tables_name_their_mistakes() {
+        let table = |text: &str| toml::from_str::<toml::Table>(text).unwrap();
+        let e = GuideSettings::from_table("sarsa", &table("epsilom = 0.2")).unwrap_err();
+        assert!(
+            e.contains("[sarsa]") && e.contains("epsilom") && e.contains("keys: "),
+            "{e}"
+        );
+        let e = GuideSettings::from_table("neural", &table("width = \"wide\"")).unwrap_err();
+        assert!(e.contains("[neural]"), "{e}");
+        // Missing keys take the defaults, shared ones included.
+        let g = GuideSettings::from_table("neural", &table("epsilon = 0.75")).unwrap();
+        assert_eq!(g.common().epsilon, 0.75);
+        assert_eq!(g.common().grid, Common::default().grid);
+    }
+}

@@ -5,7 +5,7 @@
 
 use super::mlp::{Adam, MlpShape};
 use super::network::Network;
-use super::sarsa::Distribution;
+use super::Common;
 use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
 use crate::scene::Scene;
 use crate::shaders::{self, PassParams};
@@ -36,11 +36,12 @@ pub enum Encoding {
     Vertices,
 }
 
+/// The `[neural]` table. The network has one output per sector of the grid.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NeuralSettings {
-    /// Sector grid a × b; the network has a·b outputs.
-    pub grid: [u32; 2],
+    #[serde(flatten)]
+    pub common: Common,
     /// Units per hidden layer.
     pub width: u32,
     /// Hidden layers.
@@ -50,36 +51,21 @@ pub struct NeuralSettings {
     pub batch: u32,
     /// Training steps on each pass's batch.
     pub steps: u32,
-    /// Weight of cosine sampling in the one-sample mixture (keeps every pdf > 0).
-    pub epsilon: f32,
-    pub distribution: Distribution,
     pub target: Target,
     pub encoding: Encoding,
-    /// Stop learning after this many passes (None: learn throughout).
-    pub freeze_after: Option<u32>,
-    /// Reset the image after this many passes: the earlier passes only train
-    /// the network. Each pass is unbiased, so the image stays unbiased.
-    pub reset_after: Option<u32>,
-    /// Q of every sector before training.
-    pub initial_q: f32,
 }
 
 impl Default for NeuralSettings {
     fn default() -> Self {
         Self {
-            grid: [12, 12],
+            common: Common::default(),
             width: 16,
             layers: 2,
             learning_rate: 5e-3,
             batch: 4096,
             steps: 1,
-            epsilon: 0.5,
-            distribution: Distribution::Qcos,
             target: Target::Expected,
             encoding: Encoding::Frequency,
-            freeze_after: None,
-            reset_after: None,
-            initial_q: 1e-2,
         }
     }
 }
@@ -94,7 +80,7 @@ pub const MAX_BATCH: u32 = 1 << 18;
 
 impl NeuralSettings {
     pub fn sectors(&self) -> u32 {
-        self.grid[0] * self.grid[1]
+        self.common.sectors()
     }
 
     /// The network for the frequency encoding.
@@ -123,11 +109,11 @@ impl NeuralSettings {
                     .step_by(4)
                     .find(|&width| MlpShape { width, ..shape }.validate().is_ok());
                 let hint = match widest {
-                    Some(w) => format!("; --neural-width {w} would fit"),
+                    Some(w) => format!("; width = {w} would fit"),
                     None => String::new(),
                 };
                 format!(
-                    "--neural-encoding vertices: the scene's {} vertices give {} inputs, too many: {e}{hint}",
+                    "encoding = \"vertices\": the scene's {} vertices give {} inputs, too many: {e}{hint}",
                     scene_vertices(scene).len(),
                     shape.inputs
                 )
@@ -144,49 +130,35 @@ impl NeuralSettings {
         }
     }
 
-    /// Checks ranges; the message names the option.
+    /// Checks the ranges of the network's own keys (`Common::validate`
+    /// checks the rest); the message names the key.
     pub fn validate(&self) -> Result<(), String> {
-        let [a, b] = self.grid;
-        if !(1..=64).contains(&a) || !(1..=64).contains(&b) {
-            return Err(format!(
-                "--neural-sectors {a}x{b}: each side must lie in 1..=64"
-            ));
-        }
         if !(4..=64).contains(&self.width) || self.width % 4 != 0 {
             return Err(format!(
-                "--neural-width {} must be a multiple of 4 in 4..=64",
+                "width = {} must be a multiple of 4 in 4..=64",
                 self.width
             ));
         }
         if !(1..=8).contains(&self.layers) {
-            return Err(format!("--neural-layers {} must lie in 1..=8", self.layers));
+            return Err(format!("layers = {} must lie in 1..=8", self.layers));
         }
         if !(self.learning_rate.is_finite()
             && self.learning_rate > 0.0
             && self.learning_rate <= 1.0)
         {
             return Err(format!(
-                "--neural-lr {} must lie in (0, 1]",
+                "learning_rate = {} must lie in (0, 1]",
                 self.learning_rate
             ));
         }
         if !(1..=MAX_BATCH).contains(&self.batch) {
             return Err(format!(
-                "--neural-batch {} must lie in 1..={MAX_BATCH}",
+                "batch = {} must lie in 1..={MAX_BATCH}",
                 self.batch
             ));
         }
         if !(1..=64).contains(&self.steps) {
-            return Err(format!("--neural-steps {} must lie in 1..=64", self.steps));
-        }
-        if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
-            return Err(format!(
-                "--neural-epsilon {} must lie in (0, 1]: cosine sampling keeps every direction possible",
-                self.epsilon
-            ));
-        }
-        if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
-            return Err(format!("initial Q {} must be positive", self.initial_q));
+            return Err(format!("steps = {} must lie in 1..=64", self.steps));
         }
         self.shape().validate()
     }
@@ -197,7 +169,7 @@ impl NeuralSettings {
         let shape = self.shape_for(scene);
         if shape.workgroup_bytes() > device.max_shared_memory {
             return Err(format!(
-                "the network needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller --neural-width",
+                "the network needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller width in [neural]",
                 shape.workgroup_bytes() / 1024,
                 device.name,
                 device.max_shared_memory / 1024
@@ -206,7 +178,7 @@ impl NeuralSettings {
         let bytes = self.batch as u64 * self.layers as u64 * self.width as u64 * 4;
         if bytes > device.max_storage_buffer_range {
             return Err(format!(
-                "a batch of {} transitions through {} layers of {} units needs {} MiB per buffer; device '{}' allows {} MiB: use a smaller --neural-batch",
+                "a batch of {} transitions through {} layers of {} units needs {} MiB per buffer; device '{}' allows {} MiB: use a smaller batch in [neural]",
                 self.batch,
                 self.layers,
                 self.width,
@@ -216,10 +188,6 @@ impl NeuralSettings {
             ));
         }
         Ok(())
-    }
-
-    pub fn learns_in_pass(&self, index: u32) -> bool {
-        self.freeze_after.is_none_or(|k| index < k)
     }
 }
 
@@ -300,7 +268,7 @@ impl NeuralGuide {
         pixels: u64,
     ) -> gpu::Result<Self> {
         let shape = settings.shape_for(scene);
-        let params = shape.init(seed as u64, settings.initial_q);
+        let params = shape.init(seed as u64, settings.common.initial_q);
         let adam = Adam {
             learning_rate: settings.learning_rate,
             ..Adam::default()
@@ -359,14 +327,7 @@ impl NeuralGuide {
     /// The pass parameters the trace kernel reads.
     pub fn set_params(&self, p: &mut PassParams, learn: bool) {
         let s = &self.settings;
-        p.sector_grid = s.grid[0] | (s.grid[1] << 16);
-        p.guide_epsilon = s.epsilon;
-        if learn {
-            p.flags |= shaders::FLAG_LEARN;
-        }
-        if s.distribution == Distribution::Qcos {
-            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
-        }
+        s.common.set_params(p, learn);
         if s.target == Target::Max {
             p.flags |= shaders::FLAG_MAX_TARGET;
         }
@@ -436,7 +397,7 @@ mod tests {
             ..Default::default()
         };
         let e = wide.validate_for(&scene).unwrap_err();
-        assert!(e.contains("--neural-width 28 would fit"), "{e}");
+        assert!(e.contains("width = 28 would fit"), "{e}");
         let narrow = NeuralSettings { width: 28, ..wide };
         narrow.validate_for(&scene).unwrap();
         assert_eq!(narrow.shape_for(&scene).inputs, 100);

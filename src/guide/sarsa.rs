@@ -2,25 +2,15 @@
 //! by atomic accumulation during a sample pass and folded between passes.
 
 use super::lookup::VolumeLookup;
-use super::volumes;
+use super::volumes::Volume;
+use super::{volumes, Common};
 use crate::gpu::{
     self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
 };
 use crate::scene::Scene;
-use crate::shaders::{self, spirv, PassParams, SectorEntry, Volume};
+use crate::shaders::{self, spirv, PassParams, SectorEntry};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
-
-/// What the sampler draws sectors in proportion to.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Distribution {
-    /// P(k) ∝ Q(k).
-    Q,
-    /// P(k) ∝ Q(k) cos θ_k.
-    #[default]
-    Qcos,
-}
 
 /// How the GPU adds targets.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -35,51 +25,24 @@ pub enum Atomics {
     Cas,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// The `[sarsa]` table.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SarsaSettings {
+    #[serde(flatten)]
+    pub common: Common,
     /// Radiance volumes to place (fewer if the memory budget says so); None:
     /// one per PIXELS_PER_VOLUME pixels of the image in a render, else
     /// DEFAULT_VOLUMES.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub volumes: Option<u32>,
     /// Volumes per unit² of (non-emitting) surface; replaces `volumes` when set.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub density: Option<f64>,
     /// Upper bound on the guide's device memory, MiB.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub memory_mib: Option<f64>,
-    /// Sector grid a × b over the unit square; n = a·b sectors.
-    pub grid: [u32; 2],
-    /// Weight of cosine sampling in the one-sample mixture (keeps every pdf > 0).
-    pub epsilon: f32,
-    pub distribution: Distribution,
-    /// Stop learning after this many passes (None: learn throughout).
-    pub freeze_after: Option<u32>,
-    /// Reset the image after this many passes: the earlier passes only train
-    /// the guide. Each pass is unbiased, so the image stays unbiased.
-    pub reset_after: Option<u32>,
     pub atomics: Atomics,
-    /// Q of every sector before any update.
-    pub initial_q: f32,
-}
-
-impl Default for SarsaSettings {
-    fn default() -> Self {
-        Self {
-            volumes: None,
-            density: None,
-            memory_mib: None,
-            grid: [12, 12],
-            // Measured: 0.5 halved the error of 0.3 on the door-ajar scene (fewer
-            // fireflies: the weight per bounce is at most albedo / epsilon) and
-            // beat it on the Cornell box and the indirectly lit room.
-            epsilon: 0.5,
-            // Q·cos is the integrand of a diffuse bounce; it beat ∝ Q in MSE.
-            distribution: Distribution::Qcos,
-            freeze_after: None,
-            reset_after: None,
-            atomics: Atomics::Auto,
-            initial_q: 1e-2,
-        }
-    }
 }
 
 /// Pixels per radiance volume when neither a count nor a density is given:
@@ -112,43 +75,46 @@ pub fn bytes_per_volume(sectors: u32) -> u64 {
 
 impl SarsaSettings {
     pub fn sectors(&self) -> u32 {
-        self.grid[0] * self.grid[1]
+        self.common.sectors()
     }
 
-    /// Checks ranges; the message names the option.
+    /// Checks the ranges of Sarsa's own keys (`Common::validate` checks
+    /// the rest); the message names the key.
     pub fn validate(&self) -> Result<(), String> {
-        let [a, b] = self.grid;
-        if !(1..=64).contains(&a) || !(1..=64).contains(&b) {
-            return Err(format!(
-                "sarsa sector grid {a}x{b} must lie within 1x1..64x64"
-            ));
-        }
         if let Some(v) = self.volumes.filter(|&v| v == 0 || v > MAX_VOLUMES) {
-            return Err(format!("sarsa volumes {v} must lie in 1..={MAX_VOLUMES}"));
+            return Err(format!("volumes = {v} must lie in 1..={MAX_VOLUMES}"));
         }
         if let Some(d) = self.density {
             if !(d.is_finite() && d > 0.0) {
-                return Err(format!("sarsa volume density {d} must be positive"));
+                return Err(format!("density = {d} must be positive"));
             }
-        }
-        if !(self.epsilon > 0.0 && self.epsilon <= 1.0) {
-            return Err(format!(
-                "sarsa epsilon {} must lie in (0, 1]: the cosine share keeps the estimator unbiased",
-                self.epsilon
-            ));
         }
         if let Some(m) = self.memory_mib {
             if !(m.is_finite() && m > 0.0) {
-                return Err(format!("sarsa memory budget {m} MiB must be positive"));
+                return Err(format!("memory_mib = {m} must be positive"));
             }
             if ((m * 1024.0 * 1024.0) as u64) < bytes_per_volume(self.sectors()) {
-                return Err(format!("sarsa memory budget {m} MiB holds no volume"));
+                return Err(format!("memory_mib = {m} holds no volume"));
             }
         }
-        if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
+        Ok(())
+    }
+
+    /// Checks the tables fit `device`'s buffers, before placing volumes
+    /// (which takes a while for huge counts).
+    pub fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String> {
+        let count = self.volume_count(volumes::placement_area(scene));
+        // The largest per-sector buffer is the alias table.
+        let bytes = count as u64 * self.sectors() as u64 * size_of::<SectorEntry>() as u64;
+        let limit = device.max_storage_buffer_range;
+        if bytes > limit {
             return Err(format!(
-                "sarsa initial Q {} must be positive",
-                self.initial_q
+                "{} sarsa volumes of {} sectors need {} MiB per guide buffer; device '{}' allows {} MiB: use fewer volumes or sectors, or a smaller memory_mib in [sarsa]",
+                count,
+                self.sectors(),
+                bytes >> 20,
+                device.name,
+                limit >> 20
             ));
         }
         Ok(())
@@ -187,17 +153,12 @@ impl SarsaSettings {
             (Atomics::Float, false) => Err(gpu::Error::MissingFeature {
                 device: device.name.clone(),
                 feature:
-                    "float atomics (VK_EXT_shader_atomic_float), needed by --sarsa-atomics float"
+                    "float atomics (VK_EXT_shader_atomic_float), needed by [sarsa] atomics = \"float\""
                         .into(),
             }),
             (Atomics::Cas, _) | (Atomics::Auto, false) => Ok(false),
             _ => Ok(true),
         }
-    }
-
-    /// Whether pass `index` records updates.
-    pub fn learns_in_pass(&self, index: u32) -> bool {
-        self.freeze_after.is_none_or(|k| index < k)
     }
 }
 
@@ -213,7 +174,8 @@ pub struct SarsaGuide {
     direct_sum: Buffer,
     q_direct: Buffer,
     volume_sums: Buffer,
-    lookup: Option<VolumeLookup>,
+    lookup: VolumeLookup,
+    lookup_triangles: Buffer,
     lookup_cells: Buffer,
     lookup_items: Buffer,
     fold: ComputePipeline,
@@ -244,20 +206,19 @@ impl SarsaGuide {
             lookup.bytes() as f64 / (1024.0 * 1024.0),
             start.elapsed().as_secs_f64()
         );
-        Self::from_volumes(ctx, vols, Some(lookup), settings)
+        Self::from_volumes(ctx, vols, lookup, settings)
     }
 
-    /// A guide over given volumes (already in k-d tree order); without a
-    /// lookup, kernels must not look volumes up.
-    pub fn from_volumes(
+    /// A guide over given volumes (already in k-d tree order) and their lookup.
+    fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
-        lookup: Option<VolumeLookup>,
+        lookup: VolumeLookup,
         settings: &SarsaSettings,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
         let cells = vols.len() as u64 * n;
-        let initial = vec![settings.initial_q; cells as usize];
+        let initial = vec![settings.common.initial_q; cells as usize];
         let push = size_of::<PassParams>() as u32;
         let q = Buffer::gpu_only_with(ctx, "sarsa Q", &initial)?;
         let sectors = Buffer::gpu_only(
@@ -274,16 +235,16 @@ impl SarsaGuide {
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
         let items: Vec<[f32; 4]> = lookup
+            .items
             .iter()
-            .flat_map(|l| &l.items)
             .map(|&j| {
                 let p = vols[j as usize].position;
                 [p[0], p[1], p[2], f32::from_bits(j)]
             })
             .collect();
-        let no_cells = [[shaders::NO_VOLUME, 0]];
-        let cells = lookup.as_ref().map_or(&no_cells[..], |l| &l.cells[..]);
-        let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", cells)?;
+        let lookup_triangles =
+            Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
+        let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
         let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
         let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
@@ -311,6 +272,7 @@ impl SarsaGuide {
             q_direct,
             volume_sums,
             lookup,
+            lookup_triangles,
             lookup_cells,
             lookup_items,
             fold,
@@ -336,7 +298,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 10] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 11] {
         [
             (shaders::B_Q, &self.q),
             (shaders::B_SECTORS, &self.sectors),
@@ -346,6 +308,7 @@ impl SarsaGuide {
             (shaders::B_VOLUME_SUMS, &self.volume_sums),
             (shaders::B_DIRECT_SUM, &self.direct_sum),
             (shaders::B_Q_DIRECT, &self.q_direct),
+            (shaders::B_LOOKUP_TRIANGLES, &self.lookup_triangles),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
         ]
@@ -353,17 +316,8 @@ impl SarsaGuide {
 
     /// Fills the guide's part of the push constants; `learn` turns updates on.
     pub fn set_params(&self, p: &mut PassParams, learn: bool) {
-        let [a, b] = self.settings.grid;
+        self.settings.common.set_params(p, learn);
         p.volume_count = self.volumes.len() as u32;
-        p.sector_grid = a | (b << 16);
-        p.guide_epsilon = self.settings.epsilon;
-        p.flags &= !(shaders::FLAG_LEARN | shaders::FLAG_COS_DISTRIBUTION);
-        if learn {
-            p.flags |= shaders::FLAG_LEARN;
-        }
-        if self.settings.distribution == Distribution::Qcos {
-            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
-        }
     }
 
     fn record_build(&self, rec: &mut Recorder<'_>, push: &[u8]) {
@@ -407,15 +361,10 @@ impl SarsaGuide {
         ctx.submit(None, |rec| self.record_update(rec, &params))
     }
 
-    /// The volume lookup, which `GpuScene::upload` stamps into the triangles.
-    pub fn lookup(&self) -> Option<&VolumeLookup> {
-        self.lookup.as_ref()
-    }
-
     /// Device memory the guide holds.
     pub fn bytes(&self) -> u64 {
         self.volumes.len() as u64 * table_bytes_per_volume(self.settings.sectors())
-            + self.lookup.as_ref().map_or(0, |l| l.bytes())
+            + self.lookup.bytes()
     }
 
     /// Current Q-values, volume-major.
@@ -503,18 +452,6 @@ mod tests {
         .is_err());
         assert!(SarsaSettings {
             memory_mib: Some(1e-4),
-            ..Default::default()
-        }
-        .validate()
-        .is_err());
-        assert!(SarsaSettings {
-            grid: [0, 12],
-            ..Default::default()
-        }
-        .validate()
-        .is_err());
-        assert!(SarsaSettings {
-            epsilon: 0.0,
             ..Default::default()
         }
         .validate()

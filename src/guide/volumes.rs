@@ -3,8 +3,21 @@
 //! nearest-neighbour lookup restricted to volumes facing the same way.
 
 use crate::scene::Scene;
-use crate::shaders::{Volume, KD_LEAF};
 use glam::Vec3;
+
+/// A radiance volume, stored as a node of an implicit k-d tree (see
+/// [`build_kd_tree`]). Host-side only: kernels see volumes through the
+/// lookup tables and their indices.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Volume {
+    pub position: [f32; 3],
+    /// Splitting coordinate, or [`KD_LEAF`].
+    pub axis: u32,
+    pub normal: [f32; 3],
+}
+
+/// `Volume::axis` of a k-d tree node without children.
+pub const KD_LEAF: u32 = 3;
 
 /// Deterministic generator for placement (SplitMix64).
 pub(crate) struct SplitMix(pub u64);
@@ -62,7 +75,6 @@ pub fn place(scene: &Scene, count: usize, seed: u64) -> Vec<Volume> {
             position: p.into(),
             axis: KD_LEAF,
             normal: e1.cross(e2).normalize().into(),
-            pad: 0.0,
         });
     }
     volumes
@@ -203,7 +215,6 @@ mod tests {
                     position: p.into(),
                     axis: KD_LEAF,
                     normal: n.into(),
-                    pad: 0.0,
                 }
             })
             .collect()
@@ -233,13 +244,11 @@ mod tests {
                 position: [0.0, 0.005, 0.0],
                 axis: KD_LEAF,
                 normal: [0.0, 1.0, 0.0],
-                pad: 0.0,
             },
             Volume {
                 position: [3.0, -0.005, 0.0],
                 axis: KD_LEAF,
                 normal: [0.0, -1.0, 0.0],
-                pad: 0.0,
             },
         ];
         build_kd_tree(&mut vols);

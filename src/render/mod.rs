@@ -9,8 +9,7 @@ pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, Settings
 pub use stats::{PassRecord, RenderStats};
 
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
-use crate::guide::lookup::VolumeLookup;
-use crate::guide::{NeuralGuide, SarsaGuide};
+use crate::guide::Guide;
 use crate::image::Image;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
@@ -34,12 +33,7 @@ pub struct GpuScene {
 }
 
 impl GpuScene {
-    /// Uploads the scene; a guide's lookup goes into its triangles.
-    pub fn upload(
-        ctx: &Arc<GpuContext>,
-        scene: &Scene,
-        lookup: Option<&VolumeLookup>,
-    ) -> gpu::Result<Self> {
+    pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> gpu::Result<Self> {
         let materials: Vec<shaders::Material> = scene
             .materials
             .iter()
@@ -50,10 +44,7 @@ impl GpuScene {
             .collect();
         Ok(Self {
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
-            triangles: match lookup {
-                Some(l) => Buffer::gpu_only_with(ctx, "triangles", &l.stamp(&scene.triangles))?,
-                None => Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
-            },
+            triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
             lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
         })
@@ -148,27 +139,16 @@ pub struct Renderer {
     samples_per_dispatch: u32,
     trace_dispatches: u32,
     profiler: Profiler,
-    guide: Option<SarsaGuide>,
-    neural: Option<NeuralGuide>,
+    guide: Option<Guide>,
 }
 
-/// SPIR-V of the trace kernel for a method on this device.
-fn trace_variant(
-    ctx: &GpuContext,
-    settings: &RenderSettings,
-) -> Result<&'static [u8], RenderError> {
-    Ok(match settings.method {
-        Method::Pt if settings.nee => spirv::TRACE_PT_NEE,
-        Method::Pt => spirv::TRACE_PT,
-        Method::Sarsa => match (settings.sarsa.use_float_atomics(ctx.info())?, settings.nee) {
-            (true, false) => spirv::TRACE_SARSA,
-            (false, false) => spirv::TRACE_SARSA_CAS,
-            (true, true) => spirv::TRACE_SARSA_NEE,
-            (false, true) => spirv::TRACE_SARSA_NEE_CAS,
-        },
-        Method::Neural if settings.nee => spirv::TRACE_NEURAL_NEE,
-        Method::Neural => spirv::TRACE_NEURAL,
-    })
+/// SPIR-V of the trace kernel for the settings on this device.
+fn trace_variant(ctx: &GpuContext, settings: &RenderSettings) -> gpu::Result<&'static [u8]> {
+    match &settings.guide {
+        Some(g) => g.trace_spirv(ctx.info(), settings.nee),
+        None if settings.nee => Ok(spirv::TRACE_PT_NEE),
+        None => Ok(spirv::TRACE_PT),
+    }
 }
 
 /// Most sample passes one trace dispatch takes: as many as a submit holds
@@ -217,48 +197,15 @@ impl Renderer {
             ))
             .into());
         }
-        if settings.method == Method::Sarsa {
-            // Checked before placing volumes, which takes a while for huge counts.
-            let s = &settings.sarsa;
-            let count = s.volume_count(crate::guide::volumes::placement_area(scene));
-            // The largest per-sector buffer is the alias table.
-            let bytes =
-                count as u64 * s.sectors() as u64 * size_of::<shaders::SectorEntry>() as u64;
-            let limit = ctx.info().max_storage_buffer_range;
-            if bytes > limit {
-                return Err(SettingsError(format!(
-                    "{} sarsa volumes of {} sectors need {} MiB per guide buffer; device '{}' allows {} MiB: use fewer volumes or sectors, or --sarsa-memory-mib",
-                    count,
-                    s.sectors(),
-                    bytes >> 20,
-                    ctx.info().name,
-                    limit >> 20
-                ))
-                .into());
-            }
-        }
-        if settings.method == Method::Neural {
-            settings
-                .neural
-                .check_device(scene, ctx.info())
-                .map_err(SettingsError)?;
-        }
-        let guide = match settings.method {
-            Method::Sarsa => Some(SarsaGuide::new(ctx, scene, &settings.sarsa, settings.seed)?),
-            _ => None,
-        };
         let pixels = settings.width as u64 * settings.height as u64;
-        let neural = match settings.method {
-            Method::Neural => Some(NeuralGuide::new(
-                ctx,
-                scene,
-                &settings.neural,
-                settings.seed,
-                pixels,
-            )?),
-            _ => None,
+        let guide = match &settings.guide {
+            Some(g) => {
+                g.check_device(scene, ctx.info()).map_err(SettingsError)?;
+                Some(Guide::new(ctx, scene, g, settings.seed, pixels)?)
+            }
+            None => None,
         };
-        let gpu_scene = GpuScene::upload(ctx, scene, guide.as_ref().and_then(|g| g.lookup()))?;
+        let gpu_scene = GpuScene::upload(ctx, scene)?;
         let samples_per_dispatch = samples_per_dispatch(&settings, pixels, ctx.info());
         let samples = Buffer::gpu_only(
             ctx,
@@ -272,14 +219,14 @@ impl Renderer {
             shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
         )?;
         let push = size_of::<PassParams>() as u32;
-        // The neural kernel is built for its network's shape.
-        let constants = neural.as_ref().map(|n| n.network.shape.constants());
+        // A guide's kernel may be built for its shape (the network's).
+        let constants = guide.as_ref().map_or(Vec::new(), |g| g.constants());
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",
             trace_variant(ctx, &settings)?,
             push,
-            constants.as_ref().map_or(&[][..], |c| &c[..]),
+            &constants,
         )?;
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
@@ -290,9 +237,6 @@ impl Renderer {
         ]);
         if let Some(g) = &guide {
             bindings.extend(g.bindings());
-        }
-        if let Some(n) = &neural {
-            bindings.extend(n.bindings());
         }
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
@@ -314,7 +258,6 @@ impl Renderer {
             trace_dispatches: 0,
             profiler: Profiler::new(ctx)?,
             guide,
-            neural,
         })
     }
 
@@ -329,8 +272,7 @@ impl Renderer {
         let g = groups(self.settings.width, self.settings.height);
         let (trace, trace_set) = (&self.trace, &self.trace_set);
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
-        let guide = self.guide.as_ref();
-        let mut neural = self.neural.as_mut();
+        let mut guide = self.guide.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         let most = self.samples_per_dispatch;
         let dispatches = &mut self.trace_dispatches;
@@ -352,11 +294,8 @@ impl Renderer {
                 let mut params = base;
                 params.pass_index = index;
                 params.item_count = samples;
-                if let Some(n) = neural.as_deref() {
-                    n.set_params(&mut params, learn);
-                }
-                if let Some(guide) = guide {
-                    guide.set_params(&mut params, learn);
+                if let Some(g) = guide.as_deref() {
+                    g.set_params(&mut params, learn);
                 }
                 if settings.reset_after() == Some(index) {
                     rec.fill(accum, 0);
@@ -383,11 +322,8 @@ impl Renderer {
                     samples,
                 );
                 // The next pass samples from what this one learned.
-                if let (Some(guide), true) = (guide, learn) {
-                    guide.record_update(rec, &params);
-                }
-                if let (Some(n), true) = (neural.as_deref_mut(), learn) {
-                    n.record_update(rec);
+                if let (Some(g), true) = (guide.as_deref_mut(), learn) {
+                    g.record_update(rec, &params);
                 }
                 index += samples;
                 *dispatches += 1;
@@ -407,13 +343,8 @@ impl Renderer {
         self.run_with_checkpoints(progress, &[], &mut |_| {})
     }
 
-    /// The Neural-Q guide, for `--method neural`.
-    pub fn neural(&self) -> Option<&NeuralGuide> {
-        self.neural.as_ref()
-    }
-
     /// The learned guide, if the method has one.
-    pub fn guide(&self) -> Option<&SarsaGuide> {
+    pub fn guide(&self) -> Option<&Guide> {
         self.guide.as_ref()
     }
 
@@ -494,7 +425,9 @@ impl Renderer {
                     zero_contribution_fraction: s.zero_paths as f64 / n,
                     mean_path_length: s.length_sum as f64 / n,
                     rays: s.rays as u64,
-                    loss: (self.guide.is_some() || self.neural.is_some())
+                    loss: self
+                        .guide
+                        .is_some()
                         .then(|| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
                 });
             }
@@ -552,9 +485,9 @@ impl Renderer {
                 .map(|t| (t.name.clone(), t.total_ms))
                 .collect(),
             gpu_passes: timings,
-            guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes())
-                + self.neural.as_ref().map_or(0, |n| n.bytes()),
-            guide_volumes: self.guide.as_ref().map_or(0, |g| g.volumes.len() as u64),
+            guide: self.settings.guide.clone(),
+            guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes()),
+            guide_volumes: self.guide.as_ref().map_or(0, |g| g.volume_count()),
             passes: records,
             trace_dispatches: self.trace_dispatches,
         };

@@ -42,6 +42,8 @@ fn launch(
     Ok(out)
 }
 
+/// Runs probe `mode` over `input`: the scene probe, or with a guide the
+/// Sarsa probe, which also binds the guide.
 fn run(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
@@ -50,28 +52,25 @@ fn run(
     input: &[Vec4],
     count: usize,
 ) -> Result<Vec<Vec4>, RenderError> {
-    let gpu_scene = GpuScene::upload(ctx, scene, guide.and_then(|g| g.lookup()))?;
-    // The probe reads guide buffers in some modes; an empty guide fills the bindings.
-    let empty;
-    let guide = match guide {
-        Some(g) => g,
-        None => {
-            empty = SarsaGuide::from_volumes(ctx, Vec::new(), None, &Default::default())?;
-            &empty
-        }
-    };
-    let spirv = if guide.settings.use_float_atomics(ctx.info())? {
-        spirv::PROBE
-    } else {
-        spirv::PROBE_CAS
-    };
-    let pipeline = ComputePipeline::new(ctx, "probe", spirv, size_of::<PassParams>() as u32)?;
+    let gpu_scene = GpuScene::upload(ctx, scene)?;
     let mut bindings = gpu_scene.bindings().to_vec();
-    bindings.extend(guide.bindings());
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
-    guide.set_params(&mut params, true);
     params.probe_mode = mode;
+    let push = size_of::<PassParams>() as u32;
+    let pipeline = match guide {
+        Some(g) => {
+            bindings.extend(g.bindings());
+            g.set_params(&mut params, true);
+            let spirv = if g.settings.use_float_atomics(ctx.info())? {
+                spirv::SARSA_PROBE
+            } else {
+                spirv::SARSA_PROBE_CAS
+            };
+            ComputePipeline::new(ctx, "sarsa probe", spirv, push)?
+        }
+        None => ComputePipeline::new(ctx, "probe", spirv::PROBE, push)?,
+    };
     launch(ctx, &pipeline, &bindings, params, input, count)
 }
 

@@ -1,6 +1,6 @@
 //! Render settings: the scene's defaults overridden by the command line, validated.
 
-use crate::guide::{NeuralSettings, SarsaSettings};
+use crate::guide::GuideSettings;
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 
@@ -23,6 +23,11 @@ impl Method {
             Method::Sarsa => "sarsa",
             Method::Neural => "neural",
         }
+    }
+
+    /// Whether the method learns a guide (its settings: the table of its name).
+    pub fn is_guided(self) -> bool {
+        self != Method::Pt
     }
 }
 
@@ -47,8 +52,9 @@ pub struct Overrides {
     pub nee: bool,
     pub seed: Option<u32>,
     pub sampling: Option<Sampling>,
-    pub sarsa: SarsaSettings,
-    pub neural: NeuralSettings,
+    /// The guide's settings; None: the scene's table for the method, else
+    /// the defaults. Given with no method, they choose it.
+    pub guide: Option<GuideSettings>,
 }
 
 /// When a render stops.
@@ -69,30 +75,22 @@ pub struct RenderSettings {
     pub nee: bool,
     pub seed: u32,
     pub sampling: Sampling,
-    /// Used by `--method sarsa` only.
-    pub sarsa: SarsaSettings,
-    /// Used by `--method neural` only.
-    pub neural: NeuralSettings,
+    /// The guided methods' guide.
+    pub guide: Option<GuideSettings>,
 }
 
 impl RenderSettings {
     /// Whether the method's guide learns in pass `index`.
     pub fn learns_in_pass(&self, index: u32) -> bool {
-        match self.method {
-            Method::Pt => false,
-            Method::Sarsa => self.sarsa.learns_in_pass(index),
-            Method::Neural => self.neural.learns_in_pass(index),
-        }
+        self.guide
+            .as_ref()
+            .is_some_and(|g| g.common().learns_in_pass(index))
     }
 
     /// The pass before which the image restarts, if the method's guide is
     /// trained by earlier passes only.
     pub fn reset_after(&self) -> Option<u32> {
-        match self.method {
-            Method::Pt => None,
-            Method::Sarsa => self.sarsa.reset_after,
-            Method::Neural => self.neural.reset_after,
-        }
+        self.guide.as_ref().and_then(|g| g.common().reset_after)
     }
 }
 
@@ -141,25 +139,41 @@ impl RenderSettings {
                 Budget::Samples(spp)
             }
         };
-        let method = o.method.unwrap_or(Method::Pt);
-        let reset_after = match method {
-            Method::Pt => None,
-            Method::Sarsa => {
-                o.sarsa.validate().map_err(SettingsError)?;
-                o.sarsa.reset_after
-            }
-            Method::Neural => {
-                o.neural.validate().map_err(SettingsError)?;
-                o.neural.validate_for(scene).map_err(SettingsError)?;
-                o.neural.reset_after
-            }
-        };
-        if let (Some(k), Budget::Samples(n)) = (reset_after, budget) {
-            if k >= n {
+        let given = o.guide.as_ref().map(|g| g.name());
+        let method = match (o.method, given) {
+            (Some(m), Some(g)) if m.name() != g => {
                 return bad(format!(
-                    "--{}-reset-after {k} leaves none of the {n} passes in the image",
-                    method.name()
-                ));
+                    "[{g}] settings were given for --method {}",
+                    m.name()
+                ))
+            }
+            (Some(m), _) => m,
+            (None, Some("sarsa")) => Method::Sarsa,
+            (None, Some(_)) => Method::Neural,
+            (None, None) => Method::Pt,
+        };
+        // Both tables are checked, so a typo fails whatever the method.
+        for (name, table) in &scene.guide_tables {
+            GuideSettings::from_table(name, table)
+                .map_err(|e| SettingsError(format!("{}: {e}", scene.path.display())))?;
+        }
+        let guide = match (&o.guide, method.is_guided()) {
+            (_, false) => None,
+            (Some(g), true) => Some(g.clone()),
+            (None, true) => Some(
+                GuideSettings::from_table(method.name(), scene.guide_table(method.name()))
+                    .map_err(|e| SettingsError(format!("{}: {e}", scene.path.display())))?,
+            ),
+        };
+        if let Some(g) = &guide {
+            g.validate(scene).map_err(SettingsError)?;
+            if let (Some(k), Budget::Samples(n)) = (g.common().reset_after, budget) {
+                if k >= n {
+                    return bad(format!(
+                        "[{}] reset_after = {k} leaves none of the {n} passes in the image",
+                        g.name()
+                    ));
+                }
             }
         }
         Ok(Self {
@@ -171,8 +185,7 @@ impl RenderSettings {
             nee: o.nee,
             seed: o.seed.unwrap_or(0),
             sampling: o.sampling.unwrap_or_default(),
-            sarsa: o.sarsa.for_image(width, height),
-            neural: o.neural.clone(),
+            guide: guide.map(|g| g.for_image(width, height)),
         })
     }
 }

@@ -44,6 +44,9 @@ pub struct RenderStats {
     pub gpu_ms: BTreeMap<String, f64>,
     /// Count, total, min and max per pass name.
     pub gpu_passes: Vec<PassTiming>,
+    /// The guide's settings, every key (None for `pt`): as a `[sarsa]` or
+    /// `[neural]` table they render the same guide again.
+    pub guide: Option<crate::guide::GuideSettings>,
     /// Device memory held by a learned guide (0 for `pt`).
     pub guide_bytes: u64,
     /// Radiance volumes of the Sarsa guide (0 otherwise).

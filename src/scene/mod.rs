@@ -99,6 +99,9 @@ pub struct Scene {
     pub path: PathBuf,
     pub camera: Camera,
     pub defaults: RenderDefaults,
+    /// The `[sarsa]` and `[neural]` tables, as written; render settings
+    /// check and read them.
+    pub guide_tables: [(&'static str, toml::Table); 2],
     pub environment: Vec3,
     pub materials: Vec<Material>,
     pub triangles: Vec<shaders::Triangle>,
@@ -139,6 +142,15 @@ fn check_color(path: &Path, what: &str, c: [f32; 3]) -> Result<Vec3, SceneError>
 }
 
 impl Scene {
+    /// The scene's table of guide `name` (empty when it has none).
+    pub fn guide_table(&self, name: &str) -> &toml::Table {
+        static EMPTY: std::sync::OnceLock<toml::Table> = std::sync::OnceLock::new();
+        self.guide_tables
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map_or_else(|| EMPTY.get_or_init(toml::Table::new), |(_, t)| t)
+    }
+
     /// How far rays start off the surface they leave: small against the
     /// scene, large against float error.
     pub fn ray_offset(&self) -> f32 {
@@ -257,8 +269,6 @@ impl Scene {
                     light_pdf: 0.0,
                     e2: e2.into(),
                     area: 0.5 * e1.cross(e2).length(),
-                    // No guide: one cell per side, no volume.
-                    lookup: [0, 0, shaders::NO_VOLUME, shaders::NO_VOLUME],
                 }
             })
             .collect();
@@ -267,6 +277,7 @@ impl Scene {
             path: path.to_path_buf(),
             camera,
             defaults: file.render,
+            guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
             environment,
             materials,
             triangles,

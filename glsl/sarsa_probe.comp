@@ -1,0 +1,57 @@
+#version 460
+// Runs the Sarsa guide's GLSL on host-given inputs so tests can compare it
+// with CPU references: the nearest radiance volume, mixture sampling and
+// the update.
+
+#include "shared.h"
+#include "sampling.glsl"
+#include "scene.glsl"
+
+layout(local_size_x = LINEAR_GROUP) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+
+#include "bsdf.glsl"
+#include "sarsa.glsl"
+#include "guide.glsl"
+
+layout(std430, set = 0, binding = B_PROBE_IN) readonly buffer ProbeIn { vec4 probe_in[]; };
+layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= params.item_count) {
+        return;
+    }
+    if (params.probe_mode == PROBE_NEAREST_VOLUME) {
+        // in[2i] = point, in[2i+1] = (triangle bits, front side?); out.x = volume index bits
+        uint t = floatBitsToUint(probe_in[2u * i + 1u].x);
+        uint v = nearest_volume(t, load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
+        probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
+    } else if (params.probe_mode == PROBE_GUIDE_SAMPLE) {
+        // in = (volume bits, u1, u2, u3); out = (local direction, pdf) of
+        // the mixture with a white diffuse BSDF
+        vec4 q = probe_in[i];
+        GuideVertex g = guide_vertex(floatBitsToUint(q.x));
+        Bsdf white = Bsdf(vec3(1.0));
+        vec3 wo = vec3(0.0, 0.0, 1.0);
+        uint sector;
+        float p_sector;
+        vec3 w = mixture_sample(g, white, wo, q.yzw, sector, p_sector);
+        probe_out[i] = vec4(w, mixture_pdf_in(g, white, wo, w, p_sector));
+    } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
+        // in[2i] = (volume bits, sector bits, next volume bits, albedo or
+        // -emitted), in[2i+1].x = the share of an emitted target NEE carries;
+        // out.x = the target recorded
+        vec4 q = probe_in[2u * i];
+        uint v = floatBitsToUint(q.x);
+        uint k = floatBitsToUint(q.y);
+        uint vy = floatBitsToUint(q.z);
+        float target = q.w < 0.0 ? -q.w : q.w * INV_PI * guide_irradiance(guide_vertex(vy));
+        sarsa_record(v, k, target, 0.0);
+        if (q.w < 0.0) {
+            sarsa_record_direct(v, k, probe_in[2u * i + 1u].x);
+        }
+        probe_out[i] = vec4(target, 0.0, 0.0, 0.0);
+    }
+}

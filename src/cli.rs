@@ -1,0 +1,481 @@
+//! What each `qtrace` command does, once `main.rs` has parsed its arguments:
+//! checks, progress bars, output files and the lines it prints.
+
+use crate::bench::{self, EvalPlan, SpeedEvent, SpeedPlan};
+use crate::gpu::{self, ContextOptions, GpuContext};
+use crate::guide::{GuideSettings, GUIDES};
+use crate::image::{self, Image};
+use crate::render::{self, Method, Overrides, Progress, RenderSettings};
+use crate::scene::Scene;
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Which Vulkan device, and whether to validate.
+#[derive(Clone, Debug, Default)]
+pub struct DeviceChoice {
+    pub device: Option<String>,
+    pub validation: bool,
+}
+
+pub fn open_device(choice: &DeviceChoice) -> Result<Arc<GpuContext>> {
+    let validation =
+        choice.validation || std::env::var("QTRACE_VALIDATION").is_ok_and(|v| v == "1");
+    Ok(GpuContext::new(&ContextOptions {
+        device: choice.device.clone(),
+        validation,
+    })?)
+}
+
+/// Where guide settings come from besides the scene's own tables: a file
+/// of `[sarsa]` / `[neural]` tables, then `guide.key=value` assignments.
+#[derive(Clone, Debug, Default)]
+pub struct GuideSources {
+    pub config: Option<PathBuf>,
+    pub sets: Vec<String>,
+}
+
+impl GuideSources {
+    /// The settings of the guide of `method` (None for `pt`): the scene's
+    /// table, then the config file's, then the assignments, key by key.
+    pub fn resolve(&self, scene: &Scene, method: Method) -> Result<Option<GuideSettings>> {
+        let mut tables: Vec<(String, toml::Table)> = GUIDES
+            .iter()
+            .map(|&g| (g.to_string(), scene.guide_table(g).clone()))
+            .collect();
+        if let Some(path) = &self.config {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("{}: cannot read the guide config", path.display()))?;
+            let file: toml::Table = toml::from_str(&text)
+                .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.message()))?;
+            for (name, value) in file {
+                let (Some((_, table)), toml::Value::Table(given)) =
+                    (tables.iter_mut().find(|(n, _)| *n == name), value)
+                else {
+                    bail!(
+                        "{}: '{name}' is not a guide table (expected [sarsa] or [neural])",
+                        path.display()
+                    );
+                };
+                table.extend(given);
+            }
+        }
+        for set in &self.sets {
+            let (key, value) = set
+                .split_once('=')
+                .with_context(|| format!("--set '{set}' is not guide.key=value"))?;
+            let (guide, key) = key
+                .trim()
+                .split_once('.')
+                .with_context(|| format!("--set '{set}' is not guide.key=value"))?;
+            let Some((_, table)) = tables.iter_mut().find(|(n, _)| n == guide) else {
+                bail!("--set '{set}': no guide named '{guide}' (guides: sarsa, neural)");
+            };
+            if guide != method.name() {
+                bail!(
+                    "--set '{set}' sets the {guide} guide, but the method is {}",
+                    method.name()
+                );
+            }
+            table.insert(key.to_string(), parse_value(value.trim()));
+        }
+        if !method.is_guided() {
+            return Ok(None);
+        }
+        let (_, table) = tables
+            .iter()
+            .find(|(n, _)| n == method.name())
+            .expect("every guided method has a table");
+        Ok(Some(
+            GuideSettings::from_table(method.name(), table).map_err(anyhow::Error::msg)?,
+        ))
+    }
+}
+
+/// A TOML value as written (`0.3`, `[8, 8]`, `true`), else the text as a
+/// string (`cas`, `qcos`).
+fn parse_value(text: &str) -> toml::Value {
+    toml::from_str::<toml::Table>(&format!("v = {text}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(text.to_string()))
+}
+
+/// Checks an output path ends in `.ext` and its directory exists.
+pub fn check_output(path: &Path, ext: &str) -> Result<()> {
+    let ok = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if !ok {
+        bail!("{}: output file must end in .{ext}", path.display());
+    }
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() && !d.is_dir() => {
+            bail!(
+                "{}: directory {} does not exist",
+                path.display(),
+                d.display()
+            )
+        }
+        _ => Ok(()),
+    }
+}
+
+/// A progress bar on a terminal; nothing otherwise.
+fn progress_bar(total: Option<u32>) -> Option<ProgressBar> {
+    if !std::io::stderr().is_terminal() {
+        return None;
+    }
+    let style = match total {
+        Some(_) => "{bar:40.cyan/blue} {pos}/{len} spp  {msg}  elapsed {elapsed}  eta {eta}",
+        None => "{bar:40.cyan/blue} {msg}  elapsed {elapsed}",
+    };
+    let bar = ProgressBar::new(total.map_or(1000, |n| n as u64));
+    Some(bar.with_style(ProgressStyle::with_template(style).expect("valid template")))
+}
+
+fn update_bar(bar: &Option<ProgressBar>, p: &Progress) {
+    let Some(bar) = bar else { return };
+    let rate = format!("{:.2} Mrays/s", p.rays_per_second / 1e6);
+    match p.budget_seconds {
+        Some(t) => {
+            bar.set_position(((p.elapsed / t).min(1.0) * 1000.0) as u64);
+            bar.set_message(format!("{} spp  {rate}", p.passes_done));
+        }
+        None => {
+            bar.set_position(p.passes_done as u64);
+            bar.set_message(rate);
+        }
+    }
+}
+
+/// What `qtrace render` writes.
+#[derive(Clone, Debug)]
+pub struct RenderOutputs {
+    pub exr: PathBuf,
+    pub png: Option<PathBuf>,
+    pub stats: Option<PathBuf>,
+    pub profile: bool,
+}
+
+pub fn render(
+    scene_path: &Path,
+    overrides: Overrides,
+    guides: &GuideSources,
+    out: &RenderOutputs,
+    device: &DeviceChoice,
+) -> Result<()> {
+    // Check everything the user gave before any GPU work.
+    check_output(&out.exr, "exr")?;
+    if let Some(p) = &out.png {
+        check_output(p, "png")?;
+    }
+    if let Some(p) = &out.stats {
+        check_output(p, "json")?;
+    }
+    let scene = Scene::load(scene_path)?;
+    let bad = || format!("{}: bad render settings", scene_path.display());
+    let overrides = Overrides {
+        guide: guides
+            .resolve(&scene, overrides.method.unwrap_or(Method::Pt))
+            .with_context(bad)?,
+        ..overrides
+    };
+    let settings = RenderSettings::resolve(&scene, &overrides).with_context(bad)?;
+    let ctx = open_device(device)?;
+    let total = match settings.budget {
+        render::Budget::Samples(n) => Some(n),
+        render::Budget::Seconds(_) => None,
+    };
+    let bar = progress_bar(total);
+    let result = render::render(&ctx, &scene, settings, &mut |p| update_bar(&bar, p))?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    result.image.write_exr(&out.exr)?;
+    if let Some(p) = &out.png {
+        result.image.write_png(p)?;
+    }
+    if let Some(p) = &out.stats {
+        write_json(p, &result.stats)?;
+    }
+    let s = &result.stats;
+    eprintln!(
+        "{}: {} spp {}x{} in {:.2} s on {} | {:.2} Mrays/s | zero-contribution {:.1}% | mean path length {:.2}",
+        s.method,
+        s.spp,
+        s.width,
+        s.height,
+        s.wall_seconds,
+        s.device,
+        s.rays_per_second / 1e6,
+        100.0 * s.zero_contribution_fraction,
+        s.mean_path_length
+    );
+    if s.invalid_paths > 0 {
+        eprintln!(
+            "warning: {} paths gave NaN or infinite radiance and were left out",
+            s.invalid_paths
+        );
+    }
+    if out.profile {
+        eprint!("{}", s.profile_table());
+    }
+    check_validation(&ctx)
+}
+
+fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let json = serde_json::to_string_pretty(value)?;
+    image::write_atomically(path, |tmp| {
+        std::fs::write(tmp, &json).map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
+
+fn check_validation(ctx: &GpuContext) -> Result<()> {
+    if ctx.validation_errors() > 0 {
+        bail!(
+            "the Vulkan validation layer reported {} errors",
+            ctx.validation_errors()
+        );
+    }
+    Ok(())
+}
+
+pub fn compare(image_path: &Path, reference_path: &Path) -> Result<()> {
+    let a = Image::read_exr(image_path)?;
+    let b = Image::read_exr(reference_path)?;
+    let m = image::compare_named(
+        &a,
+        &image_path.display().to_string(),
+        &b,
+        &reference_path.display().to_string(),
+    )?;
+    println!("mean    {:.6e} (reference {:.6e})", a.mean(), b.mean());
+    println!("MSE     {:.6e}", m.mse);
+    println!("relMSE  {:.6e}", m.rel_mse);
+    println!("MAPE    {:.6e}", m.mape);
+    Ok(())
+}
+
+pub fn devices() -> Result<()> {
+    let devices = gpu::list_devices()?;
+    if devices.is_empty() {
+        bail!("no Vulkan device found; install a Vulkan driver (mesa-vulkan-drivers provides lavapipe)");
+    }
+    let yes = |b: bool| if b { "yes" } else { "no" };
+    for d in devices {
+        println!(
+            "[{}] {} ({}, Vulkan {}, {})",
+            d.index, d.name, d.kind, d.api_version, d.driver
+        );
+        println!(
+            "    float atomics: {}  int64 atomics: {}  timestamps: {}  subgroup: {} (arithmetic: {})  max storage buffer: {} MiB  workgroup memory: {} KiB",
+            yes(d.float_atomics),
+            yes(d.int64_atomics),
+            yes(d.timestamps),
+            d.subgroup_size,
+            yes(d.subgroup_arithmetic),
+            d.max_storage_buffer_range >> 20,
+            d.max_shared_memory >> 10
+        );
+    }
+    Ok(())
+}
+
+/// The `qtrace inspect` summary of a scene.
+pub fn inspect_summary(scene: &Scene) -> String {
+    let area: f32 = scene.triangles.iter().map(|t| t.area).sum();
+    let light_area: f32 = scene
+        .lights
+        .iter()
+        .map(|l| scene.triangles[l.triangle as usize].area)
+        .sum();
+    let c = &scene.camera;
+    let mut lines = vec![
+        format!("scene        {}", scene.path.display()),
+        format!("triangles    {}", scene.triangles.len()),
+        format!("materials    {}", scene.materials.len()),
+        format!(
+            "emitters     {} triangles, {:.4} units² of {:.4} total",
+            scene.lights.len(),
+            light_area,
+            area
+        ),
+        format!("environment  {:?}", scene.environment.to_array()),
+        format!(
+            "bvh          {} nodes of two child boxes, one triangle per leaf, depth {}",
+            scene.nodes.len(),
+            scene.bvh_depth,
+        ),
+        format!(
+            "camera       at {:?} looking {:?}, fov_y {}°",
+            c.position.to_array(),
+            c.forward.to_array(),
+            c.fov_y_degrees
+        ),
+        format!("scene extent {:.3} (bounding-box diagonal)", scene.extent),
+    ];
+    for (name, table) in &scene.guide_tables {
+        if !table.is_empty() {
+            lines.push(format!("[{name}]      {table}").replace('\n', " "));
+        }
+    }
+    lines.join("\n") + "\n"
+}
+
+pub fn inspect(path: &Path) -> Result<()> {
+    let scene = Scene::load(path)?;
+    // The guide tables are checked here too, so a typo shows at once.
+    RenderSettings::resolve(&scene, &Overrides::default())
+        .with_context(|| format!("{}: bad render settings", path.display()))?;
+    print!("{}", inspect_summary(&scene));
+    Ok(())
+}
+
+pub fn bench_speed(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceChoice) -> Result<()> {
+    if let Some(p) = json {
+        check_output(p, "json")?;
+    }
+    let ctx = open_device(device)?;
+    println!("device: {} ({})", ctx.info().name, ctx.info().driver);
+    println!(
+        "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>6} {:>8} {:>7}  per pass (ms)",
+        "scene",
+        "config",
+        "spp",
+        "wall s",
+        "samples/s",
+        "Mrays/s",
+        "pass ms",
+        "cost",
+        "length",
+        "cost/hit",
+        "zero %"
+    );
+    let report = bench::speed(&ctx, plan, &mut |event| {
+        let r = match event {
+            SpeedEvent::Row(r) => r,
+            SpeedEvent::Peer(p) => {
+                let ratio = p.pt_nee_ratio.map_or(String::new(), |x| {
+                    format!("  (pt+nee does {x:.2}x its samples/s)")
+                });
+                println!(
+                    "{:<28} {:<10} {:>5} {:>9} {:>11.0} {:>9} {:>9}  mitsuba {} {}, JIT batch excluded{ratio}",
+                    p.scene.display().to_string(),
+                    "mitsuba",
+                    p.spp,
+                    "",
+                    p.samples_per_second,
+                    "",
+                    "",
+                    p.version,
+                    p.variant
+                );
+                return;
+            }
+            SpeedEvent::PeerMissing(why) => {
+                println!("mitsuba not measured: {why}");
+                return;
+            }
+        };
+        let breakdown: Vec<String> = r
+            .pass_breakdown_ms
+            .iter()
+            .map(|(n, ms)| format!("{n} {ms:.2}"))
+            .collect();
+        println!(
+            "{:<28} {:<10} {:>5} {:>9.3} {:>11.0} {:>9.3} {:>9.3} {:>5.2}x {:>6.2} {:>7.2}x {:>7.2}  {}",
+            r.scene.display().to_string(),
+            r.config,
+            r.spp,
+            r.wall_seconds,
+            r.samples_per_second,
+            r.rays_per_second / 1e6,
+            r.pass_ms,
+            r.pass_cost_ratio,
+            r.mean_path_length,
+            r.vertex_cost_ratio,
+            100.0 * r.zero_contribution_fraction,
+            breakdown.join(", ")
+        );
+    })?;
+    if let Some(p) = json {
+        write_json(p, &report)?;
+    }
+    check_validation(&ctx)
+}
+
+/// The reference's own error beside the smallest one measured against it.
+fn reference_floor_line(s: &bench::eval::SceneReport) -> String {
+    match s.reference_rel_mse {
+        Some(floor) => {
+            let share = floor / s.smallest_rel_mse;
+            let advice = if share > 0.1 {
+                ": above a tenth, so it blurs the comparison; raise --reference-spp"
+            } else {
+                ""
+            };
+            format!(
+                "{}: the reference's own relMSE is about {floor:.2e}, {share:.2}x the smallest error measured against it ({:.2e}){advice}",
+                s.name, s.smallest_rel_mse
+            )
+        }
+        None => format!(
+            "{}: the reference's own error is unknown (a given reference, or one cached without it)",
+            s.name
+        ),
+    }
+}
+
+pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
+    plan.validate().map_err(anyhow::Error::msg)?;
+    // Check the scenes before any GPU work, so a typo fails at once.
+    for s in &plan.scenes {
+        Scene::load(s)?;
+    }
+    std::fs::create_dir_all(&plan.out)
+        .with_context(|| format!("{}: cannot create the report directory", plan.out.display()))?;
+    let ctx = open_device(device)?;
+    let bar = std::io::stderr().is_terminal().then(|| {
+        ProgressBar::new(1).with_style(
+            ProgressStyle::with_template(
+                "{bar:40.cyan/blue} {percent:>3}%  {msg}  elapsed {elapsed}  eta {eta}",
+            )
+            .expect("valid template"),
+        )
+    });
+    let report = bench::evaluate(&ctx, &plan, &mut |p| {
+        if let Some(b) = &bar {
+            b.set_length(p.total.max(1));
+            b.set_position(p.done);
+            b.set_message(p.message.to_string());
+        }
+    })?;
+    bench::report::write(&report, &plan.out)?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    println!(
+        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10}",
+        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s"
+    );
+    for s in &report.scenes {
+        for r in &s.runs {
+            println!(
+                "{:<20} {:<12} {:>8.2} {:>12.5} {:>14.5} {:>10.3}",
+                s.name,
+                r.config,
+                100.0 * r.zero_contribution_fraction,
+                r.checkpoints.last().map_or(f64::NAN, |c| c.error.rel_mse),
+                r.error_at_equal_time.rel_mse,
+                r.rays_per_second / 1e6
+            );
+        }
+        println!("{}", reference_floor_line(s));
+    }
+    println!("report: {}", plan.out.join("index.html").display());
+    check_validation(&ctx)
+}
