@@ -1,7 +1,7 @@
 // The BSDF seam: all the trace kernel and the guides know of how a material
 // scatters. Directions are local: z is the shading normal on the side the
-// path arrives from, wo points back along the path. src/scene/material.rs
-// holds the CPU twin. Needs shared.h, sampling.glsl and the `params` push
+// path arrives from, wo points back along the path. src/bsdf.rs holds the
+// CPU twin. Needs shared.h, sampling.glsl and the `params` push
 // constants (for FLAG_UNIFORM).
 #ifndef QTRACE_BSDF_GLSL
 #define QTRACE_BSDF_GLSL

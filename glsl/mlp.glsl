@@ -24,8 +24,7 @@ const uint MLP_A4 = MLP_IN4 > MLP_W4 ? MLP_IN4 : MLP_W4;
 const uint MLP_SPAN4 = MLP_A4 + MLP_W4;
 
 // Kernels that run the network (all but those that define MLP_PARAMS_ONLY)
-// run MLP_LANES invocations per workgroup.
-#define MLP_LANES 64
+// run MLP_LANES invocations per workgroup (shared.h).
 #ifndef MLP_PARAMS_ONLY
 shared vec4 mlp_vectors[MLP_LANES * MLP_SPAN4];
 #define MLP_V(i) mlp_vectors[(i) * MLP_LANES + gl_LocalInvocationIndex]

@@ -8,6 +8,10 @@
 #define TILE_X 8
 #define TILE_Y 8
 #define LINEAR_GROUP 64
+// Invocations per workgroup of every kernel that runs the Neural-Q network
+// (the trace tile and LINEAR_GROUP; src/shaders.rs checks): each keeps its
+// vectors in workgroup memory.
+#define MLP_LANES 64
 
 // Bindings (set 0; every one a storage buffer).
 #define B_NODES 0
@@ -60,6 +64,7 @@
 #define PROBE_NEAREST_VOLUME 2
 #define PROBE_GUIDE_SAMPLE 3
 #define PROBE_SARSA_UPDATE 4
+#define PROBE_BSDF 5
 
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
@@ -83,19 +88,10 @@
 // 6 + 6 * ENCODING_FREQUENCIES, padded with zeros to a multiple of 4.
 #define ENCODED_INPUTS 32
 
-// Bytes of each struct, checked on the Rust side too.
-#define SIZEOF_BVH_NODE 128
-#define SIZEOF_TRIANGLE 48
-#define SIZEOF_MATERIAL 32
-#define SIZEOF_LIGHT 16
-#define SIZEOF_PATH_SAMPLE 32
-#define SIZEOF_ACCUM 32
+// Bytes of the structs GLSL code needs the size of; build.rs checks each
+// against the struct's std430 layout, and every struct's fields against
+// its Rust mirror.
 #define SIZEOF_PASS_STATS 32
-#define SIZEOF_PASS_PARAMS 128
-#define SIZEOF_SECTOR_ENTRY 16
-#define SIZEOF_MLP_TARGET 16
-#define SIZEOF_MLP_PUSH 32
-#define SIZEOF_MLP_BATCH 48
 
 // A BVH node holds its two children. A child is another node's index (its
 // box is a = min, b = max), BVH_LEAF | the index of its one triangle (held
@@ -118,8 +114,7 @@ struct BvhNode {
     uint pad1;
     vec3 c1;
     uint pad2;
-    uvec4 escapes_lo;  // octants 0-3; octant = (d.x < 0) | (d.y < 0) << 1 | (d.z < 0) << 2
-    uvec4 escapes_hi;  // octants 4-7
+    uint escapes[8];   // per octant = (d.x < 0) | (d.y < 0) << 1 | (d.z < 0) << 2
 };// A triangle as v0 and two edges; the geometric normal is cross(e1, e2).
 struct Triangle {
     vec3 v0;
@@ -150,7 +145,7 @@ struct PathSample {
     uint rays;         // rays cast, shadow rays included
     uint td_count;     // guide updates made along the path
     float td_sq_sum;   // their summed squared temporal-difference error
-    uint pad0;
+    uint pad;
 };
 
 // Running sums per pixel.
@@ -168,7 +163,7 @@ struct PassStats {
     uint nan_paths;
     uint td_count;     // guide updates this pass
     uint td_sq_bits;   // float bits: their summed squared TD error (the pass's loss)
-    uint pad0;
+    uint pad;
 };
 
 // Push constants shared by every pass of a render.
@@ -231,8 +226,7 @@ struct MlpPush {
     float beta1;
     float beta2;
     float epsilon;
-    uint pad0;
-    uint pad1;
+    uint pad[2];
 };
 
 #endif

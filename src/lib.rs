@@ -5,6 +5,7 @@
 #![deny(unsafe_code)]
 
 pub mod bench;
+pub mod bsdf;
 pub mod cli;
 #[allow(unsafe_code)]
 pub mod gpu;

@@ -1,12 +1,13 @@
 //! The GLSL building blocks against CPU references: BVH traversal against
-//! brute force, the hemisphere map against its CPU twin.
+//! brute force, the hemisphere map and the BSDF against their CPU twins.
 
 mod common;
 
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
-use qtrace::render::probe;
+use qtrace::bsdf::Bsdf;
+use qtrace::render::{probe, Sampling};
 use qtrace::sampling;
 
 fn check_traversal(name: &str, count: usize) {
@@ -94,5 +95,40 @@ fn gpu_hemisphere_map_matches_cpu_and_inverts() {
         let cell = (u.x * a as f32) as u32 + a * (u.y * b as f32) as u32;
         assert_eq!(*sector, cell, "point {u} direction {w}");
         assert_eq!(*sector, sampling::hemisphere_sector(cpu, a, b));
+    }
+}
+
+/// The GPU BSDF (glsl/bsdf.glsl) against its CPU twin (src/bsdf.rs), with
+/// either sampler.
+#[test]
+fn gpu_bsdf_matches_its_cpu_twin() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let mut rng = Lcg(5);
+    let uniforms: Vec<Vec2> = (0..4096)
+        .map(|_| Vec2::new(rng.next(), rng.next()))
+        .collect();
+    for sampling in [Sampling::Cosine, Sampling::Uniform] {
+        let out = probe::bsdf_samples(&ctx, &scene, 0.7, sampling, &uniforms).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        let cpu = Bsdf {
+            albedo: Vec3::splat(0.7),
+            sampling,
+        };
+        for (u, g) in uniforms.iter().zip(&out) {
+            let (wi, _) = cpu.sample(Vec3::Z, *u);
+            let close = |a: Vec3, b: Vec3| (a - b).abs().max_element() < 1e-5;
+            assert!(
+                close(g.wi, wi),
+                "{sampling:?} {u}: GPU {} vs CPU {wi}",
+                g.wi
+            );
+            assert!(
+                (g.pdf - cpu.pdf(Vec3::Z, wi)).abs() < 1e-5,
+                "{sampling:?} {u}"
+            );
+            assert!(close(g.eval, cpu.eval(Vec3::Z, wi)), "{sampling:?} {u}");
+            assert!((g.reflected - cpu.reflect(Vec3::Z, 1.0)).abs() < 1e-6);
+        }
     }
 }

@@ -6,6 +6,7 @@ mod common;
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
+use qtrace::bsdf::Bsdf;
 use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
@@ -231,7 +232,8 @@ fn cpu_update(
         .iter()
         .map(|t| match t.emitted {
             Some(e) => e,
-            None => (t.albedo as f64 / PI * irradiance(t.next_volume as usize)) as f32,
+            None => Bsdf::diffuse(Vec3::splat(t.albedo))
+                .reflect(Vec3::Z, irradiance(t.next_volume as usize) as f32),
         })
         .collect();
     let mut sums = vec![0f64; q.len()];

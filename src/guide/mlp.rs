@@ -96,7 +96,7 @@ impl MlpShape {
             return Err(format!("every layer needs at least one unit: {self:?}"));
         }
         // Shaders read rows as vec4s and keep each invocation's vectors in
-        // workgroup memory: 64 invocations, two regions (see glsl/mlp.glsl).
+        // workgroup memory: MLP_LANES invocations, two regions (see glsl/mlp.glsl).
         if self.inputs % 4 != 0 || self.width % 4 != 0 {
             return Err(format!("inputs and width must be multiples of 4: {self:?}"));
         }
@@ -114,7 +114,7 @@ impl MlpShape {
 
     /// Workgroup memory a kernel running the network needs.
     pub fn workgroup_bytes(&self) -> u32 {
-        64 * 4 * (self.inputs.max(self.width) + self.width)
+        crate::shaders::MLP_LANES * 4 * (self.inputs.max(self.width) + self.width)
     }
 
     /// Hidden layers first, the output layer last.

@@ -10,17 +10,22 @@ use glam::{Vec2, Vec3, Vec4};
 use std::sync::Arc;
 
 /// Dispatches `pipeline` once per item of `count` over `input` (bound at
-/// B_PROBE_IN, with `bindings`) and returns its B_PROBE_OUT vec4s.
+/// B_PROBE_IN, with `bindings`) and returns its B_PROBE_OUT vec4s,
+/// `outputs` per item.
 fn launch(
     ctx: &Arc<GpuContext>,
     pipeline: &ComputePipeline,
     bindings: &[(u32, &Buffer)],
     mut params: PassParams,
     input: &[Vec4],
-    count: usize,
+    (count, outputs): (usize, usize),
 ) -> Result<Vec<Vec4>, RenderError> {
     let input_buf = Buffer::gpu_only_with(ctx, "probe input", input)?;
-    let output = Buffer::gpu_only(ctx, "probe output", (count * size_of::<Vec4>()) as u64)?;
+    let output = Buffer::gpu_only(
+        ctx,
+        "probe output",
+        (count * outputs * size_of::<Vec4>()) as u64,
+    )?;
     let mut bindings = bindings.to_vec();
     bindings.extend([
         (shaders::B_PROBE_IN, &input_buf),
@@ -38,7 +43,7 @@ fn launch(
         })
     })?;
     let mut out: Vec<Vec4> = output.download()?;
-    out.truncate(count);
+    out.truncate(count * outputs);
     Ok(out)
 }
 
@@ -71,7 +76,7 @@ fn run(
         }
         None => ComputePipeline::new(ctx, "probe", spirv::PROBE, push)?,
     };
-    launch(ctx, &pipeline, &bindings, params, input, count)
+    launch(ctx, &pipeline, &bindings, params, input, (count, 1))
 }
 
 /// What the GPU found along one ray: the closest hit (t, triangle), if any,
@@ -216,7 +221,7 @@ pub fn neural_samples(
         &guide.bindings(),
         params,
         &input,
-        uniforms.len(),
+        (uniforms.len(), 1),
     )?;
     Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
 }
@@ -267,4 +272,59 @@ pub fn sarsa_updates(
     )?;
     guide.fold(ctx)?;
     Ok(out.iter().map(|v| v.x).collect())
+}
+
+/// What the GPU BSDF does with one pair of uniform numbers: the direction
+/// it samples, its pdf, f·cos there, and the reflected estimate of a unit
+/// irradiance.
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    pub wi: Vec3,
+    pub pdf: f32,
+    pub eval: Vec3,
+    pub reflected: f32,
+}
+
+/// GPU `bsdf_sample`, `bsdf_pdf`, `bsdf_eval` and `bsdf_reflect` of a grey
+/// diffuse BSDF seen along the normal, for each pair of uniform numbers.
+pub fn bsdf_samples(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    albedo: f32,
+    sampling: super::Sampling,
+    uniforms: &[Vec2],
+) -> Result<Vec<BsdfSample>, RenderError> {
+    let gpu_scene = GpuScene::upload(ctx, scene)?;
+    let settings = RenderSettings::resolve(
+        scene,
+        &super::Overrides {
+            sampling: Some(sampling),
+            ..Default::default()
+        },
+    )?;
+    let mut params = pass_params(scene, &settings);
+    params.probe_mode = shaders::PROBE_BSDF;
+    let pipeline =
+        ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
+    let input: Vec<Vec4> = uniforms
+        .iter()
+        .map(|u| Vec4::new(u.x, u.y, albedo, 0.0))
+        .collect();
+    let n = uniforms.len();
+    let out = launch(
+        ctx,
+        &pipeline,
+        &gpu_scene.bindings(),
+        params,
+        &input,
+        (n, 2),
+    )?;
+    Ok((0..n)
+        .map(|i| BsdfSample {
+            wi: out[i].truncate(),
+            pdf: out[i].w,
+            eval: out[n + i].truncate(),
+            reflected: out[n + i].w,
+        })
+        .collect())
 }

@@ -1,5 +1,6 @@
 //! Render settings: the scene's defaults overridden by the command line, validated.
 
+pub use crate::bsdf::Sampling;
 use crate::guide::GuideSettings;
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
@@ -29,15 +30,6 @@ impl Method {
     pub fn is_guided(self) -> bool {
         self != Method::Pt
     }
-}
-
-/// How the BSDF picks bounce directions.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Sampling {
-    #[default]
-    Cosine,
-    Uniform,
 }
 
 /// What the user asked for; `None` means "the scene's default, else ours".

@@ -5,6 +5,7 @@ pub mod bvh;
 pub mod file;
 pub mod procedural;
 
+use crate::bsdf::luminance;
 use crate::shaders;
 use file::{CameraDesc, RenderDefaults, SceneFile};
 use glam::Vec3;
@@ -112,10 +113,6 @@ pub struct Scene {
     pub bounds: (Vec3, Vec3),
     /// Diagonal of the scene's bounding box.
     pub extent: f32,
-}
-
-fn luminance(c: Vec3) -> f32 {
-    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
 }
 
 fn toml_error(path: &Path, text: &str, e: toml::de::Error) -> SceneError {
