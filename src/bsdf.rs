@@ -85,13 +85,7 @@ impl Bsdf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::hemisphere_to_square;
-
-    fn strata(n: usize) -> impl Iterator<Item = Vec2> {
-        (0..n).flat_map(move |i| {
-            (0..n).map(move |j| Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32))
-        })
-    }
+    use crate::sampling::{grid, hemisphere_to_square};
 
     /// White furnace per sampler: the mean of f cos / pdf over its samples
     /// is the albedo; each sample's square point is its equal-area point.
@@ -105,7 +99,7 @@ mod tests {
             };
             let mut sum = Vec3::ZERO;
             let n = 256;
-            for u in strata(n) {
+            for u in grid(n) {
                 let (wi, square) = bsdf.sample(wo, u);
                 assert!((wi.length() - 1.0).abs() < 1e-4);
                 sum += bsdf.eval(wo, wi) / bsdf.pdf(wo, wi);

@@ -86,16 +86,18 @@ pub fn sector_cos(k: u32, a: u32, b: u32) -> f32 {
     1.0 - r * r
 }
 
+/// The centres of an n × n grid over the unit square (tests' stratified samples).
+#[cfg(test)]
+pub(crate) fn grid(n: usize) -> impl Iterator<Item = Vec2> {
+    (0..n).flat_map(move |i| {
+        (0..n).map(move |j| Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::f32::consts::PI;
-
-    fn grid(n: usize) -> impl Iterator<Item = Vec2> {
-        (0..n).flat_map(move |i| {
-            (0..n).map(move |j| Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32))
-        })
-    }
 
     #[test]
     fn hemisphere_map_inverts() {
