@@ -3,7 +3,7 @@
 
 use crate::bench::{self, EvalPlan, SpeedEvent, SpeedPlan};
 use crate::gpu::{self, ContextOptions, GpuContext};
-use crate::guide::{GuideSettings, GUIDES};
+use crate::guide::GuideSources;
 use crate::image::{self, Image};
 use crate::render::{self, Method, Overrides, Progress, RenderSettings};
 use crate::scene::Scene;
@@ -27,80 +27,6 @@ pub fn open_device(choice: &DeviceChoice) -> Result<Arc<GpuContext>> {
         device: choice.device.clone(),
         validation,
     })?)
-}
-
-/// Where guide settings come from besides the scene's own tables: a file
-/// of `[sarsa]` / `[neural]` tables, then `guide.key=value` assignments.
-#[derive(Clone, Debug, Default)]
-pub struct GuideSources {
-    pub config: Option<PathBuf>,
-    pub sets: Vec<String>,
-}
-
-impl GuideSources {
-    /// The settings of the guide of `method` (None for `pt`): the scene's
-    /// table, then the config file's, then the assignments, key by key.
-    pub fn resolve(&self, scene: &Scene, method: Method) -> Result<Option<GuideSettings>> {
-        let mut tables: Vec<(String, toml::Table)> = GUIDES
-            .iter()
-            .map(|&g| (g.to_string(), scene.guide_table(g).clone()))
-            .collect();
-        if let Some(path) = &self.config {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("{}: cannot read the guide config", path.display()))?;
-            let file: toml::Table = toml::from_str(&text)
-                .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.message()))?;
-            for (name, value) in file {
-                let (Some((_, table)), toml::Value::Table(given)) =
-                    (tables.iter_mut().find(|(n, _)| *n == name), value)
-                else {
-                    bail!(
-                        "{}: '{name}' is not a guide table (expected [sarsa] or [neural])",
-                        path.display()
-                    );
-                };
-                table.extend(given);
-            }
-        }
-        for set in &self.sets {
-            let (key, value) = set
-                .split_once('=')
-                .with_context(|| format!("--set '{set}' is not guide.key=value"))?;
-            let (guide, key) = key
-                .trim()
-                .split_once('.')
-                .with_context(|| format!("--set '{set}' is not guide.key=value"))?;
-            let Some((_, table)) = tables.iter_mut().find(|(n, _)| n == guide) else {
-                bail!("--set '{set}': no guide named '{guide}' (guides: sarsa, neural)");
-            };
-            if guide != method.name() {
-                bail!(
-                    "--set '{set}' sets the {guide} guide, but the method is {}",
-                    method.name()
-                );
-            }
-            table.insert(key.to_string(), parse_value(value.trim()));
-        }
-        if !method.is_guided() {
-            return Ok(None);
-        }
-        let (_, table) = tables
-            .iter()
-            .find(|(n, _)| n == method.name())
-            .expect("every guided method has a table");
-        Ok(Some(
-            GuideSettings::from_table(method.name(), table).map_err(anyhow::Error::msg)?,
-        ))
-    }
-}
-
-/// A TOML value as written (`0.3`, `[8, 8]`, `true`), else the text as a
-/// string (`cas`, `qcos`).
-fn parse_value(text: &str) -> toml::Value {
-    toml::from_str::<toml::Table>(&format!("v = {text}"))
-        .ok()
-        .and_then(|mut t| t.remove("v"))
-        .unwrap_or_else(|| toml::Value::String(text.to_string()))
 }
 
 /// Checks an output path ends in `.ext` and its directory exists.
@@ -179,7 +105,8 @@ pub fn render(
     let bad = || format!("{}: bad render settings", scene_path.display());
     let overrides = Overrides {
         guide: guides
-            .resolve(&scene, overrides.method.unwrap_or(Method::Pt))
+            .resolve(&scene, overrides.method.unwrap_or(Method::Pt).name())
+            .map_err(anyhow::Error::msg)
             .with_context(bad)?,
         ..overrides
     };
@@ -335,10 +262,36 @@ pub fn inspect(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Loads each scene and resolves each method's settings on it, so a typo
+/// fails before any GPU work.
+fn check_scenes(
+    scenes: &[PathBuf],
+    configs: &[bench::Config],
+    guides: &GuideSources,
+) -> Result<()> {
+    for path in scenes {
+        let scene = Scene::load(path)?;
+        for config in configs {
+            let guide = guides
+                .resolve(&scene, config.method.name())
+                .map_err(anyhow::Error::msg)?;
+            let o = Overrides {
+                method: Some(config.method),
+                guide,
+                ..Default::default()
+            };
+            RenderSettings::resolve(&scene, &o)
+                .with_context(|| format!("{}: bad render settings", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
 pub fn bench_speed(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceChoice) -> Result<()> {
     if let Some(p) = json {
         check_output(p, "json")?;
     }
+    check_scenes(plan.scenes, plan.configs, plan.guides)?;
     let ctx = open_device(device)?;
     println!("device: {} ({})", ctx.info().name, ctx.info().driver);
     println!(
@@ -432,10 +385,7 @@ fn reference_floor_line(s: &bench::eval::SceneReport) -> String {
 
 pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
     plan.validate().map_err(anyhow::Error::msg)?;
-    // Check the scenes before any GPU work, so a typo fails at once.
-    for s in &plan.scenes {
-        Scene::load(s)?;
-    }
+    check_scenes(&plan.scenes, &plan.configs, &plan.guides)?;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("{}: cannot create the report directory", plan.out.display()))?;
     let ctx = open_device(device)?;

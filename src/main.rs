@@ -3,7 +3,8 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use qtrace::bench::{Config, EvalPlan, SpeedPlan};
-use qtrace::cli::{self, DeviceChoice, GuideSources, RenderOutputs};
+use qtrace::cli::{self, DeviceChoice, RenderOutputs};
+use qtrace::guide::GuideSources;
 use qtrace::render::{Method, Overrides, Sampling};
 use std::path::PathBuf;
 
@@ -67,6 +68,13 @@ struct RenderArgs {
     /// BSDF direction sampling (alone, or as the BSDF half of a guide's mixture).
     #[arg(long, value_enum)]
     sampling: Option<Sampling>,
+    #[command(flatten)]
+    guides: GuideArgs,
+}
+
+/// Guide settings beyond the scene's `[sarsa]` and `[neural]` tables.
+#[derive(clap::Args, Clone)]
+struct GuideArgs {
     /// Guide settings: a TOML file of [sarsa] and [neural] tables (keys as
     /// in the scene file's tables; README lists them).
     #[arg(long, value_name = "FILE")]
@@ -75,6 +83,15 @@ struct RenderArgs {
     /// (repeatable; after the scene's tables and --guide-config).
     #[arg(long = "set", value_name = "GUIDE.KEY=VALUE")]
     sets: Vec<String>,
+}
+
+impl GuideArgs {
+    fn sources(&self) -> GuideSources {
+        GuideSources {
+            config: self.guide_config.clone(),
+            sets: self.sets.clone(),
+        }
+    }
 }
 
 impl RenderArgs {
@@ -90,13 +107,6 @@ impl RenderArgs {
             seed: self.seed,
             sampling: self.sampling,
             guide: None,
-        }
-    }
-
-    fn guides(&self) -> GuideSources {
-        GuideSources {
-            config: self.guide_config.clone(),
-            sets: self.sets.clone(),
         }
     }
 }
@@ -189,6 +199,8 @@ enum Command {
         #[arg(long, default_value = "mitsuba", value_parser = ["mitsuba", "none"])]
         peer: String,
         #[command(flatten)]
+        guides: GuideArgs,
+        #[command(flatten)]
         device: DeviceArgs,
     },
 }
@@ -206,7 +218,7 @@ fn run(cli: Cli) -> Result<()> {
         } => cli::render(
             scene,
             args.overrides(),
-            &args.guides(),
+            &args.guides.sources(),
             &RenderOutputs {
                 exr: output.clone(),
                 png: png.clone(),
@@ -234,6 +246,7 @@ fn run(cli: Cli) -> Result<()> {
             repeats,
             json,
             peer,
+            guides,
             device,
         } => {
             let (w, h) = if *quick { (64, 64) } else { (256, 256) };
@@ -247,6 +260,7 @@ fn run(cli: Cli) -> Result<()> {
                     spp: *spp,
                     repeats: *repeats,
                     peer: peer == "mitsuba",
+                    guides: &guides.sources(),
                 };
                 return cli::bench_speed(&plan, json.as_deref(), &device.choice());
             }
@@ -259,6 +273,7 @@ fn run(cli: Cli) -> Result<()> {
             plan.height = height;
             plan.seed = *seed;
             plan.reference = reference.clone();
+            plan.guides = guides.sources();
             if let Some(n) = reference_spp {
                 plan.reference_spp = *n;
             }

@@ -360,3 +360,28 @@ fn speed_table_shows_the_peer_or_how_to_set_it_up() {
     assert_eq!(report["peers"].as_array().map(Vec::len), Some(0));
     assert!(report["peer_missing"].as_str().unwrap().contains("install"));
 }
+
+/// Guide settings reach the bench too, checked before any GPU work.
+#[test]
+fn bench_checks_guide_settings_first() {
+    for args in [
+        &["--quick", "--methods", "sarsa", "--set", "sarsa.epsilonx=2"][..],
+        &["--speed", "--methods", "neural", "--set", "neural.width=6"][..],
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+            .args(["bench", "scenes/cornell-box.toml", "--out"])
+            .arg(common::scratch("bench-guide").join("out"))
+            .args(args)
+            .current_dir(common::repo("."))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{args:?}");
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+        assert!(
+            stderr.contains("[sarsa] unknown field `epsilonx`")
+                || stderr.contains("[neural] width = 6"),
+            "{stderr}"
+        );
+    }
+}

@@ -4,9 +4,11 @@
 
 use super::{learned, BenchError, Config};
 use crate::gpu::{GpuContext, PassTiming};
-use crate::guide::Guide;
+use crate::guide::{Guide, GuideSources};
 use crate::image::{self, ErrorMetrics, Image};
-use crate::render::{Checkpoint, Method, Overrides, PassRecord, RenderSettings, Renderer};
+use crate::render::{
+    Checkpoint, Method, Overrides, PassRecord, RenderSettings, Renderer, SettingsError,
+};
 use crate::scene::Scene;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -25,6 +27,8 @@ pub struct EvalPlan {
     pub seed: u32,
     pub out: PathBuf,
     pub cache_dir: PathBuf,
+    /// Guide settings beyond each scene's tables.
+    pub guides: GuideSources,
 }
 
 impl EvalPlan {
@@ -41,6 +45,7 @@ impl EvalPlan {
             seed: 1,
             out,
             cache_dir: default_cache_dir(),
+            guides: GuideSources::default(),
         }
     }
 
@@ -291,6 +296,10 @@ fn render_settings(
     spp: u32,
     seed: u32,
 ) -> Result<RenderSettings, BenchError> {
+    let guide = plan
+        .guides
+        .resolve(scene, config.method.name())
+        .map_err(|e| BenchError::Render(SettingsError(e).into()))?;
     let o = Overrides {
         method: Some(config.method),
         spp: Some(spp),
@@ -298,6 +307,7 @@ fn render_settings(
         height: Some(plan.height),
         nee: config.nee,
         seed: Some(seed),
+        guide,
         ..Default::default()
     };
     RenderSettings::resolve(scene, &o).map_err(|e| BenchError::Render(e.into()))

@@ -10,7 +10,8 @@ pub mod report;
 pub use eval::{evaluate, EvalPlan, EvalProgress, Report};
 
 use crate::gpu::GpuContext;
-use crate::render::{self, Method, Overrides, RenderError, RenderSettings};
+use crate::guide::GuideSources;
+use crate::render::{self, Method, Overrides, RenderError, RenderSettings, SettingsError};
 use crate::scene::{Scene, SceneError};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -93,6 +94,8 @@ pub struct SpeedPlan<'a> {
     pub repeats: u32,
     /// Also time Mitsuba 3 on each scene (see [`peer`]).
     pub peer: bool,
+    /// Guide settings beyond each scene's tables.
+    pub guides: &'a GuideSources,
 }
 
 /// The speed table: our rows, and the peer's where it was measured.
@@ -132,6 +135,10 @@ pub fn speed(
                 width: Some(plan.width),
                 height: Some(plan.height),
                 nee: config.nee,
+                guide: plan
+                    .guides
+                    .resolve(&scene, config.method.name())
+                    .map_err(|e| RenderError::from(SettingsError(e)))?,
                 ..Default::default()
             };
             let mut best: Option<SpeedRow> = None;

@@ -19,6 +19,7 @@ use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
 use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 /// What a guide's sampler draws sectors in proportion to.
@@ -143,19 +144,34 @@ impl GuideSettings {
     /// The guide `name`'s settings from its table (keys missing: defaults).
     pub fn from_table(name: &str, table: &toml::Table) -> Result<Self, String> {
         let value = toml::Value::Table(table.clone());
-        let e = |e: toml::de::Error, keys: toml::Table| {
-            let keys: Vec<&str> = keys.keys().map(|k| k.as_str()).collect();
+        // Every key, optional ones included, for the message on a typo.
+        let common = Common {
+            freeze_after: Some(0),
+            reset_after: Some(0),
+            ..Default::default()
+        };
+        let e = |e: toml::de::Error, all: Self| {
+            let keys: Vec<String> = all.to_table().keys().cloned().collect();
             format!("[{name}] {} (keys: {})", e.message(), keys.join(", "))
         };
         match name {
-            "sarsa" => value
-                .try_into()
-                .map(Self::Sarsa)
-                .map_err(|x| e(x, Self::Sarsa(Default::default()).to_table())),
-            "neural" => value
-                .try_into()
-                .map(Self::Neural)
-                .map_err(|x| e(x, Self::Neural(Default::default()).to_table())),
+            "sarsa" => value.try_into().map(Self::Sarsa).map_err(|x| {
+                let all = SarsaSettings {
+                    common,
+                    volumes: Some(0),
+                    density: Some(0.0),
+                    memory_mib: Some(0.0),
+                    ..Default::default()
+                };
+                e(x, Self::Sarsa(all))
+            }),
+            "neural" => value.try_into().map(Self::Neural).map_err(|x| {
+                let all = NeuralSettings {
+                    common,
+                    ..Default::default()
+                };
+                e(x, Self::Neural(all))
+            }),
             _ => Err(format!("no guide named '{name}' (guides: sarsa, neural)")),
         }
     }
@@ -211,6 +227,72 @@ impl GuideSettings {
             n => n.clone(),
         }
     }
+}
+
+/// Where guide settings come from besides the scene's own tables: a file
+/// of `[sarsa]` / `[neural]` tables, then `guide.key=value` assignments.
+#[derive(Clone, Debug, Default)]
+pub struct GuideSources {
+    pub config: Option<PathBuf>,
+    pub sets: Vec<String>,
+}
+
+impl GuideSources {
+    /// The settings of the guide of method `method` (None for a method
+    /// without one): the scene's table, then the config file's, then the
+    /// assignments, key by key.
+    pub fn resolve(&self, scene: &Scene, method: &str) -> Result<Option<GuideSettings>, String> {
+        let mut tables: Vec<(String, toml::Table)> = GUIDES
+            .iter()
+            .map(|&g| (g.to_string(), scene.guide_table(g).clone()))
+            .collect();
+        if let Some(path) = &self.config {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("{}: cannot read the guide config: {e}", path.display()))?;
+            let file: toml::Table = toml::from_str(&text)
+                .map_err(|e| format!("{}: {}", path.display(), e.message()))?;
+            for (name, value) in file {
+                let (Some((_, table)), toml::Value::Table(given)) =
+                    (tables.iter_mut().find(|(n, _)| *n == name), value)
+                else {
+                    return Err(format!(
+                        "{}: '{name}' is not a guide table (expected [sarsa] or [neural])",
+                        path.display()
+                    ));
+                };
+                table.extend(given);
+            }
+        }
+        for set in &self.sets {
+            let malformed = || format!("--set '{set}' is not guide.key=value");
+            let (key, value) = set.split_once('=').ok_or_else(malformed)?;
+            let (guide, key) = key.trim().split_once('.').ok_or_else(malformed)?;
+            let Some((_, table)) = tables.iter_mut().find(|(n, _)| n == guide) else {
+                return Err(format!(
+                    "--set '{set}': no guide named '{guide}' (guides: sarsa, neural)"
+                ));
+            };
+            if guide != method {
+                return Err(format!(
+                    "--set '{set}' sets the {guide} guide, but the method is {method}"
+                ));
+            }
+            table.insert(key.to_string(), parse_value(value.trim()));
+        }
+        match tables.iter().find(|(n, _)| n == method) {
+            Some((_, table)) => GuideSettings::from_table(method, table).map(Some),
+            None => Ok(None),
+        }
+    }
+}
+
+/// A TOML value as written (`0.3`, `[8, 8]`, `true`), else the text as a
+/// string (`cas`, `qcos`).
+fn parse_value(text: &str) -> toml::Value {
+    toml::from_str::<toml::Table>(&format!("v = {text}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(text.to_string()))
 }
 
 /// A guide's state on the device and the passes it adds to a render.
