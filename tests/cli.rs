@@ -689,3 +689,30 @@ fn guide_settings_layer_and_round_trip() {
     std::fs::write(&scene, format!("{text}\n[neural]\nwidht = 8\n")).unwrap();
     expect_error(&dir, &scene, &[], &[], &["[neural]", "widht"]);
 }
+
+/// A truncated MTL colour line (`Kd 0.78 0.`) once panicked inside the OBJ
+/// library; it is a one-line error naming the MTL file and its line.
+#[test]
+fn truncated_mtl_colour() {
+    let dir = scratch("truncated-mtl");
+    let mtl = dir.join("cornell-box.mtl");
+    edit(&mtl, "Kd 0.725 0.71 0.68", "Kd 0.78 0.");
+    expect_error(
+        &dir,
+        &dir.join("cornell-box.toml"),
+        &[],
+        &[],
+        &[
+            "cornell-box.mtl",
+            "malformed MTL: line 4: Kd: a number is missing",
+        ],
+    );
+    let output = qtrace()
+        .arg("inspect")
+        .arg(dir.join("cornell-box.toml"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}

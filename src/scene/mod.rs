@@ -3,6 +3,7 @@
 
 pub mod bvh;
 pub mod file;
+pub mod obj;
 pub mod procedural;
 
 use crate::bsdf::luminance;
@@ -27,7 +28,7 @@ pub enum SceneError {
     },
     #[error("{path}: malformed OBJ: {message}")]
     Obj { path: PathBuf, message: String },
-    #[error("{path}: cannot load the MTL named by its mtllib: {message}")]
+    #[error("{path}: {message}")]
     Mtl { path: PathBuf, message: String },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
@@ -363,21 +364,38 @@ fn load_obj(
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found"),
         });
     }
-    let options = tobj::LoadOptions {
-        triangulate: true,
-        single_index: false,
-        ..Default::default()
-    };
-    let (models, mtl) = tobj::load_obj(obj_path, &options).map_err(|e| SceneError::Obj {
+    let read = |path: &Path| std::fs::read_to_string(path);
+    let text = read(obj_path).map_err(|source| SceneError::Read {
         path: obj_path.to_path_buf(),
-        message: e.to_string(),
+        source,
     })?;
-    let mtl = mtl.map_err(|e| SceneError::Mtl {
-        path: obj_path.to_path_buf(),
-        message: e.to_string(),
+    let dir = obj_path.parent().unwrap_or(Path::new("."));
+    let parsed = obj::parse_obj(&text, &mut |name| {
+        read(&dir.join(name))
+            .map_err(|e| format!("cannot read the MTL file '{name}' that mtllib names: {e}"))
+    })
+    .map_err(|e| match &e.mtl {
+        Some(name) => SceneError::Mtl {
+            path: dir.join(name),
+            message: format!("malformed MTL: line {}: {}", e.line, e.message),
+        },
+        None if e.message.contains("the MTL file") => SceneError::Mtl {
+            path: obj_path.to_path_buf(),
+            message: e.to_string(),
+        },
+        None => SceneError::Obj {
+            path: obj_path.to_path_buf(),
+            message: e.to_string(),
+        },
     })?;
+    for name in &parsed.unknown_materials {
+        log::warn!(
+            "{}: usemtl '{name}' names no material of its MTL files; its faces are grey",
+            obj_path.display()
+        );
+    }
     let base = materials.len() as u32;
-    for m in &mtl {
+    for m in &parsed.materials {
         let albedo = check_color(
             obj_path,
             &format!("Kd of material '{}'", m.name),
@@ -398,7 +416,7 @@ fn load_obj(
             emission: check_color(
                 obj_path,
                 &format!("Ke of material '{}'", m.name),
-                m.emissive.unwrap_or([0.0; 3]),
+                m.emission.unwrap_or([0.0; 3]),
             )?,
         });
     }
@@ -409,25 +427,14 @@ fn load_obj(
         albedo: Vec3::splat(0.8),
         emission: Vec3::ZERO,
     });
-    for model in &models {
-        let mesh = &model.mesh;
-        let m = mesh
-            .material_id
-            .map_or(default_material, |id| base + id as u32);
+    for group in parsed.groups {
         out.sources
-            .push((obj_path.to_path_buf(), format!("object '{}'", model.name)));
+            .push((obj_path.to_path_buf(), format!("object '{}'", group.name)));
         let src = out.sources.len() as u32 - 1;
-        let p = |i: u32| {
-            let i = i as usize * 3;
-            Vec3::new(
-                mesh.positions[i],
-                mesh.positions[i + 1],
-                mesh.positions[i + 2],
-            )
-        };
-        for f in mesh.indices.chunks_exact(3) {
-            out.positions.push([p(f[0]), p(f[1]), p(f[2])]);
-            out.material_of.push(m);
+        for (t, m) in group.triangles.into_iter().zip(group.material) {
+            out.positions.push(t);
+            out.material_of
+                .push(m.map_or(default_material, |id| base + id as u32));
             out.source_of.push(src);
         }
     }
