@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod bsdf;
 pub mod cli;
+pub mod fuzz;
 #[allow(unsafe_code)]
 pub mod gpu;
 pub mod guide;

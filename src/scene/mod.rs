@@ -162,8 +162,12 @@ impl Scene {
 
     /// Loads and validates a scene file and everything it names.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SceneError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+        Self::load_with(path.as_ref(), &Loader::default())
+    }
+
+    /// [`Scene::load`], reading files and bounding the scene's size as `loader` says.
+    pub fn load_with(path: &Path, loader: &Loader<'_>) -> Result<Self, SceneError> {
+        let text = (loader.read)(path).map_err(|source| SceneError::Read {
             path: path.to_path_buf(),
             source,
         })?;
@@ -190,10 +194,17 @@ impl Scene {
                 sources: &mut sources,
                 source_of: &mut source_of,
             };
-            load_obj(&obj_path, &mut materials, &mut geometry)?;
+            load_obj(&obj_path, loader, &mut materials, &mut geometry)?;
         }
         for p in &file.procedural {
             procedural::validate(p).map_err(invalid)?;
+            let count = procedural::triangle_count(p) as usize;
+            if positions.len().saturating_add(count) > loader.max_triangles {
+                return Err(invalid(format!(
+                    "the scene would have more than {} triangles, the most a scene may have",
+                    loader.max_triangles
+                )));
+            }
             let g = procedural::generate(p);
             let m = materials.len() as u32;
             materials.push(Material {
@@ -353,25 +364,46 @@ struct Geometry<'a> {
     source_of: &'a mut Vec<u32>,
 }
 
+/// How a scene's files are read, and how many triangles it may have.
+pub struct Loader<'a> {
+    pub read: &'a dyn Fn(&Path) -> std::io::Result<String>,
+    pub max_triangles: usize,
+}
+
+/// Most triangles a scene may have: about 3 GiB of host memory while it
+/// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and
+/// the renderer says so.
+pub const MAX_TRIANGLES: usize = 1 << 24;
+
+impl Default for Loader<'_> {
+    /// The file system, and [`MAX_TRIANGLES`].
+    fn default() -> Self {
+        Self {
+            read: &|path| std::fs::read_to_string(path),
+            max_triangles: MAX_TRIANGLES,
+        }
+    }
+}
+
 fn load_obj(
     obj_path: &Path,
+    loader: &Loader<'_>,
     materials: &mut Vec<Material>,
     out: &mut Geometry<'_>,
 ) -> Result<(), SceneError> {
-    if !obj_path.is_file() {
-        return Err(SceneError::Read {
-            path: obj_path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found"),
-        });
-    }
-    let read = |path: &Path| std::fs::read_to_string(path);
-    let text = read(obj_path).map_err(|source| SceneError::Read {
+    let text = (loader.read)(obj_path).map_err(|source| SceneError::Read {
         path: obj_path.to_path_buf(),
-        source,
+        source: match source.kind() {
+            std::io::ErrorKind::NotFound => {
+                std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found")
+            }
+            _ => source,
+        },
     })?;
     let dir = obj_path.parent().unwrap_or(Path::new("."));
-    let parsed = obj::parse_obj(&text, &mut |name| {
-        read(&dir.join(name))
+    let budget = loader.max_triangles.saturating_sub(out.positions.len());
+    let parsed = obj::parse_obj(&text, budget, &mut |name| {
+        (loader.read)(&dir.join(name))
             .map_err(|e| format!("cannot read the MTL file '{name}' that mtllib names: {e}"))
     })
     .map_err(|e| match &e.mtl {

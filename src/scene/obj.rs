@@ -52,10 +52,6 @@ impl std::fmt::Display for ParseError {
     }
 }
 
-/// Most triangles one OBJ file may give (a BVH node index must fit its
-/// escape links; see src/scene/bvh.rs).
-pub const MAX_TRIANGLES: usize = 1 << 25;
-
 fn number(word: Option<&str>, what: &str) -> Result<f32, String> {
     let w = word.ok_or_else(|| format!("{what}: a number is missing"))?;
     w.parse::<f32>()
@@ -137,10 +133,12 @@ fn corner(word: &str, positions: usize) -> Result<usize, String> {
     Ok(index as usize)
 }
 
-/// Parses an OBJ file's text; `mtl` gives the text of an MTL file `mtllib`
-/// names (or why it cannot).
+/// Parses an OBJ file's text, refusing more than `max_triangles` triangles
+/// before it holds them; `mtl` gives the text of an MTL file `mtllib` names
+/// (or why it cannot).
 pub fn parse_obj(
     text: &str,
+    max_triangles: usize,
     mtl: &mut dyn FnMut(&str) -> Result<String, String>,
 ) -> Result<Obj, ParseError> {
     let mut obj = Obj::default();
@@ -182,8 +180,10 @@ pub fn parse_obj(
                     )));
                 }
                 triangles += corners.len() - 2;
-                if triangles > MAX_TRIANGLES {
-                    return Err(fail(format!("more than {MAX_TRIANGLES} triangles")));
+                if triangles > max_triangles {
+                    return Err(fail(format!(
+                        "more than {max_triangles} triangles, the most a scene may have"
+                    )));
                 }
                 // A fan, as every OBJ reader triangulates a convex polygon.
                 for k in 1..corners.len() - 1 {
@@ -250,7 +250,7 @@ mod tests {
     #[test]
     fn faces_are_fans_with_relative_and_slashed_indices() {
         let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\no quad\nf 1/1/1 2//2 3/3 -1\n";
-        let obj = parse_obj(text, &mut no_mtl).unwrap();
+        let obj = parse_obj(text, 100, &mut no_mtl).unwrap();
         assert_eq!(obj.groups.len(), 1);
         let g = &obj.groups[0];
         assert_eq!(g.name, "quad");
@@ -266,7 +266,7 @@ mod tests {
     fn materials_come_from_mtllib_by_name() {
         let text =
             "mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl lamp\nf 1 2 3\nusemtl nope\nf 1 2 3\n";
-        let obj = parse_obj(text, &mut |name| {
+        let obj = parse_obj(text, 100, &mut |name| {
             assert_eq!(name, "a.mtl");
             Ok("newmtl wall\nKd 0.5\nnewmtl lamp\nKd 0.1 0.2 0.3\nKe 4 4 4\nmap_Kd x.png\n".into())
         })
@@ -323,10 +323,13 @@ mod tests {
             ),
         ];
         for (obj, mtl, want) in cases {
-            let e = parse_obj(obj, &mut |_| Ok(mtl.to_string())).unwrap_err();
+            let e = parse_obj(obj, 100, &mut |_| Ok(mtl.to_string())).unwrap_err();
             assert!(e.to_string().contains(want), "{obj:?} {mtl:?}: {e}");
         }
-        let e = parse_obj("mtllib gone.mtl\n", &mut no_mtl).unwrap_err();
+        let e = parse_obj("mtllib gone.mtl\n", 100, &mut no_mtl).unwrap_err();
         assert_eq!(e.to_string(), "line 1: gone.mtl not found");
+        let quad = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+        let e = parse_obj(quad, 1, &mut no_mtl).unwrap_err();
+        assert!(e.to_string().contains("more than 1 triangles"), "{e}");
     }
 }
