@@ -121,7 +121,18 @@ pub fn render(
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    result.image.write_exr(&out.exr)?;
+    let s = &result.stats;
+    let provenance = image::Provenance {
+        spp: s.image_spp,
+        method: if s.nee {
+            format!("{}+nee", s.method)
+        } else {
+            s.method.clone()
+        },
+        scene: scene_id(&scene),
+        seeds: vec![s.seed],
+    };
+    result.image.write_exr_with(&out.exr, Some(&provenance))?;
     if let Some(p) = &out.png {
         result.image.write_png(p)?;
     }
@@ -151,6 +162,69 @@ pub fn render(
         eprint!("{}", s.profile_table());
     }
     check_validation(&ctx)
+}
+
+/// How a render's EXR names its scene: the file's name and the fingerprint
+/// of its contents, the same on every machine.
+pub fn scene_id(scene: &Scene) -> String {
+    let name = scene.path.file_name().unwrap_or_default().to_string_lossy();
+    format!("{name} {:016x}", scene.fingerprint)
+}
+
+/// `qtrace merge`: averages parts by their sample counts.
+pub fn merge(parts: &[PathBuf], output: &Path, stats: Option<&Path>) -> Result<()> {
+    check_output(output, "exr")?;
+    if let Some(p) = stats {
+        check_output(p, "json")?;
+    }
+    let parts: Vec<image::Part> = parts
+        .iter()
+        .map(|p| image::Part::read(p))
+        .collect::<Result<_, _>>()?;
+    let (merged, provenance) = image::merge(&parts).map_err(anyhow::Error::msg)?;
+    merged.write_exr_with(output, Some(&provenance))?;
+    if let Some(p) = stats {
+        #[derive(serde::Serialize)]
+        struct PartStats<'a> {
+            path: String,
+            spp: u32,
+            seeds: &'a [u32],
+        }
+        #[derive(serde::Serialize)]
+        struct MergeStats<'a> {
+            #[serde(flatten)]
+            merged: &'a image::Provenance,
+            width: usize,
+            height: usize,
+            parts: Vec<PartStats<'a>>,
+        }
+        write_json(
+            p,
+            &MergeStats {
+                merged: &provenance,
+                width: merged.width,
+                height: merged.height,
+                parts: parts
+                    .iter()
+                    .map(|q| PartStats {
+                        path: q.path.display().to_string(),
+                        spp: q.provenance.spp,
+                        seeds: &q.provenance.seeds,
+                    })
+                    .collect(),
+            },
+        )?;
+    }
+    eprintln!(
+        "merged {} parts: {} spp {}x{} of {} ({})",
+        parts.len(),
+        provenance.spp,
+        merged.width,
+        merged.height,
+        provenance.scene,
+        provenance.method
+    );
+    Ok(())
 }
 
 fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {

@@ -141,6 +141,19 @@ enum Command {
         /// Reference image (OpenEXR) of the same size.
         reference: PathBuf,
     },
+    /// Average renders of one scene and method, made apart with different
+    /// --seed values, weighted by their sample counts.
+    Merge {
+        /// EXR parts written by `qtrace render`.
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        /// Merged linear float RGB OpenEXR output.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Statistics JSON output: the parts and the total.
+        #[arg(long)]
+        stats: Option<PathBuf>,
+    },
     /// List Vulkan devices and the features qtrace uses.
     Devices,
     /// Triangles, lights, BVH statistics of a scene.
@@ -228,6 +241,11 @@ fn run(cli: Cli) -> Result<()> {
             &device.choice(),
         ),
         Command::Compare { image, reference } => cli::compare(image, reference),
+        Command::Merge {
+            parts,
+            output,
+            stats,
+        } => cli::merge(parts, output, stats.as_deref()),
         Command::Devices => cli::devices(),
         Command::Inspect { scene } => cli::inspect(scene),
         Command::Bench {

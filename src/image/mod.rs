@@ -19,6 +19,34 @@ pub enum ImageError {
     },
 }
 
+/// What a render's EXR says of itself in its header, so parts rendered
+/// apart can be merged (`qtrace merge`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Provenance {
+    /// Samples per pixel in the image.
+    pub spp: u32,
+    /// The method as `bench` names it (`pt`, `sarsa+nee`, ...).
+    pub method: String,
+    /// The scene file, as the render was given it.
+    pub scene: String,
+    /// The seed of each part the image holds.
+    pub seeds: Vec<u32>,
+}
+
+const ATTR_SPP: &str = "qtraceSpp";
+const ATTR_METHOD: &str = "qtraceMethod";
+const ATTR_SCENE: &str = "qtraceScene";
+const ATTR_SEEDS: &str = "qtraceSeeds";
+
+/// Header text: characters an EXR string cannot hold become '?'.
+fn exr_text(s: &str) -> exr::meta::attribute::Text {
+    let latin1: String = s
+        .chars()
+        .map(|c| if (c as u32) < 256 { c } else { '?' })
+        .collect();
+    exr::meta::attribute::Text::new_or_none(&latin1).unwrap_or_default()
+}
+
 /// Linear RGB, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
@@ -68,13 +96,79 @@ impl Image {
 
     /// Linear float RGB OpenEXR.
     pub fn write_exr(&self, path: &Path) -> Result<(), ImageError> {
-        write_atomically(path, |tmp| {
-            exr::prelude::write_rgb_file(tmp, self.width, self.height, |x, y| {
-                let p = self.pixels[y * self.width + x];
+        self.write_exr_with(path, None)
+    }
+
+    /// Linear float RGB OpenEXR, with the render's provenance in its header.
+    pub fn write_exr_with(
+        &self,
+        path: &Path,
+        provenance: Option<&Provenance>,
+    ) -> Result<(), ImageError> {
+        use exr::prelude::*;
+        let mut attributes = LayerAttributes::default();
+        if let Some(p) = provenance {
+            let seeds: Vec<String> = p.seeds.iter().map(|s| s.to_string()).collect();
+            for (key, value) in [
+                (ATTR_SPP, p.spp.to_string()),
+                (ATTR_METHOD, p.method.clone()),
+                (ATTR_SCENE, p.scene.clone()),
+                (ATTR_SEEDS, seeds.join(",")),
+            ] {
+                attributes
+                    .other
+                    .insert(Text::from(key), AttributeValue::Text(exr_text(&value)));
+            }
+        }
+        let layer = Layer::new(
+            (self.width, self.height),
+            attributes,
+            Encoding::FAST_LOSSLESS,
+            SpecificChannels::rgb(|pos: Vec2<usize>| {
+                let p = self.pixels[pos.y() * self.width + pos.x()];
                 (p[0], p[1], p[2])
-            })
-            .map_err(|e| e.to_string())
+            }),
+        );
+        write_atomically(path, |tmp| {
+            exr::image::Image::from_layer(layer)
+                .write()
+                .to_file(tmp)
+                .map_err(|e| e.to_string())
         })
+    }
+
+    /// The provenance a qtrace render wrote into an EXR's header, if any.
+    pub fn read_provenance(path: &Path) -> Result<Option<Provenance>, ImageError> {
+        let meta =
+            exr::meta::MetaData::read_from_file(path, false).map_err(|e| ImageError::Read {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        let Some(header) = meta.headers.first() else {
+            return Ok(None);
+        };
+        let text = |key: &str| match header.own_attributes.other.get(&exr_text(key)) {
+            Some(exr::meta::attribute::AttributeValue::Text(t)) => Some(t.to_string()),
+            _ => None,
+        };
+        let bad = |what: &str| ImageError::Read {
+            path: path.to_path_buf(),
+            message: format!("its qtrace header has a malformed {what}"),
+        };
+        let Some(spp) = text(ATTR_SPP) else {
+            return Ok(None);
+        };
+        let seeds = text(ATTR_SEEDS).unwrap_or_default();
+        Ok(Some(Provenance {
+            spp: spp.parse().map_err(|_| bad("sample count"))?,
+            method: text(ATTR_METHOD).ok_or_else(|| bad("method"))?,
+            scene: text(ATTR_SCENE).ok_or_else(|| bad("scene"))?,
+            seeds: seeds
+                .split(',')
+                .filter(|s| !s.is_empty())
+                .map(|s| s.parse().map_err(|_| bad("seed list")))
+                .collect::<Result<_, _>>()?,
+        }))
     }
 
     /// 8-bit sRGB PNG; values are clamped to [0, 1] before the sRGB curve.
@@ -242,4 +336,95 @@ mod tests {
         assert!((expected_rel_mse(&mean, &var, 4) - 0.01 / 0.1).abs() < 1e-6);
         assert!((m.mape - 100.0 / 3.0).abs() < 1e-9);
     }
+}
+
+/// One part of a render split across processes or machines.
+#[derive(Clone, Debug)]
+pub struct Part {
+    pub path: PathBuf,
+    pub image: Image,
+    pub provenance: Provenance,
+}
+
+impl Part {
+    /// Reads an EXR a qtrace render wrote; one without a qtrace header is an error.
+    pub fn read(path: &Path) -> Result<Self, ImageError> {
+        let provenance = Image::read_provenance(path)?.ok_or_else(|| ImageError::Read {
+            path: path.to_path_buf(),
+            message: "no qtrace header (sample count, method, scene): not a qtrace render".into(),
+        })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            image: Image::read_exr(path)?,
+            provenance,
+        })
+    }
+}
+
+/// Averages parts weighted by their sample counts. Parts must share size,
+/// scene and method, and no seed may appear twice (the same seed gives the
+/// same samples, which would count twice).
+pub fn merge(parts: &[Part]) -> Result<(Image, Provenance), String> {
+    let first = parts.first().ok_or("merge needs at least one part")?;
+    let mut seen: Vec<(u32, &Path)> = Vec::new();
+    let mut total = 0u64;
+    for p in parts {
+        let (a, b) = (&first.provenance, &p.provenance);
+        let name = p.path.display();
+        if (p.image.width, p.image.height) != (first.image.width, first.image.height) {
+            return Err(format!(
+                "{name} is {}x{}, {} is {}x{}",
+                p.image.width,
+                p.image.height,
+                first.path.display(),
+                first.image.width,
+                first.image.height
+            ));
+        }
+        if b.scene != a.scene {
+            return Err(format!(
+                "{name} renders scene {}, {} renders {}",
+                b.scene,
+                first.path.display(),
+                a.scene
+            ));
+        }
+        if b.method != a.method {
+            return Err(format!(
+                "{name} was rendered with {}, {} with {}",
+                b.method,
+                first.path.display(),
+                a.method
+            ));
+        }
+        for &s in &b.seeds {
+            if let Some((_, other)) = seen.iter().find(|(t, _)| *t == s) {
+                return Err(format!(
+                    "{name} and {} both hold seed {s}: the same samples would count twice; render parts with different --seed values",
+                    other.display()
+                ));
+            }
+            seen.push((s, &p.path));
+        }
+        total += b.spp as u64;
+    }
+    let spp = u32::try_from(total).map_err(|_| {
+        format!("the parts hold {total} samples per pixel in all, more than one image can count")
+    })?;
+    let mut image = Image::new(first.image.width, first.image.height);
+    for p in parts {
+        let w = p.provenance.spp as f64 / total.max(1) as f64;
+        for (out, px) in image.pixels.iter_mut().zip(&p.image.pixels) {
+            for c in 0..3 {
+                out[c] = (out[c] as f64 + w * px[c] as f64) as f32;
+            }
+        }
+    }
+    let provenance = Provenance {
+        spp,
+        method: first.provenance.method.clone(),
+        scene: first.provenance.scene.clone(),
+        seeds: seen.iter().map(|(s, _)| *s).collect(),
+    };
+    Ok((image, provenance))
 }

@@ -99,6 +99,9 @@ impl Camera {
 /// A loaded scene, triangles already in BVH leaf order.
 pub struct Scene {
     pub path: PathBuf,
+    /// FNV-1a over the bytes of every file the scene was read from: parts
+    /// of one render carry it, so `merge` refuses parts of another scene.
+    pub fingerprint: u64,
     pub camera: Camera,
     pub defaults: RenderDefaults,
     /// The `[sarsa]` and `[neural]` tables, as written; render settings
@@ -167,6 +170,21 @@ impl Scene {
 
     /// [`Scene::load`], reading files and bounding the scene's size as `loader` says.
     pub fn load_with(path: &Path, loader: &Loader<'_>) -> Result<Self, SceneError> {
+        // Every file read goes into the scene's fingerprint.
+        let fingerprint = std::cell::Cell::new(0xcbf2_9ce4_8422_2325u64);
+        let hashing = |p: &Path| {
+            let text = (loader.read)(p)?;
+            let mut h = fingerprint.get();
+            for &b in text.as_bytes() {
+                h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+            }
+            fingerprint.set(h);
+            Ok(text)
+        };
+        let loader = &Loader {
+            read: &hashing,
+            max_triangles: loader.max_triangles,
+        };
         let text = (loader.read)(path).map_err(|source| SceneError::Read {
             path: path.to_path_buf(),
             source,
@@ -284,6 +302,7 @@ impl Scene {
         let lights = build_lights(&mut triangles, &materials);
         Ok(Self {
             path: path.to_path_buf(),
+            fingerprint: fingerprint.get(),
             camera,
             defaults: file.render,
             guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
