@@ -11,6 +11,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// Which Vulkan device, and whether to validate.
@@ -84,7 +85,38 @@ pub struct RenderOutputs {
     pub png: Option<PathBuf>,
     pub stats: Option<PathBuf>,
     pub profile: bool,
+    /// Also write all of them every this many seconds.
+    pub checkpoint: Option<f64>,
 }
+
+impl RenderOutputs {
+    /// Writes the image (with its provenance), the PNG and the stats JSON,
+    /// each atomically.
+    fn write(&self, scene: &Scene, image: &Image, stats: &render::RenderStats) -> Result<()> {
+        let provenance = image::Provenance {
+            spp: stats.image_spp,
+            method: if stats.nee {
+                format!("{}+nee", stats.method)
+            } else {
+                stats.method.clone()
+            },
+            scene: scene_id(scene),
+            seeds: vec![stats.seed],
+        };
+        image.write_exr_with(&self.exr, Some(&provenance))?;
+        if let Some(p) = &self.png {
+            image.write_png(p)?;
+        }
+        if let Some(p) = &self.stats {
+            write_json(p, stats)?;
+        }
+        Ok(())
+    }
+}
+
+/// Exit status of a render a signal stopped: 128 + the signal's number.
+pub const EXIT_SIGINT: i32 = 130;
+pub const EXIT_SIGTERM: i32 = 143;
 
 pub fn render(
     scene_path: &Path,
@@ -92,9 +124,14 @@ pub fn render(
     guides: &GuideSources,
     out: &RenderOutputs,
     device: &DeviceChoice,
-) -> Result<()> {
+) -> Result<i32> {
     // Check everything the user gave before any GPU work.
     check_output(&out.exr, "exr")?;
+    if let Some(t) = out.checkpoint {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--checkpoint {t} must be a positive number of seconds");
+        }
+    }
     if let Some(p) = &out.png {
         check_output(p, "png")?;
     }
@@ -116,29 +153,45 @@ pub fn render(
         render::Budget::Samples(n) => Some(n),
         render::Budget::Seconds(_) => None,
     };
+    // SIGINT and SIGTERM end the render after the batch in flight, with
+    // every output written; a second one ends the process at once.
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let stop = Arc::new(AtomicBool::new(false));
+    let by_term = Arc::new(AtomicBool::new(false));
+    for (signal, code) in [(SIGINT, EXIT_SIGINT), (SIGTERM, EXIT_SIGTERM)] {
+        signal_hook::flag::register_conditional_shutdown(signal, code, stop.clone())?;
+        signal_hook::flag::register(signal, stop.clone())?;
+    }
+    signal_hook::flag::register(SIGTERM, by_term.clone())?;
     let bar = progress_bar(total);
-    let result = render::render(&ctx, &scene, settings, &mut |p| update_bar(&bar, p))?;
+    let mut renderer = render::Renderer::new(&ctx, &scene, settings)?;
+    let control = render::Control {
+        every_seconds: out.checkpoint,
+        stop: Some(&stop),
+        ..Default::default()
+    };
+    let mut failed = None;
+    let result = renderer.run_controlled(
+        &mut |p| {
+            update_bar(&bar, p);
+            if let (Some(b), true) = (&bar, stop.load(Ordering::Relaxed)) {
+                b.set_message("stopping after this pass (again to quit at once)");
+            }
+        },
+        &control,
+        &mut |c| {
+            if failed.is_none() {
+                failed = out.write(&scene, &c.image, &c.stats).err();
+            }
+        },
+    )?;
+    if let Some(e) = failed {
+        return Err(e.context("writing a checkpoint"));
+    }
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    let s = &result.stats;
-    let provenance = image::Provenance {
-        spp: s.image_spp,
-        method: if s.nee {
-            format!("{}+nee", s.method)
-        } else {
-            s.method.clone()
-        },
-        scene: scene_id(&scene),
-        seeds: vec![s.seed],
-    };
-    result.image.write_exr_with(&out.exr, Some(&provenance))?;
-    if let Some(p) = &out.png {
-        result.image.write_png(p)?;
-    }
-    if let Some(p) = &out.stats {
-        write_json(p, &result.stats)?;
-    }
+    out.write(&scene, &result.image, &result.stats)?;
     let s = &result.stats;
     eprintln!(
         "{}: {} spp {}x{} in {:.2} s on {} | {:.2} Mrays/s | zero-contribution {:.1}% | mean path length {:.2}",
@@ -161,7 +214,19 @@ pub fn render(
     if out.profile {
         eprint!("{}", s.profile_table());
     }
-    check_validation(&ctx)
+    check_validation(&ctx)?;
+    if s.interrupted {
+        eprintln!(
+            "interrupted: wrote the {} samples per pixel done",
+            s.image_spp
+        );
+        return Ok(if by_term.load(Ordering::Relaxed) {
+            EXIT_SIGTERM
+        } else {
+            EXIT_SIGINT
+        });
+    }
+    Ok(0)
 }
 
 /// How a render's EXR names its scene: the file's name and the fingerprint

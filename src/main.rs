@@ -131,6 +131,9 @@ enum Command {
         /// Print GPU time per pass.
         #[arg(long)]
         profile: bool,
+        /// Write the image, PNG and stats so far every this many seconds.
+        #[arg(long, value_name = "SECONDS")]
+        checkpoint: Option<f64>,
         #[command(flatten)]
         device: DeviceArgs,
     },
@@ -227,6 +230,7 @@ fn run(cli: Cli) -> Result<()> {
             png,
             stats,
             profile,
+            checkpoint,
             device,
         } => cli::render(
             scene,
@@ -237,9 +241,15 @@ fn run(cli: Cli) -> Result<()> {
                 png: png.clone(),
                 stats: stats.clone(),
                 profile: *profile,
+                checkpoint: *checkpoint,
             },
             &device.choice(),
-        ),
+        )
+        .map(|code| {
+            if code != 0 {
+                std::process::exit(code);
+            }
+        }),
         Command::Compare { image, reference } => cli::compare(image, reference),
         Command::Merge {
             parts,

@@ -716,3 +716,62 @@ fn truncated_mtl_colour() {
     assert_eq!(output.status.code(), Some(1), "{stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
 }
+
+/// `--checkpoint` writes every output while the render runs; SIGINT or
+/// SIGTERM ends it after the pass in flight with every output written,
+/// `"interrupted": true`, the samples done, and exit status 130 or 143.
+#[test]
+fn checkpoints_and_signals_leave_complete_outputs() {
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let dir = scratch(&format!("signal{signal}"));
+        let (exr, json) = (dir.join("s.exr"), dir.join("s.json"));
+        let child = qtrace()
+            .arg("render")
+            .arg(dir.join("cornell-box.toml"))
+            .args(["--width", "32", "--height", "32", "--spp", "1000000"])
+            .args(["--checkpoint", "0.2", "-o"])
+            .arg(&exr)
+            .arg("--png")
+            .arg(dir.join("s.png"))
+            .arg("--stats")
+            .arg(&json)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // The first checkpoint: every output, the render still running.
+        let start = std::time::Instant::now();
+        while !json.exists() {
+            assert!(start.elapsed().as_secs() < 120, "no checkpoint written");
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(stats["interrupted"], false);
+        assert!(stats["spp"].as_u64().unwrap() > 0);
+        assert!(exr.exists() && dir.join("s.png").exists());
+        let status = Command::new("kill")
+            .arg(signal)
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{stderr}");
+        assert!(stderr.contains("interrupted"), "{stderr}");
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(stats["interrupted"], true);
+        let spp = stats["spp"].as_u64().unwrap();
+        assert!(spp > 0 && spp < 1_000_000, "{spp}");
+        let part = qtrace::image::Part::read(&exr).unwrap();
+        assert_eq!(part.provenance.spp as u64, spp);
+        // No temporary file is left behind.
+        let names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .filter(|n| n.contains(".tmp."))
+            .collect();
+        assert!(names.is_empty(), "{names:?}");
+    }
+}

@@ -13,6 +13,7 @@ use crate::guide::Guide;
 use crate::image::Image;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -109,6 +110,8 @@ pub struct Checkpoint {
     pub image: Image,
     /// Over all passes so far.
     pub zero_contribution_fraction: f64,
+    /// The statistics so far, as the finished render would report them.
+    pub stats: RenderStats,
 }
 
 /// The finished render.
@@ -377,27 +380,45 @@ impl Renderer {
         checkpoints: &[u32],
         on_checkpoint: &mut dyn FnMut(&Checkpoint),
     ) -> Result<RenderOutput, RenderError> {
+        let control = Control {
+            at_passes: checkpoints,
+            ..Default::default()
+        };
+        self.run_controlled(progress, &control, on_checkpoint)
+    }
+
+    /// [`Renderer::run`] under `control`: checkpoints by pass count or by
+    /// time, and a stop flag that ends the render after the batch in
+    /// flight (the output then says it was interrupted).
+    pub fn run_controlled(
+        &mut self,
+        progress: &mut dyn FnMut(&Progress),
+        control: &Control<'_>,
+        on_checkpoint: &mut dyn FnMut(&Checkpoint),
+    ) -> Result<RenderOutput, RenderError> {
         let start = Instant::now();
         let mut paused = 0.0f64;
         let (passes_total, budget_seconds) = match self.settings.budget {
             Budget::Samples(n) => (Some(n), None),
             Budget::Seconds(t) => (None, Some(t)),
         };
-        let mut records = Vec::new();
-        let (mut paths, mut rays, mut zero, mut length, mut invalid) =
-            (0u64, 0u64, 0u64, 0u64, 0u64);
-        let mut done = 0u32;
+        let mut tally = Tally::default();
+        let mut last_checkpoint = 0.0f64;
         // Seconds per pass, measured, to size batches under a time budget.
         let mut pass_seconds = 0.0f64;
-        loop {
+        let stopped = || control.stop.is_some_and(|s| s.load(Ordering::Relaxed));
+        let mut finished = false;
+        while !finished {
             // A batch never runs past the budget or the next checkpoint, and
-            // stays short enough (~0.25 s) for progress and time budgets; longer
-            // batches let passes that learn nothing share trace dispatches.
+            // stays short enough (~0.25 s) for progress, time budgets and
+            // stopping; longer batches let passes that learn nothing share
+            // trace dispatches.
+            let done = tally.done;
             let mut count = shaders::MAX_BATCH;
             if let Budget::Samples(n) = self.settings.budget {
                 count = count.min(n - done);
             }
-            if let Some(&next) = checkpoints.iter().filter(|&&c| c > done).min() {
+            if let Some(&next) = control.at_passes.iter().filter(|&&c| c > done).min() {
                 count = count.min(next - done);
             }
             if pass_seconds > 0.0 {
@@ -413,56 +434,55 @@ impl Renderer {
             let batch = self.passes(done, count)?;
             pass_seconds = batch_start.elapsed().as_secs_f64() / count as f64;
             for s in &batch {
-                done += 1;
-                paths += s.paths as u64;
-                rays += s.rays as u64;
-                zero += s.zero_paths as u64;
-                length += s.length_sum as u64;
-                invalid += s.nan_paths as u64;
-                let n = s.paths.max(1) as f64;
-                records.push(PassRecord {
-                    pass: done - 1,
-                    zero_contribution_fraction: s.zero_paths as f64 / n,
-                    mean_path_length: s.length_sum as f64 / n,
-                    rays: s.rays as u64,
-                    loss: self
-                        .guide
-                        .is_some()
-                        .then(|| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
-                });
+                tally.add(s, self.guide.is_some());
             }
             let mut elapsed = start.elapsed().as_secs_f64() - paused;
-            if checkpoints.contains(&done) {
+            let timed = control
+                .every_seconds
+                .is_some_and(|t| elapsed - last_checkpoint >= t);
+            if control.at_passes.contains(&tally.done) || timed {
                 let (image, _) = self.images()?;
                 on_checkpoint(&Checkpoint {
-                    spp: done,
+                    spp: tally.done,
                     seconds: elapsed,
+                    zero_contribution_fraction: tally.zero as f64 / tally.paths.max(1) as f64,
+                    stats: self.stats(&tally, elapsed, false),
                     image,
-                    zero_contribution_fraction: zero as f64 / paths.max(1) as f64,
                 });
                 paused = start.elapsed().as_secs_f64() - elapsed;
                 elapsed = start.elapsed().as_secs_f64() - paused;
+                last_checkpoint = elapsed;
             }
             progress(&Progress {
-                passes_done: done,
+                passes_done: tally.done,
                 passes_total,
                 elapsed,
                 budget_seconds,
-                rays_per_second: rays as f64 / elapsed.max(1e-9),
+                rays_per_second: tally.rays as f64 / elapsed.max(1e-9),
             });
-            let finished = match self.settings.budget {
-                Budget::Samples(n) => done >= n,
-                Budget::Seconds(t) => elapsed >= t || done >= settings::MAX_SPP,
+            finished = match self.settings.budget {
+                Budget::Samples(n) => tally.done >= n,
+                Budget::Seconds(t) => elapsed >= t || tally.done >= settings::MAX_SPP,
             };
-            if finished {
+            if stopped() {
                 break;
             }
         }
         let (image, variance) = self.images()?;
         let wall = start.elapsed().as_secs_f64() - paused;
+        Ok(RenderOutput {
+            image,
+            variance,
+            stats: self.stats(&tally, wall, stopped() && !finished),
+        })
+    }
+
+    /// The statistics of what `tally` counted in `wall` seconds.
+    fn stats(&self, tally: &Tally, wall: f64, interrupted: bool) -> RenderStats {
         let timings = self.profiler.timings();
-        let nz = paths.max(1) as f64;
-        let stats = RenderStats {
+        let nz = tally.paths.max(1) as f64;
+        let done = tally.done;
+        RenderStats {
             method: self.settings.method.name().into(),
             nee: self.settings.nee,
             device: self.ctx.info().name.clone(),
@@ -472,14 +492,15 @@ impl Renderer {
             seed: self.settings.seed,
             spp: done,
             image_spp: done - self.settings.reset_after().unwrap_or(0).min(done),
+            interrupted,
             wall_seconds: wall,
-            samples_per_second: paths as f64 / wall.max(1e-9),
-            rays_per_second: rays as f64 / wall.max(1e-9),
-            paths,
-            rays,
-            zero_contribution_fraction: zero as f64 / nz,
-            mean_path_length: length as f64 / nz,
-            invalid_paths: invalid,
+            samples_per_second: tally.paths as f64 / wall.max(1e-9),
+            rays_per_second: tally.rays as f64 / wall.max(1e-9),
+            paths: tally.paths,
+            rays: tally.rays,
+            zero_contribution_fraction: tally.zero as f64 / nz,
+            mean_path_length: tally.length as f64 / nz,
+            invalid_paths: tally.invalid,
             gpu_ms: timings
                 .iter()
                 .map(|t| (t.name.clone(), t.total_ms))
@@ -488,15 +509,53 @@ impl Renderer {
             guide: self.settings.guide.clone(),
             guide_bytes: self.guide.as_ref().map_or(0, |g| g.bytes()),
             guide_volumes: self.guide.as_ref().map_or(0, |g| g.volume_count()),
-            passes: records,
+            passes: tally.records.clone(),
             trace_dispatches: self.trace_dispatches,
-        };
-        Ok(RenderOutput {
-            image,
-            variance,
-            stats,
-        })
+        }
     }
+}
+
+/// What the passes of a render so far add up to.
+#[derive(Default)]
+struct Tally {
+    done: u32,
+    paths: u64,
+    rays: u64,
+    zero: u64,
+    length: u64,
+    invalid: u64,
+    records: Vec<PassRecord>,
+}
+
+impl Tally {
+    fn add(&mut self, s: &PassStats, guided: bool) {
+        self.done += 1;
+        self.paths += s.paths as u64;
+        self.rays += s.rays as u64;
+        self.zero += s.zero_paths as u64;
+        self.length += s.length_sum as u64;
+        self.invalid += s.nan_paths as u64;
+        let n = s.paths.max(1) as f64;
+        self.records.push(PassRecord {
+            pass: self.done - 1,
+            zero_contribution_fraction: s.zero_paths as f64 / n,
+            mean_path_length: s.length_sum as f64 / n,
+            rays: s.rays as u64,
+            loss: guided.then(|| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
+        });
+    }
+}
+
+/// When a render hands out what it has so far, and when it stops early.
+#[derive(Default)]
+pub struct Control<'a> {
+    /// Pass counts after which the image is handed out.
+    pub at_passes: &'a [u32],
+    /// Also every this many seconds of render time.
+    pub every_seconds: Option<f64>,
+    /// Set elsewhere (a signal handler) to end the render after the batch
+    /// in flight.
+    pub stop: Option<&'a AtomicBool>,
 }
 
 /// Loads nothing, checks everything, renders: the library entry point the CLI uses.

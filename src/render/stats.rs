@@ -27,6 +27,9 @@ pub struct RenderStats {
     pub seed: u32,
     /// Sample passes traced.
     pub spp: u32,
+    /// Whether a signal stopped the render before its budget was spent
+    /// (`spp` is what it did).
+    pub interrupted: bool,
     /// Samples per pixel in the image (fewer than `spp` after a guide's reset).
     pub image_spp: u32,
     pub wall_seconds: f64,
