@@ -85,8 +85,18 @@ pub struct RenderOutputs {
     pub png: Option<PathBuf>,
     pub stats: Option<PathBuf>,
     pub profile: bool,
-    /// Also write all of them every this many seconds.
+    /// Also write all of them every this many seconds, and keep the
+    /// render's state beside the EXR to resume it.
     pub checkpoint: Option<f64>,
+    /// Go on from the state beside the EXR.
+    pub resume: bool,
+}
+
+/// Where a render keeps its state: beside its EXR.
+pub fn state_path(exr: &Path) -> PathBuf {
+    let mut name = exr.file_name().unwrap_or_default().to_os_string();
+    name.push(".qtrace-state");
+    exr.with_file_name(name)
 }
 
 impl RenderOutputs {
@@ -163,11 +173,31 @@ pub fn render(
         signal_hook::flag::register(signal, stop.clone())?;
     }
     signal_hook::flag::register(SIGTERM, by_term.clone())?;
-    let bar = progress_bar(total);
+    let budget = settings.budget;
     let mut renderer = render::Renderer::new(&ctx, &scene, settings)?;
+    let state = state_path(&out.exr);
+    if out.resume {
+        if !state.exists() {
+            bail!(
+                "{}: no render state to resume (a render keeps one with --checkpoint)",
+                state.display()
+            );
+        }
+        let done = renderer.resume(&state)?;
+        if let render::Budget::Samples(n) = budget {
+            if n <= done {
+                bail!(
+                    "{}: the render already holds {done} samples per pixel; ask for more with --spp",
+                    state.display()
+                );
+            }
+        }
+    }
+    let bar = progress_bar(total);
     let control = render::Control {
         every_seconds: out.checkpoint,
         stop: Some(&stop),
+        state: (out.checkpoint.is_some() || out.resume).then_some(state.as_path()),
         ..Default::default()
     };
     let mut failed = None;

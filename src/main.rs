@@ -131,9 +131,14 @@ enum Command {
         /// Print GPU time per pass.
         #[arg(long)]
         profile: bool,
-        /// Write the image, PNG and stats so far every this many seconds.
+        /// Write the image, PNG and stats so far every this many seconds, and
+        /// keep the render's state beside the EXR (OUT.exr.qtrace-state).
         #[arg(long, value_name = "SECONDS")]
         checkpoint: Option<f64>,
+        /// Go on from the state a --checkpoint render left beside -o, to
+        /// --spp in all or for --time more seconds.
+        #[arg(long)]
+        resume: bool,
         #[command(flatten)]
         device: DeviceArgs,
     },
@@ -231,6 +236,7 @@ fn run(cli: Cli) -> Result<()> {
             stats,
             profile,
             checkpoint,
+            resume,
             device,
         } => cli::render(
             scene,
@@ -242,6 +248,7 @@ fn run(cli: Cli) -> Result<()> {
                 stats: stats.clone(),
                 profile: *profile,
                 checkpoint: *checkpoint,
+                resume: *resume,
             },
             &device.choice(),
         )

@@ -775,3 +775,61 @@ fn checkpoints_and_signals_leave_complete_outputs() {
         assert!(names.is_empty(), "{names:?}");
     }
 }
+
+/// `--checkpoint` keeps the render's state beside -o; `--resume` goes on
+/// from it to the new --spp, and refuses what it cannot go on from.
+#[test]
+fn resume_goes_on_from_the_state_beside_the_output() {
+    let dir = scratch("resume-cli");
+    let scene = dir.join("cornell-box.toml");
+    let exr = dir.join("r.exr");
+    let json = dir.join("r.json");
+    let render = |extra: &[&str]| {
+        let mut cmd = qtrace();
+        cmd.arg("render")
+            .arg(&scene)
+            .args(["--width", "16", "--height", "16", "--nee"])
+            .args(extra)
+            .arg("-o")
+            .arg(&exr)
+            .arg("--stats")
+            .arg(&json);
+        cmd
+    };
+    expect_error(
+        &dir,
+        &scene,
+        &["--resume"],
+        &[],
+        &["no render state to resume"],
+    );
+    let out = render(&["--spp", "4", "--checkpoint", "100"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(dir.join("r.exr.qtrace-state").exists());
+    let out = render(&["--spp", "8", "--resume"]).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(stats["spp"], 8);
+    assert_eq!(stats["passes"].as_array().unwrap().len(), 8);
+    assert_eq!(qtrace::image::Part::read(&exr).unwrap().provenance.spp, 8);
+    let err = |extra: &[&str]| {
+        let out = render(extra).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+        stderr
+    };
+    assert!(err(&["--spp", "8", "--resume"]).contains("already holds 8"));
+    assert!(err(&["--spp", "16", "--resume", "--method", "sarsa"]).contains("another render"));
+}

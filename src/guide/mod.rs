@@ -295,6 +295,23 @@ fn parse_value(text: &str) -> toml::Value {
         .unwrap_or_else(|| toml::Value::String(text.to_string()))
 }
 
+/// Overwrites `buffer` with the blob `name` of a saved state, which must
+/// have its size.
+fn restore_blob(buffer: &Buffer, name: &str, blobs: &[(String, Vec<u8>)]) -> Result<(), String> {
+    let (_, bytes) = blobs
+        .iter()
+        .find(|(n, _)| n == name)
+        .ok_or_else(|| format!("the state lacks {name}"))?;
+    if bytes.len() as u64 != buffer.size() {
+        return Err(format!(
+            "the state's {name} holds {} bytes, this guide's {}",
+            bytes.len(),
+            buffer.size()
+        ));
+    }
+    buffer.overwrite(bytes).map_err(|e| e.to_string())
+}
+
 /// A guide's state on the device and the passes it adds to a render.
 pub enum Guide {
     Sarsa(SarsaGuide),
@@ -356,6 +373,26 @@ impl Guide {
         match self {
             Self::Sarsa(s) => s.bytes(),
             Self::Neural(n) => n.bytes(),
+        }
+    }
+
+    /// What the guide has learned, as named blobs, to resume from.
+    pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
+        match self {
+            Self::Sarsa(s) => s.save(),
+            Self::Neural(n) => n.network.save(),
+        }
+    }
+
+    /// Restores what [`Guide::save`] gave.
+    pub fn restore(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        blobs: &[(String, Vec<u8>)],
+    ) -> Result<(), String> {
+        match self {
+            Self::Sarsa(s) => s.restore(ctx, blobs),
+            Self::Neural(n) => n.network.restore(blobs),
         }
     }
 

@@ -229,6 +229,35 @@ impl Network {
         self.inputs.download()
     }
 
+    /// What training has reached, to resume from: parameters, Adam's
+    /// moments and step count, and the batch's state.
+    pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
+        Ok(vec![
+            ("mlp parameters", self.params.download()?),
+            ("mlp Adam moments", self.moments.download()?),
+            ("mlp batch state", self.batch_state.download()?),
+            ("mlp Adam steps", self.steps.to_le_bytes().to_vec()),
+        ])
+    }
+
+    /// Restores what [`Network::save`] gave.
+    pub fn restore(&mut self, blobs: &[(String, Vec<u8>)]) -> Result<(), String> {
+        for (name, buffer) in [
+            ("mlp parameters", &self.params),
+            ("mlp Adam moments", &self.moments),
+            ("mlp batch state", &self.batch_state),
+        ] {
+            super::restore_blob(buffer, name, blobs)?;
+        }
+        let steps = blobs
+            .iter()
+            .find(|(n, _)| n == "mlp Adam steps")
+            .and_then(|(_, b)| <[u8; 4]>::try_from(b.as_slice()).ok())
+            .ok_or("the state lacks the Adam step count")?;
+        self.steps = u32::from_le_bytes(steps);
+        Ok(())
+    }
+
     /// Overwrites the parameters (tests and tools).
     pub fn upload_params(&self, params: &[f32]) -> gpu::Result<()> {
         assert_eq!(params.len(), self.shape.param_count());

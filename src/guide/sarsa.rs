@@ -393,6 +393,37 @@ impl SarsaGuide {
         Ok(entries)
     }
 
+    /// What the guide has learned, to resume from: Q, the visit counts and
+    /// the share NEE carries (the tables are rebuilt from them).
+    pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
+        Ok(vec![
+            ("sarsa Q", self.q.download()?),
+            ("sarsa visits", self.visits_total.download()?),
+            ("sarsa Q carried by NEE", self.q_direct.download()?),
+        ])
+    }
+
+    /// Restores what [`SarsaGuide::save`] gave, then rebuilds the tables.
+    pub fn restore(
+        &self,
+        ctx: &Arc<GpuContext>,
+        blobs: &[(String, Vec<u8>)],
+    ) -> Result<(), String> {
+        for (name, buffer) in [
+            ("sarsa Q", &self.q),
+            ("sarsa visits", &self.visits_total),
+            ("sarsa Q carried by NEE", &self.q_direct),
+        ] {
+            super::restore_blob(buffer, name, blobs)?;
+        }
+        let mut params = PassParams::default();
+        self.set_params(&mut params, false);
+        ctx.submit(None, |rec| {
+            self.record_build(rec, bytemuck::bytes_of(&params))
+        })
+        .map_err(|e| e.to_string())
+    }
+
     /// Overwrites Q (tests and tools), then rebuilds the distributions.
     pub fn upload_q(&self, ctx: &Arc<GpuContext>, q: &[f32]) -> gpu::Result<()> {
         let staging = Buffer::upload(ctx, "sarsa Q (staging)", std::mem::size_of_val(q) as u64)?;

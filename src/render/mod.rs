@@ -3,6 +3,7 @@
 
 pub mod probe;
 pub mod settings;
+pub mod state;
 pub mod stats;
 
 pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, SettingsError};
@@ -23,6 +24,8 @@ pub enum RenderError {
     Gpu(#[from] gpu::Error),
     #[error(transparent)]
     Settings(#[from] SettingsError),
+    #[error(transparent)]
+    Write(#[from] crate::image::ImageError),
 }
 
 /// The scene's buffers on the device.
@@ -143,6 +146,10 @@ pub struct Renderer {
     trace_dispatches: u32,
     profiler: Profiler,
     guide: Option<Guide>,
+    /// What the render holds and must match to resume (see [`state`]).
+    identity: state::Identity,
+    /// The tally a resumed render starts from.
+    resumed: Option<Tally>,
 }
 
 /// SPIR-V of the trace kernel for the settings on this device.
@@ -244,6 +251,7 @@ impl Renderer {
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
+        let identity = state::Identity::of(scene, &settings);
         Ok(Self {
             ctx: ctx.clone(),
             params: pass_params(scene, &settings),
@@ -260,7 +268,9 @@ impl Renderer {
             samples_per_dispatch,
             trace_dispatches: 0,
             profiler: Profiler::new(ctx)?,
+            identity,
             guide,
+            resumed: None,
         })
     }
 
@@ -402,7 +412,7 @@ impl Renderer {
             Budget::Samples(n) => (Some(n), None),
             Budget::Seconds(t) => (None, Some(t)),
         };
-        let mut tally = Tally::default();
+        let mut tally = self.resumed.take().unwrap_or_default();
         let mut last_checkpoint = 0.0f64;
         // Seconds per pass, measured, to size batches under a time budget.
         let mut pass_seconds = 0.0f64;
@@ -441,6 +451,9 @@ impl Renderer {
                 .every_seconds
                 .is_some_and(|t| elapsed - last_checkpoint >= t);
             if control.at_passes.contains(&tally.done) || timed {
+                if let Some(path) = control.state {
+                    self.save_state(path, &tally, elapsed)?;
+                }
                 let (image, _) = self.images()?;
                 on_checkpoint(&Checkpoint {
                     spp: tally.done,
@@ -470,6 +483,9 @@ impl Renderer {
         }
         let (image, variance) = self.images()?;
         let wall = start.elapsed().as_secs_f64() - paused;
+        if let Some(path) = control.state {
+            self.save_state(path, &tally, wall)?;
+        }
         Ok(RenderOutput {
             image,
             variance,
@@ -477,8 +493,9 @@ impl Renderer {
         })
     }
 
-    /// The statistics of what `tally` counted in `wall` seconds.
+    /// The statistics of what `tally` counted, `wall` seconds into this run.
     fn stats(&self, tally: &Tally, wall: f64, interrupted: bool) -> RenderStats {
+        let wall = wall + tally.seconds_before;
         let timings = self.profiler.timings();
         let nz = tally.paths.max(1) as f64;
         let done = tally.done;
@@ -516,9 +533,11 @@ impl Renderer {
 }
 
 /// What the passes of a render so far add up to.
-#[derive(Default)]
-struct Tally {
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Tally {
     done: u32,
+    /// Render time before this run (a resumed render's earlier runs).
+    seconds_before: f64,
     paths: u64,
     rays: u64,
     zero: u64,
@@ -556,6 +575,9 @@ pub struct Control<'a> {
     /// Set elsewhere (a signal handler) to end the render after the batch
     /// in flight.
     pub stop: Option<&'a AtomicBool>,
+    /// Where to keep the render's state (see [`state`]), written at every
+    /// checkpoint and when the render ends.
+    pub state: Option<&'a std::path::Path>,
 }
 
 /// Loads nothing, checks everything, renders: the library entry point the CLI uses.

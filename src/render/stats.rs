@@ -5,14 +5,14 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 
 /// One sample pass.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct PassRecord {
     pub pass: u32,
     pub zero_contribution_fraction: f64,
     pub mean_path_length: f64,
     pub rays: u64,
     /// Learned methods: mean squared temporal-difference error of this pass's updates.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loss: Option<f64>,
 }
 
