@@ -202,3 +202,57 @@ fn slurm_script_renders_a_job_array_and_merges_it() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("cornell.json")).unwrap()).unwrap();
     assert_eq!(stats["parts"].as_array().unwrap().len(), 3);
 }
+
+/// The same script on a real Slurm, when one answers on this machine (CI
+/// starts a single node with scripts/slurm_single_node.sh and sets
+/// QTRACE_SLURM=1, which makes its absence a failure here).
+#[test]
+fn slurm_script_runs_on_a_real_single_node_slurm() {
+    let up = Command::new("sinfo")
+        .args(["-h", "-o", "%T"])
+        .output()
+        .is_ok_and(|o| {
+            let s = String::from_utf8_lossy(&o.stdout);
+            o.status.success() && ["idle", "mix", "alloc"].iter().any(|t| s.contains(t))
+        });
+    if !up {
+        assert_ne!(
+            std::env::var("QTRACE_SLURM").as_deref(),
+            Ok("1"),
+            "QTRACE_SLURM=1 but no Slurm node answers sinfo"
+        );
+        eprintln!("skipped: no Slurm node answers sinfo (scripts/slurm_single_node.sh starts one)");
+        return;
+    }
+    let dir = common::scratch("slurm-real");
+    let out = dir.join("room.exr");
+    let submit = Command::new("bash")
+        .arg(common::repo("scripts/slurm_render.sh"))
+        .args(["scenes/indirect-room.toml", "2", "3"])
+        .arg(&out)
+        .args(["--width", "16", "--height", "16"])
+        .env("QTRACE", env!("CARGO_BIN_EXE_qtrace"))
+        .env_remove("SBATCH")
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&submit.stdout);
+    assert!(
+        submit.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&submit.stderr)
+    );
+    let json = dir.join("room.json");
+    let start = std::time::Instant::now();
+    while !json.exists() {
+        if start.elapsed().as_secs() > 300 {
+            let log = std::fs::read_to_string(dir.join("room.parts/merge.log")).unwrap_or_default();
+            panic!("the merge job wrote nothing in 300 s: {stdout} {log}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    // The merge renames its EXR into place before its stats.
+    let merged = Part::read(&out).unwrap();
+    assert_eq!(merged.provenance.spp, 6);
+    assert_eq!(merged.provenance.seeds, vec![1, 2]);
+}
