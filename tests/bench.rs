@@ -4,7 +4,6 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -40,7 +39,7 @@ fn quick_bench_writes_the_report() {
     let out = dir.join("report");
     let cache = dir.join("cache");
     let run = || {
-        Command::new(env!("CARGO_BIN_EXE_qtrace"))
+        common::qtrace()
             .args([
                 "bench",
                 "scenes/cornell-box.toml",
@@ -51,7 +50,6 @@ fn quick_bench_writes_the_report() {
             ])
             .arg(&out)
             .env("QTRACE_CACHE", &cache)
-            .env("QTRACE_VALIDATION", "1")
             .current_dir(common::repo("."))
             .output()
             .unwrap()
@@ -191,7 +189,7 @@ fn quick_bench_writes_the_report() {
 
 #[test]
 fn bench_rejects_a_reference_for_several_scenes() {
-    let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+    let output = common::qtrace()
         .args([
             "bench",
             "scenes/cornell-box.toml",
@@ -213,7 +211,7 @@ fn bench_rejects_a_reference_for_several_scenes() {
 #[test]
 fn speed_table_reports_every_pass_and_cost() {
     let json = common::scratch("bench-speed").join("speed.json");
-    let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+    let output = common::qtrace()
         .args([
             "bench",
             "--speed",
@@ -233,7 +231,6 @@ fn speed_table_reports_every_pass_and_cost() {
             "--json",
         ])
         .arg(&json)
-        .env("QTRACE_VALIDATION", "1")
         .current_dir(common::repo("."))
         .output()
         .unwrap();
@@ -308,7 +305,7 @@ fn speed_table_shows_the_peer_or_how_to_set_it_up() {
     )
     .unwrap();
     let run = |script: &std::path::Path, json: &std::path::Path| {
-        let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+        let output = common::qtrace()
             .args([
                 "bench",
                 "--speed",
@@ -368,7 +365,7 @@ fn bench_checks_guide_settings_first() {
         &["--quick", "--methods", "sarsa", "--set", "sarsa.epsilonx=2"][..],
         &["--speed", "--methods", "neural", "--set", "neural.width=6"][..],
     ] {
-        let output = Command::new(env!("CARGO_BIN_EXE_qtrace"))
+        let output = common::qtrace()
             .args(["bench", "scenes/cornell-box.toml", "--out"])
             .arg(common::scratch("bench-guide").join("out"))
             .args(args)

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn qtrace() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_qtrace"));
+    let mut c = common::qtrace();
     c.env_remove("QTRACE_DEVICE").env("RUST_BACKTRACE", "1");
     c
 }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn qtrace() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_qtrace"));
+    let mut c = common::qtrace();
     c.current_dir(common::repo("."));
     c
 }
@@ -179,6 +179,7 @@ fn slurm_script_renders_a_job_array_and_merges_it() {
         .arg(&out)
         .args(["--width", "16", "--height", "16", "--nee"])
         .env("QTRACE", env!("CARGO_BIN_EXE_qtrace"))
+        .env("QTRACE_VALIDATION", "1")
         .env("SBATCH", common::repo("scripts/sbatch_local.sh"))
         .env("SBATCH_LOCAL_STATE", dir.join("state"))
         .current_dir(common::repo("."))
@@ -232,6 +233,7 @@ fn slurm_script_runs_on_a_real_single_node_slurm() {
         .arg(&out)
         .args(["--width", "16", "--height", "16"])
         .env("QTRACE", env!("CARGO_BIN_EXE_qtrace"))
+        .env("QTRACE_VALIDATION", "1")
         .env_remove("SBATCH")
         .current_dir(common::repo("."))
         .output()

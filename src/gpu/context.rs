@@ -88,15 +88,31 @@ fn create_instance(entry: &ash::Entry, validation: bool) -> Result<(ash::Instanc
     } else {
         vec![]
     };
-    let ext_ptrs: Vec<*const i8> = if has_debug_utils {
+    let mut ext_ptrs: Vec<*const i8> = if has_debug_utils {
         vec![ext::debug_utils::NAME.as_ptr()]
     } else {
         vec![]
     };
-    let info = vk::InstanceCreateInfo::default()
+    // With validation, synchronisation validation too: lavapipe runs passes
+    // in order and hides missing barriers that real GPUs would expose.
+    let has_features = has_validation
+        && unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER))? }
+            .iter()
+            .any(|e| e.extension_name_as_c_str() == Ok(ext::validation_features::NAME));
+    if has_features {
+        ext_ptrs.push(ext::validation_features::NAME.as_ptr());
+    } else if has_validation {
+        log::warn!("the validation layer offers no VK_EXT_validation_features: no synchronisation validation");
+    }
+    let enabled = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enabled);
+    let mut info = vk::InstanceCreateInfo::default()
         .application_info(&app)
         .enabled_layer_names(&layer_ptrs)
         .enabled_extension_names(&ext_ptrs);
+    if has_features {
+        info = info.push_next(&mut features);
+    }
     let instance = unsafe { entry.create_instance(&info, None) }.map_err(|e| match e {
         // The loader says this when it finds no driver at all.
         vk::Result::ERROR_INCOMPATIBLE_DRIVER | vk::Result::ERROR_INITIALIZATION_FAILED => {

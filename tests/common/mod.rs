@@ -15,6 +15,14 @@ pub fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
 }
 
+/// The qtrace binary, with the validation layer (synchronisation
+/// validation included) on: any error it reports fails the command.
+pub fn qtrace() -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_qtrace"));
+    c.env("QTRACE_VALIDATION", "1");
+    c
+}
+
 /// A fresh, empty directory `target/test-scratch/<name>` of this test's own:
 /// a fresh clone has no `target/`, and tests run in any order.
 pub fn scratch(name: &str) -> PathBuf {
