@@ -12,8 +12,18 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     // behind an untaken uniform branch still costs time.
     ("trace", "trace_pt", &["METHOD_PT"]),
     ("trace", "trace_pt_nee", &["METHOD_PT", "WITH_NEE"]),
+    (
+        "trace",
+        "trace_sarsa_fixed",
+        &["METHOD_SARSA", "FIXED_ATOMICS"],
+    ),
     ("trace", "trace_sarsa", &["METHOD_SARSA", "FLOAT_ATOMICS"]),
     ("trace", "trace_sarsa_cas", &["METHOD_SARSA"]),
+    (
+        "trace",
+        "trace_sarsa_nee_fixed",
+        &["METHOD_SARSA", "WITH_NEE", "FIXED_ATOMICS"],
+    ),
     (
         "trace",
         "trace_sarsa_nee",
@@ -26,8 +36,11 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ),
     ("trace", "trace_neural", &["METHOD_NEURAL"]),
     ("trace", "trace_neural_nee", &["METHOD_NEURAL", "WITH_NEE"]),
+    ("sarsa_probe", "sarsa_probe_fixed", &["FIXED_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe", &["FLOAT_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe_cas", &[]),
+    ("sarsa_fold", "sarsa_fold_fixed", &["FIXED_ATOMICS"]),
+    ("sarsa_fold", "sarsa_fold", &[]),
 ];
 
 fn main() {

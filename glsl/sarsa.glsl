@@ -13,19 +13,11 @@ layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 1 
 // Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), total weight of
 // its sector distribution), two volumes per texel; see guide_build.comp.
 layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
-#ifdef FLOAT_ATOMICS
-layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
-#else
-layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint target_sum_bits[]; };
-#endif
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { TALLY target_sum[]; };
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 // With NEE: per (volume, sector), the part of this pass's emitter targets
 // that NEE already carries (Le times one minus the scattering MIS weight).
-#ifdef FLOAT_ATOMICS
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
-#else
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint direct_sum_bits[]; };
-#endif
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { TALLY direct_sum[]; };
 layout(set = 0, binding = B_Q) uniform usamplerBuffer q_texels; // 4 Q per texel
 // The lookup tables of src/guide/lookup.rs: per triangle, its cells or its
 // two sides' volumes; cells (uvec2, two per texel); list entries (volume
@@ -103,7 +95,7 @@ vec2 volume_sums_of(uint v) {
 // counts into means. Returns the squared temporal-difference error.
 float sarsa_record(uint v, uint k, float target, float q) {
     uint index = v * sector_count() + k;
-    ADD_FLOAT(target_sum[index], target_sum_bits[index], target);
+    ADD_TALLY(target_sum[index], target);
     atomicAdd(visits[index], 1u);
     float td = target - q;
     return td * td;
@@ -113,7 +105,7 @@ float sarsa_record(uint v, uint k, float target, float q) {
 // already carries, so sampling can leave it to NEE.
 void sarsa_record_direct(uint v, uint k, float excess) {
     uint index = v * sector_count() + k;
-    ADD_FLOAT(direct_sum[index], direct_sum_bits[index], excess);
+    ADD_TALLY(direct_sum[index], excess);
 }
 
 // The guide seam (guide.glsl).

@@ -3,17 +3,28 @@
 // Q is the running mean of its targets, so Q <- (Q N + sum) / (N + count).
 
 #include "shared.h"
+#include "atomics.glsl"
 
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
-// Written as float by atomicAdd or as float bits by the CAS fallback: same bits.
+// 64-bit fixed point (FIXED_ATOMICS), else float: written as float by
+// atomicAdd or as float bits by the CAS fallback, the same bits.
+#ifdef FIXED_ATOMICS
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint64_t target_sum[]; };
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint64_t direct_sum[]; };
+#define TALLY_VALUE(t) from_fixed(t)
+#define TALLY_ZERO uint64_t(0)
+#else
 layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
+#define TALLY_VALUE(t) (t)
+#define TALLY_ZERO 0.0
+#endif
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
-// The part of the targets NEE carries (see guide.glsl), and its running mean.
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
+// The running mean of the part of the targets NEE carries (see sarsa.glsl).
 layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
 
 void main() {
@@ -25,11 +36,11 @@ void main() {
             continue;
         }
         uint seen = visits_total[i];
-        q_values[i] = (q_values[i] * float(seen) + target_sum[i]) / float(seen + count);
-        q_direct[i] = (q_direct[i] * float(seen) + direct_sum[i]) / float(seen + count);
-        direct_sum[i] = 0.0;
+        q_values[i] = (q_values[i] * float(seen) + TALLY_VALUE(target_sum[i])) / float(seen + count);
+        q_direct[i] = (q_direct[i] * float(seen) + TALLY_VALUE(direct_sum[i])) / float(seen + count);
+        direct_sum[i] = TALLY_ZERO;
         visits_total[i] = seen + count;
-        target_sum[i] = 0.0;
+        target_sum[i] = TALLY_ZERO;
         visits[i] = 0u;
     }
 }

@@ -208,12 +208,22 @@ impl GuideSettings {
     /// SPIR-V of the trace kernel of this guide on `device`.
     pub fn trace_spirv(&self, device: &DeviceInfo, nee: bool) -> gpu::Result<&'static [u8]> {
         Ok(match self {
-            Self::Sarsa(s) => match (s.use_float_atomics(device)?, nee) {
-                (true, false) => spirv::TRACE_SARSA,
-                (false, false) => spirv::TRACE_SARSA_CAS,
-                (true, true) => spirv::TRACE_SARSA_NEE,
-                (false, true) => spirv::TRACE_SARSA_NEE_CAS,
-            },
+            Self::Sarsa(s) if nee => s.pick(
+                device,
+                [
+                    spirv::TRACE_SARSA_NEE_FIXED,
+                    spirv::TRACE_SARSA_NEE,
+                    spirv::TRACE_SARSA_NEE_CAS,
+                ],
+            )?,
+            Self::Sarsa(s) => s.pick(
+                device,
+                [
+                    spirv::TRACE_SARSA_FIXED,
+                    spirv::TRACE_SARSA,
+                    spirv::TRACE_SARSA_CAS,
+                ],
+            )?,
             Self::Neural(_) if nee => spirv::TRACE_NEURAL_NEE,
             Self::Neural(_) => spirv::TRACE_NEURAL,
         })

@@ -16,12 +16,17 @@ use std::sync::Arc;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Atomics {
-    /// Float atomics where the device has them, else compare-and-swap.
+    /// Fixed point where the device has 64-bit atomics, else float atomics,
+    /// else compare-and-swap.
     #[default]
     Auto,
-    /// `VK_EXT_shader_atomic_float` (an error where missing).
+    /// 64-bit fixed-point integer adds (`shaderBufferInt64Atomics`; an error
+    /// where missing): associative, so one seed gives one image, bit for bit.
+    Fixed,
+    /// `VK_EXT_shader_atomic_float` (an error where missing); the order of
+    /// adds, and so the last bits of Q, differ from run to run.
     Float,
-    /// Compare-and-swap loops (works everywhere).
+    /// Compare-and-swap loops on float bits (works everywhere; as `float`).
     Cas,
 }
 
@@ -60,10 +65,10 @@ pub const DEFAULT_VOLUMES: u32 = 1024;
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
 /// Device bytes per volume for an n-sector grid: Q, the alias table, target
-/// sums, new and total visit counts, and the NEE share's sums and mean per
-/// sector, and two sums per volume.
+/// sums (8 bytes), new and total visit counts, and the NEE share's sums (8
+/// bytes) and mean per sector, and two sums per volume.
 fn table_bytes_per_volume(sectors: u32) -> u64 {
-    (6 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
+    (8 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
@@ -146,19 +151,43 @@ impl SarsaSettings {
         }
     }
 
-    /// Whether to add targets with float atomics on `device` (else the CAS
-    /// fallback); an error where `--sarsa-atomics float` asks for what it lacks.
-    pub fn use_float_atomics(&self, device: &DeviceInfo) -> gpu::Result<bool> {
-        match (self.atomics, device.float_atomics) {
-            (Atomics::Float, false) => Err(gpu::Error::MissingFeature {
-                device: device.name.clone(),
-                feature:
-                    "float atomics (VK_EXT_shader_atomic_float), needed by [sarsa] atomics = \"float\""
-                        .into(),
-            }),
-            (Atomics::Cas, _) | (Atomics::Auto, false) => Ok(false),
-            _ => Ok(true),
+    /// How targets are added on `device` (`Auto` resolved); an error where
+    /// `atomics` asks for what the device lacks.
+    pub fn atomics_on(&self, device: &DeviceInfo) -> gpu::Result<Atomics> {
+        let missing = |feature: &str| gpu::Error::MissingFeature {
+            device: device.name.clone(),
+            feature: format!(
+                "{feature}, needed by [sarsa] atomics = \"{}\"",
+                match self.atomics {
+                    Atomics::Fixed => "fixed",
+                    _ => "float",
+                }
+            ),
+        };
+        match self.atomics {
+            Atomics::Fixed if !device.int64_atomics => Err(missing("64-bit buffer atomics")),
+            Atomics::Float if !device.float_atomics => {
+                Err(missing("float atomics (VK_EXT_shader_atomic_float)"))
+            }
+            Atomics::Auto if device.int64_atomics => Ok(Atomics::Fixed),
+            Atomics::Auto if device.float_atomics => Ok(Atomics::Float),
+            Atomics::Auto => Ok(Atomics::Cas),
+            chosen => Ok(chosen),
         }
+    }
+
+    /// SPIR-V of a kernel that adds targets, by the atomics it uses on `device`:
+    /// `[fixed, float, cas]`.
+    pub fn pick(
+        &self,
+        device: &DeviceInfo,
+        variants: [&'static [u8]; 3],
+    ) -> gpu::Result<&'static [u8]> {
+        Ok(match self.atomics_on(device)? {
+            Atomics::Fixed => variants[0],
+            Atomics::Float => variants[1],
+            _ => variants[2],
+        })
     }
 }
 
@@ -226,10 +255,11 @@ impl SarsaGuide {
             "sarsa sector tables",
             cells * size_of::<SectorEntry>() as u64,
         )?;
-        let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 4)?;
+        // Sums are 64-bit fixed point or (in the low half) float.
+        let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 8)?;
         let visits = Buffer::gpu_only(ctx, "sarsa visits (pass)", cells * 4)?;
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
-        let direct_sum = Buffer::gpu_only(ctx, "sarsa direct sums", cells * 4)?;
+        let direct_sum = Buffer::gpu_only(ctx, "sarsa direct sums", cells * 8)?;
         let q_direct = Buffer::gpu_only(ctx, "sarsa Q carried by NEE", cells * 4)?;
         let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 8)?;
         // List items carry their volume's position, so the scan reads one
@@ -246,7 +276,15 @@ impl SarsaGuide {
             Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
         let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
         let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
-        let fold = ComputePipeline::new(ctx, "guide fold", spirv::SARSA_FOLD, push)?;
+        let fold_spirv = settings.pick(
+            ctx.info(),
+            [
+                spirv::SARSA_FOLD_FIXED,
+                spirv::SARSA_FOLD,
+                spirv::SARSA_FOLD,
+            ],
+        )?;
+        let fold = ComputePipeline::new(ctx, "guide fold", fold_spirv, push)?;
         let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
         let bindings = [
             (shaders::B_Q, &q),

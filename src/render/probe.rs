@@ -67,11 +67,14 @@ fn run(
         Some(g) => {
             bindings.extend(g.bindings());
             g.set_params(&mut params, true);
-            let spirv = if g.settings.use_float_atomics(ctx.info())? {
-                spirv::SARSA_PROBE
-            } else {
-                spirv::SARSA_PROBE_CAS
-            };
+            let spirv = g.settings.pick(
+                ctx.info(),
+                [
+                    spirv::SARSA_PROBE_FIXED,
+                    spirv::SARSA_PROBE,
+                    spirv::SARSA_PROBE_CAS,
+                ],
+            )?;
             ComputePipeline::new(ctx, "sarsa probe", spirv, push)?
         }
         None => ComputePipeline::new(ctx, "probe", spirv::PROBE, push)?,
