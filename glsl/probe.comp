@@ -22,19 +22,19 @@ void main() {
     if (i >= params.item_count) {
         return;
     }
-    if (params.probe_mode == PROBE_TRACE) {
+    if (params.selector == PROBE_TRACE) {
         // in[2i] = origin, in[2i+1] = direction; out = (t, triangle bits, any-hit flag, 0)
         vec3 o = probe_in[2u * i].xyz;
         vec3 d = probe_in[2u * i + 1u].xyz;
         Hit h = trace_ray(o, d, FAR);
         probe_out[i] = vec4(h.t, uintBitsToFloat(h.triangle), occluded(o, d, FAR) ? 1.0 : 0.0, 0.0);
-    } else if (params.probe_mode == PROBE_HEMISPHERE) {
+    } else if (params.selector == PROBE_HEMISPHERE) {
         // in = (u, v, grid a, grid b); out = (direction, sector of that direction)
         vec4 q = probe_in[i];
         vec3 w = square_to_hemisphere(q.xy);
         uint sector = hemisphere_sector(w, uint(q.z), uint(q.w));
         probe_out[i] = vec4(w, float(sector));
-    } else if (params.probe_mode == PROBE_BSDF) {
+    } else if (params.selector == PROBE_BSDF) {
         // in = (u, v, grey albedo, 0), wo = the normal; out = (wi, pdf),
         // and out[count + i] = (f cos, reflected estimate of irradiance 1)
         vec4 q = probe_in[i];

@@ -23,12 +23,12 @@ void main() {
     if (i >= params.item_count) {
         return;
     }
-    if (params.probe_mode == PROBE_NEAREST_VOLUME) {
+    if (params.selector == PROBE_NEAREST_VOLUME) {
         // in[2i] = point, in[2i+1] = (triangle bits, front side?); out.x = volume index bits
         uint t = floatBitsToUint(probe_in[2u * i + 1u].x);
         uint v = nearest_volume(t, load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
         probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
-    } else if (params.probe_mode == PROBE_GUIDE_SAMPLE) {
+    } else if (params.selector == PROBE_GUIDE_SAMPLE) {
         // in = (volume bits, u1, u2, u3); out = (local direction, pdf) of
         // the mixture with a white diffuse BSDF
         vec4 q = probe_in[i];
@@ -39,7 +39,7 @@ void main() {
         float p_sector;
         vec3 w = mixture_sample(g, white, wo, q.yzw, sector, p_sector);
         probe_out[i] = vec4(w, mixture_pdf_in(g, white, wo, w, p_sector));
-    } else if (params.probe_mode == PROBE_SARSA_UPDATE) {
+    } else if (params.selector == PROBE_SARSA_UPDATE) {
         // in[2i] = (volume bits, sector bits, next volume bits, albedo or
         // -emitted), in[2i+1].x = the share of an emitted target NEE carries;
         // out.x = the target recorded

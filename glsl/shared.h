@@ -180,7 +180,7 @@ struct PassParams {
     uint max_depth;
     uint flags;
     uint light_count;
-    uint probe_mode;   // probe kernel only
+    uint selector;     // probe kernels: the block to run; trace: the samples slot of its first sample
     uint item_count;   // items of a probe or fold pass; trace and accumulate: samples per pixel
     uint volume_count; // guides: radiance volumes
     uint sector_grid;  // guides: a | (b << 16), n = a * b sectors

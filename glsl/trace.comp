@@ -275,7 +275,7 @@ void main() {
     begin_path(params.pass_index);
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
         if (!bounce()) {
-            samples[done * pixels + index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
+            samples[(params.selector + done) * pixels + index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
             done += 1u;
             if (done == count) {
                 break;

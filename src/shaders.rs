@@ -113,7 +113,7 @@ pub struct PassParams {
     pub max_depth: u32,
     pub flags: u32,
     pub light_count: u32,
-    pub probe_mode: u32,
+    pub selector: u32,
     pub item_count: u32,
     pub volume_count: u32,
     pub sector_grid: u32,

@@ -269,7 +269,7 @@ fn speed_table_reports_every_pass_and_cost() {
         let want: &[&str] = if r["config"] == "pt" {
             &["trace", "accumulate"]
         } else {
-            &["trace", "accumulate", "guide fold", "distribution build"]
+            &["trace", "guide fold", "distribution build", "accumulate"]
         };
         assert_eq!(names, want, "passes of {}", r["config"]);
     }

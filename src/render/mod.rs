@@ -290,6 +290,29 @@ impl Renderer {
         let most = self.samples_per_dispatch;
         let dispatches = &mut self.trace_dispatches;
         self.ctx.submit(Some(&mut self.profiler), |rec| {
+            // Samples traced but not yet accumulated: passes pending_first..
+            // in samples-buffer slots 0.. . One accumulate dispatch takes
+            // them all, so passes that learn (one trace dispatch each) still
+            // share it.
+            let (mut pending_first, mut pending) = (first, 0u32);
+            let flush = |rec: &mut gpu::Recorder<'_>, pending_first: u32, pending: u32| {
+                if pending == 0 {
+                    return;
+                }
+                let mut params = base;
+                params.pass_index = pending_first;
+                params.item_count = pending;
+                rec.dispatch_covering(
+                    Pass {
+                        name: "accumulate",
+                        pipeline: accumulate,
+                        set: accumulate_set,
+                        push: bytemuck::bytes_of(&params),
+                        groups: g,
+                    },
+                    pending,
+                );
+            };
             let end = first + count;
             let mut index = first;
             while index < end {
@@ -304,36 +327,31 @@ impl Renderer {
                 {
                     samples += 1;
                 }
-                let mut params = base;
-                params.pass_index = index;
-                params.item_count = samples;
-                if let Some(g) = guide.as_deref() {
-                    g.set_params(&mut params, learn);
+                if settings.reset_after() == Some(index) || pending + samples > most {
+                    flush(rec, pending_first, pending);
+                    (pending_first, pending) = (index, 0);
                 }
                 if settings.reset_after() == Some(index) {
                     rec.fill(accum, 0);
                 }
-                let push = bytemuck::bytes_of(&params);
+                let mut params = base;
+                params.pass_index = index;
+                params.item_count = samples;
+                params.selector = pending;
+                if let Some(g) = guide.as_deref() {
+                    g.set_params(&mut params, learn);
+                }
                 rec.dispatch_covering(
                     Pass {
                         name: "trace",
                         pipeline: trace,
                         set: trace_set,
-                        push,
+                        push: bytemuck::bytes_of(&params),
                         groups: g,
                     },
                     samples,
                 );
-                rec.dispatch_covering(
-                    Pass {
-                        name: "accumulate",
-                        pipeline: accumulate,
-                        set: accumulate_set,
-                        push,
-                        groups: g,
-                    },
-                    samples,
-                );
+                pending += samples;
                 // The next pass samples from what this one learned.
                 if let (Some(g), true) = (guide.as_deref_mut(), learn) {
                     g.record_update(rec, &params);
@@ -341,6 +359,7 @@ impl Renderer {
                 index += samples;
                 *dispatches += 1;
             }
+            flush(rec, pending_first, pending);
         })?;
         let slots = self.stats.read::<PassStats>();
         Ok((first..first + count)

@@ -61,7 +61,7 @@ fn run(
     let mut bindings = gpu_scene.bindings().to_vec();
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
-    params.probe_mode = mode;
+    params.selector = mode;
     let push = size_of::<PassParams>() as u32;
     let pipeline = match guide {
         Some(g) => {
@@ -306,7 +306,7 @@ pub fn bsdf_samples(
         },
     )?;
     let mut params = pass_params(scene, &settings);
-    params.probe_mode = shaders::PROBE_BSDF;
+    params.selector = shaders::PROBE_BSDF;
     let pipeline =
         ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
     let input: Vec<Vec4> = uniforms
