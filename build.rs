@@ -39,8 +39,8 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ("sarsa_probe", "sarsa_probe_fixed", &["FIXED_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe", &["FLOAT_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe_cas", &[]),
-    ("sarsa_fold", "sarsa_fold_fixed", &["FIXED_ATOMICS"]),
-    ("sarsa_fold", "sarsa_fold", &[]),
+    ("guide_build", "guide_build_fixed", &["FIXED_ATOMICS"]),
+    ("guide_build", "guide_build", &[]),
 ];
 
 fn main() {

@@ -1,18 +1,52 @@
 #version 460
-// Per volume: the irradiance-like sum the Sarsa target needs,
+// Per volume, after a pass that learned (FLAG_LEARN): folds the targets the
+// pass accumulated into Q. With alpha = 1 / (1 + visits), Q is the running
+// mean of its targets, so Q <- (Q N + sum) / (N + count); the share NEE
+// carries likewise. Then, always: the irradiance-like sum the Sarsa target needs,
 // (2 pi / n) sum_j Q_j cos(theta_j), the total weight of its distribution
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
 // sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
 // as an alias table, so a sample costs one read instead of a CDF search.
 
 #include "shared.h"
+#include "atomics.glsl"
 #include "sampling.glsl"
 
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
-layout(std430, set = 0, binding = B_Q) readonly buffer QValues { float q_values[]; };
-layout(std430, set = 0, binding = B_Q_DIRECT) readonly buffer QDirect { float q_direct[]; };
+layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
+layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
+// The pass's tallies: 64-bit fixed point (FIXED_ATOMICS), else float (as
+// float atomics or the CAS fallback wrote them, the same bits).
+#ifdef FIXED_ATOMICS
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint64_t target_sum[]; };
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint64_t direct_sum[]; };
+#define TALLY_VALUE(t) from_fixed(t)
+#define TALLY_ZERO uint64_t(0)
+#else
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
+#define TALLY_VALUE(t) (t)
+#define TALLY_ZERO 0.0
+#endif
+layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
+layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
+
+// Folds cell i's tallies of the pass into its running means.
+void fold(uint i) {
+    uint count = visits[i];
+    if (count == 0u) {
+        return;
+    }
+    uint seen = visits_total[i];
+    q_values[i] = (q_values[i] * float(seen) + TALLY_VALUE(target_sum[i])) / float(seen + count);
+    q_direct[i] = (q_direct[i] * float(seen) + TALLY_VALUE(direct_sum[i])) / float(seen + count);
+    direct_sum[i] = TALLY_ZERO;
+    target_sum[i] = TALLY_ZERO;
+    visits_total[i] = seen + count;
+    visits[i] = 0u;
+}
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec2 volume_sums[]; };
 
@@ -36,9 +70,13 @@ void main() {
     uint base = v * n;
     bool cos_weighted = (params.flags & FLAG_COS_DISTRIBUTION) != 0u;
     bool nee = (params.flags & FLAG_NEE) != 0u;
+    bool learned = (params.flags & FLAG_LEARN) != 0u;
     float weighted = 0.0;
     float total = 0.0;
     for (uint k = 0u; k < n; ++k) {
+        if (learned) {
+            fold(base + k);
+        }
         float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;

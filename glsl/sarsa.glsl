@@ -91,7 +91,7 @@ vec2 volume_sums_of(uint v) {
     return uintBitsToFloat((v & 1u) == 0u ? pair.xy : pair.zw);
 }
 
-// Adds one target for (v, k), whose Q was q; the fold pass turns sums and
+// Adds one target for (v, k), whose Q was q; the guide update turns sums and
 // counts into means. Returns the squared temporal-difference error.
 float sarsa_record(uint v, uint k, float target, float q) {
     uint index = v * sector_count() + k;

@@ -181,7 +181,7 @@ struct PassParams {
     uint flags;
     uint light_count;
     uint selector;     // probe kernels: the block to run; trace: the samples slot of its first sample
-    uint item_count;   // items of a probe or fold pass; trace and accumulate: samples per pixel
+    uint item_count;   // items of a probe pass; trace and accumulate: samples per pixel
     uint volume_count; // guides: radiance volumes
     uint sector_grid;  // guides: a | (b << 16), n = a * b sectors
     float guide_epsilon; // guides: weight of cosine sampling in the mixture

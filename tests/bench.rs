@@ -269,7 +269,7 @@ fn speed_table_reports_every_pass_and_cost() {
         let want: &[&str] = if r["config"] == "pt" {
             &["trace", "accumulate"]
         } else {
-            &["trace", "guide fold", "distribution build", "accumulate"]
+            &["trace", "guide update", "accumulate"]
         };
         assert_eq!(names, want, "passes of {}", r["config"]);
     }

@@ -392,7 +392,7 @@ fn sarsa_render_reports_its_guide() {
     assert_eq!(stats["guide_volumes"], 64);
     assert!(stats["guide_bytes"].as_u64().unwrap() > 64 * 36 * 4);
     assert!(stats["passes"][0]["loss"].as_f64().is_some());
-    assert!(stats["gpu_ms"]["guide fold"].as_f64().is_some());
+    assert!(stats["gpu_ms"]["guide update"].as_f64().is_some());
 }
 
 #[test]

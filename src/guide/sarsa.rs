@@ -207,9 +207,7 @@ pub struct SarsaGuide {
     lookup_triangles: Buffer,
     lookup_cells: Buffer,
     lookup_items: Buffer,
-    fold: ComputePipeline,
     build: ComputePipeline,
-    fold_set: DescriptorSet,
     build_set: DescriptorSet,
 }
 
@@ -276,16 +274,16 @@ impl SarsaGuide {
             Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
         let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
         let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
-        let fold_spirv = settings.pick(
+        // The tallies' type decides the variant.
+        let build_spirv = settings.pick(
             ctx.info(),
             [
-                spirv::SARSA_FOLD_FIXED,
-                spirv::SARSA_FOLD,
-                spirv::SARSA_FOLD,
+                spirv::GUIDE_BUILD_FIXED,
+                spirv::GUIDE_BUILD,
+                spirv::GUIDE_BUILD,
             ],
         )?;
-        let fold = ComputePipeline::new(ctx, "guide fold", fold_spirv, push)?;
-        let build = ComputePipeline::new(ctx, "distribution build", spirv::GUIDE_BUILD, push)?;
+        let build = ComputePipeline::new(ctx, "guide update", build_spirv, push)?;
         let bindings = [
             (shaders::B_Q, &q),
             (shaders::B_SECTORS, &sectors),
@@ -296,7 +294,6 @@ impl SarsaGuide {
             (shaders::B_DIRECT_SUM, &direct_sum),
             (shaders::B_Q_DIRECT, &q_direct),
         ];
-        let fold_set = DescriptorSet::new(ctx, &fold, &bindings)?;
         let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
         let guide = Self {
             volumes: vols,
@@ -313,9 +310,7 @@ impl SarsaGuide {
             lookup_triangles,
             lookup_cells,
             lookup_items,
-            fold,
             build,
-            fold_set,
             build_set,
         };
         let mut params = PassParams::default();
@@ -358,9 +353,11 @@ impl SarsaGuide {
         p.volume_count = self.volumes.len() as u32;
     }
 
+    /// Records the guide update: with FLAG_LEARN in `push`, the pass's
+    /// targets folded into Q; then every volume's distribution rebuilt.
     fn record_build(&self, rec: &mut Recorder<'_>, push: &[u8]) {
         rec.dispatch(Pass {
-            name: "distribution build",
+            name: "guide update",
             pipeline: &self.build,
             set: &self.build_set,
             push,
@@ -374,22 +371,10 @@ impl SarsaGuide {
         });
     }
 
-    /// Folds this pass's targets into Q, then rebuilds every distribution.
-    /// `push` must carry `item_count` = volumes × sectors.
+    /// Folds this pass's targets into Q and rebuilds every distribution, in
+    /// one pass over the volumes; `params` must ask to learn.
     pub fn record_update(&self, rec: &mut Recorder<'_>, params: &PassParams) {
-        let mut p = *params;
-        p.item_count = self.volumes.len() as u32 * self.settings.sectors();
-        let push = bytemuck::bytes_of(&p);
-        // The fold loops over its range, so a bounded grid covers any size.
-        let groups = p.item_count.div_ceil(shaders::LINEAR_GROUP).clamp(1, 65535);
-        rec.dispatch(Pass {
-            name: "guide fold",
-            pipeline: &self.fold,
-            set: &self.fold_set,
-            push,
-            groups: [groups, 1, 1],
-        });
-        self.record_build(rec, push);
+        self.record_build(rec, bytemuck::bytes_of(params));
     }
 
     /// Folds pending targets and rebuilds the distributions now.
