@@ -11,6 +11,8 @@
 //       `from` through sector k (whose Q was q) reached a surface that
 //       reflects `reflected` back and gets `direct` by NEE (or a miss)
 //   guide_learn_emitter(from, k, q, le, mis_weight, ...)  ... or an emitter
+//   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
+//       pass that learns (a guide may keep something per path)
 // On it, this file builds the one-sample mixture of BSDF sampling (weight
 // guide_epsilon) and the guide's sectors that every guided method samples.
 #ifndef QTRACE_GUIDE_GLSL

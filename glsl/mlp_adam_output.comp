@@ -1,7 +1,7 @@
 #version 460
 // The output layer's parameters, one workgroup per output (sector) k: only
 // the transitions through sector k have a gradient there, so the workgroup
-// first lists them, a chunk of the batch at a time, then each invocation
+// first lists them (in row order), a chunk of the batch at a time, then each invocation
 // sums one weight's (or the bias's) gradient over the list; then Adam.
 
 #define MLP_PARAMS_ONLY
@@ -33,14 +33,17 @@ void main() {
         g[j] = 0.0;
     }
     for (uint base = 0u; base < rows; base += CHUNK) {
+        // One invocation lists the chunk's rows through sector k in row
+        // order: sums over the list then add in the same order every run.
         if (lane == 0u) {
-            listed = 0u;
-        }
-        barrier();
-        for (uint s = base + lane; s < min(base + CHUNK, rows); s += LINEAR_GROUP) {
-            if (targets[s].sector == k) {
-                list[atomicAdd(listed, 1u)] = s;
+            uint n = 0u;
+            for (uint s = base; s < min(base + CHUNK, rows); ++s) {
+                if (targets[s].sector == k) {
+                    list[n] = s;
+                    n += 1u;
+                }
             }
+            listed = n;
         }
         barrier();
         for (uint n = 0u; n < listed; n++) {

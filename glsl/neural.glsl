@@ -145,23 +145,23 @@ uint guide_pick_sector(GuideVertex g, float u, out float p) {
     return k;
 }
 
-// Offers, with the batch's probability (u uniform), the transition from the
-// state (p, n) through sector k with its target to the training batch.
-// It encodes (p, n) over the network's input, which may hold the last
-// hidden layer: call it only once neural_w holds what sampling needs.
-void neural_offer(vec3 p, vec3 n, uint k, float target, float u) {
-    if (u >= batch.probability) {
-        return;
-    }
-    uint slot = atomicAdd(batch.count, 1u);
-    if (slot >= batch.capacity) {
-        return;
-    }
-    neural_encode(p, n);
-    for (uint i = 0u; i < MLP_IN4; i++) {
-        batch_inputs[slot * MLP_IN4 + i] = MLP_V(i);
-    }
-    batch_targets[slot] = MlpTarget(k, target, 0.0, 0.0);
+// Per pixel, the transition its path kept for training (two vec4s:
+// position and target; normal and sector + 1, or 0 when it offers none).
+// src/guide/neural.rs's gather pass packs the offered ones into the batch
+// in pixel order, so which transitions train, and in what order, does not
+// depend on the order invocations run: one seed, one network.
+layout(std430, set = 0, binding = B_NEURAL_PENDING) buffer Pending { vec4 pending[]; };
+
+// The path's kept transition: one of its transitions, uniformly (reservoir
+// sampling over them as they land).
+uint kept_count;
+vec3 kept_p;
+vec3 kept_n;
+uint kept_k;
+float kept_target;
+
+void guide_begin_path() {
+    kept_count = 0u;
 }
 
 // Q learns all the light that reaches `from` through sector k beyond NEE at
@@ -173,7 +173,13 @@ void guide_learn(GuideVertex from, uint k, float q, float reflected, float direc
         float td = target - q;
         td_sq_sum += td * td;
         td_count += 1u;
-        neural_offer(from.p, from.n, k, target, rng_next(rng));
+        kept_count += 1u;
+        if (rng_next(rng) * float(kept_count) < 1.0) {
+            kept_p = from.p;
+            kept_n = from.n;
+            kept_k = k;
+            kept_target = target;
+        }
     }
 }
 
@@ -181,6 +187,14 @@ void guide_learn(GuideVertex from, uint k, float q, float reflected, float direc
 void guide_learn_emitter(GuideVertex from, uint k, float q, float le, float mis_weight,
                          inout float td_sq_sum, inout uint td_count, inout uint rng) {
     guide_learn(from, k, q, le * mis_weight, 0.0, td_sq_sum, td_count, rng);
+}
+
+// A learning pass's path at pixel `index` ended: it offers its kept
+// transition with the batch's probability.
+void guide_end_path(uint index, inout uint rng) {
+    bool offer = kept_count > 0u && rng_next(rng) < batch.probability;
+    pending[2u * index] = vec4(kept_p, kept_target);
+    pending[2u * index + 1u] = vec4(kept_n, offer ? float(kept_k + 1u) : 0.0);
 }
 
 #endif

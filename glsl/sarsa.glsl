@@ -168,6 +168,13 @@ void sarsa_learn(GuideVertex from, uint k, float q, float target, inout float td
     }
 }
 
+void guide_begin_path() {
+}
+
+// Sarsa learns as transitions land (sarsa_record); nothing is left at a path's end.
+void guide_end_path(uint index, inout uint rng) {
+}
+
 // Sarsa's target leaves out what NEE brings at the vertex it reached:
 // NEE's share is learned apart (sarsa_record_direct) and taken out of the
 // sampling distribution instead.

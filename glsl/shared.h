@@ -45,6 +45,7 @@
 #define B_MLP_COUNT 27
 #define B_NEURAL_VERTICES 28
 #define B_LOOKUP_TRIANGLES 29
+#define B_NEURAL_PENDING 30
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

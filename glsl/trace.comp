@@ -95,6 +95,7 @@ void begin_path(uint sample_index) {
     rays = 0u;
     prev_bsdf_pdf = 0.0;
 #ifdef GUIDED
+    guide_begin_path();
     prev_vertex = guide_none();
     prev_sector = 0u;
     prev_q = 0.0;
@@ -276,6 +277,11 @@ void main() {
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
         if (!bounce()) {
             samples[(params.selector + done) * pixels + index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
+#ifdef GUIDED
+            if (learn) {
+                guide_end_path(index, rng);
+            }
+#endif
             done += 1u;
             if (done == count) {
                 break;

@@ -62,8 +62,8 @@ struct RenderArgs {
     /// Next-event estimation with multiple importance sampling.
     #[arg(long)]
     nee: bool,
-    /// Random seed; the same seed gives the same image (pt, and sarsa with
-    /// fixed-point tallies; neural differs in its last bits).
+    /// Random seed; the same seed gives the same image, bit for bit (sarsa:
+    /// with its default fixed-point tallies).
     #[arg(long)]
     seed: Option<u32>,
     /// BSDF direction sampling (alone, or as the BSDF half of a guide's mixture).

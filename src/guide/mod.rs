@@ -324,8 +324,8 @@ fn restore_blob(buffer: &Buffer, name: &str, blobs: &[(String, Vec<u8>)]) -> Res
 
 /// A guide's state on the device and the passes it adds to a render.
 pub enum Guide {
-    Sarsa(SarsaGuide),
-    Neural(NeuralGuide),
+    Sarsa(Box<SarsaGuide>),
+    Neural(Box<NeuralGuide>),
 }
 
 impl Guide {
@@ -338,9 +338,9 @@ impl Guide {
         pixels: u64,
     ) -> gpu::Result<Self> {
         Ok(match settings {
-            GuideSettings::Sarsa(s) => Self::Sarsa(SarsaGuide::new(ctx, scene, s, seed)?),
+            GuideSettings::Sarsa(s) => Self::Sarsa(Box::new(SarsaGuide::new(ctx, scene, s, seed)?)),
             GuideSettings::Neural(n) => {
-                Self::Neural(NeuralGuide::new(ctx, scene, n, seed, pixels)?)
+                Self::Neural(Box::new(NeuralGuide::new(ctx, scene, n, seed, pixels)?))
             }
         })
     }
@@ -374,7 +374,7 @@ impl Guide {
     pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
         match self {
             Self::Sarsa(s) => s.record_update(rec, params),
-            Self::Neural(n) => n.record_update(rec),
+            Self::Neural(n) => n.record_update(rec, params),
         }
     }
 
@@ -416,14 +416,14 @@ impl Guide {
 
     pub fn sarsa(&self) -> Option<&SarsaGuide> {
         match self {
-            Self::Sarsa(s) => Some(s),
+            Self::Sarsa(s) => Some(s.as_ref()),
             Self::Neural(_) => None,
         }
     }
 
     pub fn neural(&self) -> Option<&NeuralGuide> {
         match self {
-            Self::Neural(n) => Some(n),
+            Self::Neural(n) => Some(n.as_ref()),
             Self::Sarsa(_) => None,
         }
     }

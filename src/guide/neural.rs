@@ -6,9 +6,11 @@
 use super::mlp::{Adam, MlpShape};
 use super::network::Network;
 use super::Common;
-use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
+use crate::gpu::{
+    self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
+};
 use crate::scene::Scene;
-use crate::shaders::{self, PassParams};
+use crate::shaders::{self, spirv, PassParams};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -254,6 +256,10 @@ pub struct NeuralGuide {
     /// The scene's vertices, for the vertex encoding (empty otherwise).
     vertices: Vec<Vec3>,
     vertex_buffer: Buffer,
+    /// Per pixel, the transition its path offers (see glsl/neural.glsl).
+    pending: Buffer,
+    gather: ComputePipeline,
+    gather_set: DescriptorSet,
 }
 
 impl NeuralGuide {
@@ -289,12 +295,36 @@ impl NeuralGuide {
             hi.into(),
             vertices.len() as u32,
         )?;
+        let pending = Buffer::gpu_only(ctx, "neural offered transitions", pixels.max(1) * 32)?;
+        let gather = ComputePipeline::specialized(
+            ctx,
+            "mlp gather",
+            spirv::MLP_GATHER,
+            size_of::<PassParams>() as u32,
+            &network.shape.constants(),
+        )?;
+        let [a, b, c, d] = network.bindings();
+        let gather_set = DescriptorSet::new(
+            ctx,
+            &gather,
+            &[
+                a,
+                b,
+                c,
+                d,
+                (shaders::B_NEURAL_VERTICES, &vertex_buffer),
+                (shaders::B_NEURAL_PENDING, &pending),
+            ],
+        )?;
         Ok(Self {
             settings: settings.clone(),
             network,
             bounds: (lo, hi),
             vertices,
             vertex_buffer,
+            pending,
+            gather,
+            gather_set,
         })
     }
 
@@ -313,7 +343,7 @@ impl NeuralGuide {
     }
 
     /// Buffers the trace kernel binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 5] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 6] {
         let [a, b, c, d] = self.network.bindings();
         [
             a,
@@ -321,6 +351,7 @@ impl NeuralGuide {
             c,
             d,
             (shaders::B_NEURAL_VERTICES, &self.vertex_buffer),
+            (shaders::B_NEURAL_PENDING, &self.pending),
         ]
     }
 
@@ -336,8 +367,16 @@ impl NeuralGuide {
         }
     }
 
-    /// Records the training on what the pass offered.
-    pub fn record_update(&mut self, rec: &mut Recorder<'_>) {
+    /// Records the training on what the pass offered: the gather that packs
+    /// the offered transitions into the batch, then the steps.
+    pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
+        rec.dispatch(Pass {
+            name: "mlp gather",
+            pipeline: &self.gather,
+            set: &self.gather_set,
+            push: bytemuck::bytes_of(params),
+            groups: [1, 1, 1],
+        });
         self.network.record_training(rec, self.settings.steps);
     }
 
