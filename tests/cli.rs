@@ -833,3 +833,44 @@ fn resume_goes_on_from_the_state_beside_the_output() {
     assert!(err(&["--spp", "8", "--resume"]).contains("already holds 8"));
     assert!(err(&["--spp", "16", "--resume", "--method", "sarsa"]).contains("another render"));
 }
+
+/// A device allocation that fails, wherever it happens (scene, image,
+/// guide, network, readback), ends the render with a one-line error and no
+/// output file: each allocation in turn is made to fail.
+#[test]
+fn every_allocation_failure_is_an_error() {
+    let dir = scratch("allocation-failures");
+    for method in ["pt", "sarsa", "neural"] {
+        let mut failed = 0;
+        for n in 0..200 {
+            let out = dir.join(format!("{method}-{n}.exr"));
+            let output = qtrace()
+                .arg("render")
+                .arg(dir.join("cornell-box.toml"))
+                .args([
+                    "--method", method, "--spp", "2", "--width", "8", "--height", "8",
+                ])
+                .arg("-o")
+                .arg(&out)
+                .env("QTRACE_FAIL_ALLOCATION", n.to_string())
+                .output()
+                .unwrap();
+            let stderr = String::from_utf8_lossy(&output.stderr);
+            if output.status.success() {
+                // Past the render's last allocation: nothing failed.
+                assert!(out.exists());
+                break;
+            }
+            failed += 1;
+            assert_eq!(output.status.code(), Some(1), "{method} #{n}: {stderr}");
+            assert!(!stderr.contains("panicked"), "{method} #{n}: {stderr}");
+            assert_eq!(stderr.lines().count(), 1, "{method} #{n}: {stderr}");
+            assert!(
+                stderr.contains("allocation for buffer"),
+                "{method} #{n}: {stderr}"
+            );
+            assert!(!out.exists(), "{method} #{n} left an output");
+        }
+        assert!(failed > 5, "{method}: only {failed} allocations");
+    }
+}

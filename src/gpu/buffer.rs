@@ -17,6 +17,22 @@ pub struct Buffer {
     name: String,
 }
 
+/// Fault injection for tests: with `QTRACE_FAIL_ALLOCATION=N` in the
+/// environment, the N-th buffer allocation of the process (from 0) fails as
+/// a device out of memory would, so tests can check that every allocation
+/// failure ends in an error, not a crash.
+fn injected_failure() -> bool {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNT: AtomicU64 = AtomicU64::new(0);
+    let Some(n) = std::env::var("QTRACE_FAIL_ALLOCATION")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    else {
+        return false;
+    };
+    COUNT.fetch_add(1, Ordering::Relaxed) == n
+}
+
 impl Buffer {
     fn new(
         ctx: &Arc<GpuContext>,
@@ -25,6 +41,14 @@ impl Buffer {
         location: MemoryLocation,
         usage: vk::BufferUsageFlags,
     ) -> Result<Self> {
+        let failed = |e: gpu_allocator::AllocationError| Error::BufferAlloc {
+            name: name.into(),
+            size,
+            message: e.to_string(),
+        };
+        if injected_failure() {
+            return Err(failed(gpu_allocator::AllocationError::OutOfMemory));
+        }
         let limit = ctx.info().max_storage_buffer_range;
         if size > limit {
             return Err(Error::BufferTooLarge {
@@ -60,7 +84,7 @@ impl Buffer {
             Ok(a) => a,
             Err(e) => {
                 unsafe { device.destroy_buffer(raw, None) };
-                return Err(e.into());
+                return Err(failed(e));
             }
         };
         if let Err(e) =

@@ -53,6 +53,12 @@ pub enum Error {
     Vk(#[from] vk::Result),
     #[error("GPU memory allocation failed: {0}")]
     Alloc(#[from] gpu_allocator::AllocationError),
+    #[error("GPU memory allocation for buffer '{name}' ({size} bytes) failed: {message}")]
+    BufferAlloc {
+        name: String,
+        size: u64,
+        message: String,
+    },
 }
 
 pub type Result<T> = std::result::Result<T, Error>;
