@@ -52,13 +52,19 @@ float from_fixed(uint64_t tally) {
 #define ADD_TALLY(tally, value) CAS_ADD_FLOAT(tally, value)
 #endif
 
-// A tally's element type.
+// A tally's element type, its value as a float, and zero.
 #if defined(FIXED_ATOMICS)
 #define TALLY uint64_t
+#define TALLY_VALUE(t) from_fixed(t)
+#define TALLY_ZERO uint64_t(0)
 #elif defined(FLOAT_ATOMICS)
 #define TALLY float
+#define TALLY_VALUE(t) (t)
+#define TALLY_ZERO 0.0
 #else
 #define TALLY uint
+#define TALLY_VALUE(t) uintBitsToFloat(t)
+#define TALLY_ZERO 0u
 #endif
 
 #endif

@@ -17,19 +17,10 @@ layout(local_size_x = LINEAR_GROUP) in;
 layout(push_constant) uniform Push { PassParams params; };
 layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
-// The pass's tallies: 64-bit fixed point (FIXED_ATOMICS), else float (as
-// float atomics or the CAS fallback wrote them, the same bits).
-#ifdef FIXED_ATOMICS
-layout(std430, set = 0, binding = B_SUM) buffer TargetSums { uint64_t target_sum[]; };
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { uint64_t direct_sum[]; };
-#define TALLY_VALUE(t) from_fixed(t)
-#define TALLY_ZERO uint64_t(0)
-#else
-layout(std430, set = 0, binding = B_SUM) buffer TargetSums { float target_sum[]; };
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { float direct_sum[]; };
-#define TALLY_VALUE(t) (t)
-#define TALLY_ZERO 0.0
-#endif
+// The pass's tallies, as the trace kernel's atomics wrote them (float
+// atomics and the CAS fallback write the same bits).
+layout(std430, set = 0, binding = B_SUM) buffer TargetSums { TALLY target_sum[]; };
+layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { TALLY direct_sum[]; };
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
 

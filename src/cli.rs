@@ -105,12 +105,8 @@ impl RenderOutputs {
     fn write(&self, scene: &Scene, image: &Image, stats: &render::RenderStats) -> Result<()> {
         let provenance = image::Provenance {
             spp: stats.image_spp,
-            method: if stats.nee {
-                format!("{}+nee", stats.method)
-            } else {
-                stats.method.clone()
-            },
-            scene: scene_id(scene),
+            method: render::settings::label(&stats.method, stats.nee),
+            scene: scene.id(),
             seeds: vec![stats.seed],
         };
         image.write_exr_with(&self.exr, Some(&provenance))?;
@@ -257,13 +253,6 @@ pub fn render(
         });
     }
     Ok(0)
-}
-
-/// How a render's EXR names its scene: the file's name and the fingerprint
-/// of its contents, the same on every machine.
-pub fn scene_id(scene: &Scene) -> String {
-    let name = scene.path.file_name().unwrap_or_default().to_string_lossy();
-    format!("{name} {:016x}", scene.fingerprint)
 }
 
 /// `qtrace merge`: averages parts by their sample counts.

@@ -27,11 +27,7 @@ pub struct Config {
 
 impl Config {
     pub fn label(&self) -> String {
-        format!(
-            "{}{}",
-            self.method.name(),
-            if self.nee { "+nee" } else { "" }
-        )
+        self.method.label(self.nee)
     }
 }
 

@@ -249,6 +249,24 @@ pub fn encode(bounds: (Vec3, Vec3), p: Vec3, n: Vec3) -> Vec<f32> {
     e
 }
 
+/// What the trace and gather kernels bind: the network and its batch, the
+/// scene's vertices and the offered transitions.
+fn kernel_bindings<'a>(
+    network: &'a Network,
+    vertices: &'a Buffer,
+    pending: &'a Buffer,
+) -> [(u32, &'a Buffer); 6] {
+    let [a, b, c, d] = network.bindings();
+    [
+        a,
+        b,
+        c,
+        d,
+        (shaders::B_NEURAL_VERTICES, vertices),
+        (shaders::B_NEURAL_PENDING, pending),
+    ]
+}
+
 pub struct NeuralGuide {
     pub settings: NeuralSettings,
     pub network: Network,
@@ -303,18 +321,10 @@ impl NeuralGuide {
             size_of::<PassParams>() as u32,
             &network.shape.constants(),
         )?;
-        let [a, b, c, d] = network.bindings();
         let gather_set = DescriptorSet::new(
             ctx,
             &gather,
-            &[
-                a,
-                b,
-                c,
-                d,
-                (shaders::B_NEURAL_VERTICES, &vertex_buffer),
-                (shaders::B_NEURAL_PENDING, &pending),
-            ],
+            &kernel_bindings(&network, &vertex_buffer, &pending),
         )?;
         Ok(Self {
             settings: settings.clone(),
@@ -344,15 +354,7 @@ impl NeuralGuide {
 
     /// Buffers the trace kernel binds.
     pub fn bindings(&self) -> [(u32, &Buffer); 6] {
-        let [a, b, c, d] = self.network.bindings();
-        [
-            a,
-            b,
-            c,
-            d,
-            (shaders::B_NEURAL_VERTICES, &self.vertex_buffer),
-            (shaders::B_NEURAL_PENDING, &self.pending),
-        ]
+        kernel_bindings(&self.network, &self.vertex_buffer, &self.pending)
     }
 
     /// The pass parameters the trace kernel reads.

@@ -26,6 +26,11 @@ impl Method {
         }
     }
 
+    /// The method's name, `+nee` added with NEE (`sarsa+nee`).
+    pub fn label(self, nee: bool) -> String {
+        label(self.name(), nee)
+    }
+
     /// Whether the method learns a guide (its settings: the table of its name).
     pub fn is_guided(self) -> bool {
         self != Method::Pt
@@ -47,6 +52,12 @@ pub struct Overrides {
     /// The guide's settings; None: the scene's table for the method, else
     /// the defaults. Given with no method, they choose it.
     pub guide: Option<GuideSettings>,
+}
+
+/// A method's name with `+nee` added when it uses NEE, as bench, merge and
+/// render states name configurations.
+pub fn label(method: &str, nee: bool) -> String {
+    format!("{method}{}", if nee { "+nee" } else { "" })
 }
 
 /// When a render stops.

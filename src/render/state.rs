@@ -28,12 +28,11 @@ pub struct Identity {
 
 impl Identity {
     pub fn of(scene: &Scene, s: &RenderSettings) -> Self {
-        let name = scene.path.file_name().unwrap_or_default().to_string_lossy();
         Self {
-            scene: format!("{name} {:016x}", scene.fingerprint),
+            scene: scene.id(),
             width: s.width,
             height: s.height,
-            method: format!("{}{}", s.method.name(), if s.nee { "+nee" } else { "" }),
+            method: s.method.label(s.nee),
             seed: s.seed,
             max_depth: s.max_depth,
             sampling: format!("{:?}", s.sampling).to_lowercase(),

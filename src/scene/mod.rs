@@ -143,6 +143,13 @@ fn check_color(path: &Path, what: &str, c: [f32; 3]) -> Result<Vec3, SceneError>
 }
 
 impl Scene {
+    /// How renders name the scene: its file's name and the fingerprint of
+    /// its contents, the same on every machine.
+    pub fn id(&self) -> String {
+        let name = self.path.file_name().unwrap_or_default().to_string_lossy();
+        format!("{name} {:016x}", self.fingerprint)
+    }
+
     /// The scene's table of guide `name` (empty when it has none).
     pub fn guide_table(&self, name: &str) -> &toml::Table {
         static EMPTY: std::sync::OnceLock<toml::Table> = std::sync::OnceLock::new();
