@@ -10,41 +10,103 @@ float luminance(vec3 c) {
     return dot(c, vec3(0.2126, 0.7152, 0.0722));
 }
 
-// A material's scattering at a surface point. Every material so far is
-// diffuse (two-sided Lambert); a new lobe adds its parameters here.
+// The smallest GGX alpha a rough conductor keeps (MIN_ALPHA in src/bsdf.rs).
+#define MIN_ALPHA 1e-4
+
+// A material's scattering at a surface point, seen from one side
+// (SPEC 3, "Materials").
 struct Bsdf {
-    vec3 albedo;
+    uint kind;   // MATERIAL_*
+    vec3 color;  // Kd, Ks or Tf
+    float alpha; // conductor: GGX alpha, 0 for a mirror
+    float eta;   // dielectric: index beyond the surface / index on the path's side
 };
 
-Bsdf bsdf_of(Material m) {
-    return Bsdf(m.albedo.rgb);
+// The BSDF of material m for a path arriving on the side the triangle's
+// normal faces (front) or on the other.
+Bsdf bsdf_of(Material m, bool front) {
+    uint kind = uint(m.color.w);
+    float p = m.emission.w;
+    float alpha = kind == MATERIAL_CONDUCTOR && p > 0.0 ? max(p, MIN_ALPHA) : 0.0;
+    return Bsdf(kind, m.color.rgb, alpha, front ? p : 1.0 / p);
+}
+
+Bsdf bsdf_diffuse(vec3 albedo) {
+    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0);
 }
 
 // Whether the BSDF is a delta distribution (a mirror, smooth glass): such a
-// vertex skips NEE and guiding. No material so far is.
+// vertex samples with bsdf_sample_delta and skips NEE and guiding.
 bool bsdf_is_delta(Bsdf bsdf) {
-    return false;
+    return bsdf.kind == MATERIAL_DIELECTRIC || (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha == 0.0);
 }
 
-// f_s(wo, wi) cos(theta_i).
+// GGX normal distribution, written without the cancellation of
+// 1 - cos^2 so that narrow lobes keep their precision.
+float ggx_d(float alpha, vec3 h) {
+    float a2 = alpha * alpha;
+    float t = dot(h.xy, h.xy) + a2 * h.z * h.z;
+    return a2 / (PI * t * t);
+}
+
+// Smith's masking of GGX for a direction above the surface.
+float ggx_g1(float alpha, vec3 w) {
+    float z2 = w.z * w.z;
+    return 2.0 * w.z / (w.z + sqrt(max(alpha * alpha * (1.0 - z2) + z2, 0.0)));
+}
+
+// f_s(wo, wi) cos(theta_i); zero for delta lobes.
 vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
-    return wi.z > 0.0 ? bsdf.albedo * (INV_PI * wi.z) : vec3(0.0);
+    if (wi.z <= 0.0 || wo.z <= 0.0) {
+        return vec3(0.0);
+    }
+    if (bsdf.kind == MATERIAL_DIFFUSE) {
+        return bsdf.color * (INV_PI * wi.z);
+    }
+    if (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha > 0.0) {
+        vec3 h = normalize(wo + wi);
+        return bsdf.color * (ggx_d(bsdf.alpha, h) * ggx_g1(bsdf.alpha, wo) * ggx_g1(bsdf.alpha, wi) / (4.0 * wo.z));
+    }
+    return vec3(0.0);
 }
 
-// Solid-angle pdf of bsdf_sample choosing wi: cosine-weighted, or uniform
-// over the hemisphere with FLAG_UNIFORM (`--sampling uniform`).
+// Solid-angle pdf of bsdf_sample choosing wi; zero for delta lobes. A
+// diffuse lobe samples the cosine, or the hemisphere uniformly with
+// FLAG_UNIFORM (`--sampling uniform`); a rough conductor its visible
+// normals: D_wo(h) / (4 wo.h) with D_wo(h) = G1(wo) (wo.h) D(h) / wo.z.
 float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
-    if (wi.z <= 0.0) {
+    if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
     }
-    return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : wi.z * INV_PI;
+    if (bsdf.kind == MATERIAL_DIFFUSE) {
+        return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : wi.z * INV_PI;
+    }
+    if (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha > 0.0) {
+        vec3 h = normalize(wo + wi);
+        return ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
+    }
+    return 0.0;
 }
 
-// A direction wi from two uniform numbers u; bsdf_pdf gives its density.
-// Also sets `square` to wi's point of the equal-area square (the guides'
-// sector grid), which samplers built on the concentric map know without
-// inverting it (hemisphere_to_square(wi) costs an atan).
+// A direction wi from two uniform numbers u; bsdf_pdf gives its density
+// (zero, for a rough conductor, where it falls below the horizon). Also sets
+// `square` to wi's point of the equal-area square (the guides' sector grid),
+// which samplers built on the concentric map know without inverting it
+// (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
+    if (bsdf.kind == MATERIAL_CONDUCTOR) {
+        // Visible normals by spherical caps (Dupuy & Benyoub 2023).
+        float alpha = bsdf.alpha;
+        vec3 wh = normalize(vec3(alpha * wo.xy, wo.z));
+        float phi = 2.0 * PI * u.x;
+        float z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
+        float s = sqrt(max(1.0 - z * z, 0.0));
+        vec3 h = vec3(s * cos(phi), s * sin(phi), z) + wh;
+        vec3 m = normalize(vec3(alpha * h.xy, max(h.z, 0.0)));
+        vec3 wi = 2.0 * dot(wo, m) * m - wo;
+        square = hemisphere_to_square(wi);
+        return wi;
+    }
     if ((params.flags & FLAG_UNIFORM) != 0u) {
         square = u;
         return square_to_hemisphere(u);
@@ -56,12 +118,45 @@ vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
     return wi;
 }
 
-// Luminance the vertex reflects toward wo of the light a guide expects from
-// its n sectors, given as `irradiance` = (2 pi / n) sum_j Q_j cos(theta_j):
-// the guides' bootstrap targets. Exact for a diffuse lobe, whose f_s is one
-// constant; a lobe that varies needs the per-sector sum instead.
+// Exact Fresnel reflectance of a smooth dielectric for cos_i > 0 and
+// eta = eta_t / eta_i; sets cos_t (0 under total internal reflection).
+float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
+    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0) {
+        cos_t = 0.0;
+        return 1.0;
+    }
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// A delta lobe's direction from one uniform number, and its weight f cos /
+// pdf: a mirror reflects; glass reflects with the Fresnel probability and
+// else refracts, its radiance scaled by 1 / eta^2 as the solid angle
+// compresses.
+vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
+    vec3 mirror = vec3(-wo.xy, wo.z);
+    if (bsdf.kind == MATERIAL_DIELECTRIC) {
+        float cos_t;
+        float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);
+        if (u < f) {
+            weight = vec3(1.0);
+            return mirror;
+        }
+        weight = bsdf.color / (bsdf.eta * bsdf.eta);
+        return vec3(-wo.xy / bsdf.eta, -cos_t);
+    }
+    weight = bsdf.color;
+    return mirror;
+}
+
+// Luminance a diffuse lobe reflects toward wo of the light a guide expects
+// from its n sectors, given as `irradiance` = (2 pi / n) sum_j Q_j
+// cos(theta_j). The other lobes' estimates are guide_reflect's (guide.glsl).
 float bsdf_reflect(Bsdf bsdf, vec3 wo, float irradiance) {
-    return luminance(bsdf.albedo) * INV_PI * irradiance;
+    return luminance(bsdf.color) * INV_PI * irradiance;
 }
 
 #endif

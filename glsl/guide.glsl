@@ -7,16 +7,20 @@
 //   guide_total(g)           the total weight w of that distribution
 //   guide_irradiance(g)      (2 pi / n) sum_j Q_j cos(theta_j), for targets
 //   guide_sector_probability(g, k), guide_pick_sector(g, u, out p)
+//   guide_sector_q(g, k)     Q of sector k (0 where the guide has nothing)
 //   guide_learn(from, k, q, reflected, direct, ...)  a transition from vertex
 //       `from` through sector k (whose Q was q) reached a surface that
 //       reflects `reflected` back and gets `direct` by NEE (or a miss)
 //   guide_learn_emitter(from, k, q, le, mis_weight, ...)  ... or an emitter
 //   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
 //       pass that learns (a guide may keep something per path)
-// On it, this file builds the one-sample mixture of BSDF sampling (weight
-// guide_epsilon) and the guide's sectors that every guided method samples.
+// On it, this file builds the one-sample mixture of BSDF sampling and the
+// guide's sectors that every guided method samples, and the estimate of
+// what a vertex reflects that both guides learn from.
 #ifndef QTRACE_GUIDE_GLSL
 #define QTRACE_GUIDE_GLSL
+
+#include "rng.glsl"
 
 // Q of sector k from its probability p: a sector's weight is p times the
 // total, and is Q, or Q cos(theta_k) with FLAG_COS_DISTRIBUTION. (No read
@@ -26,13 +30,23 @@ float guide_q(GuideVertex g, uint k, float p) {
     return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
 }
 
+// The share of BSDF sampling in the mixture: guide_epsilon for a diffuse
+// lobe. A glossy lobe leaves the guide (1 - guide_epsilon) alpha of it: the
+// guide's sectors are uniform inside, so a lobe narrower than they are
+// gains little from them (the roughest GGX, alpha 1, is as broad as a
+// diffuse lobe). Delta lobes do not mix (bsdf_sample_delta).
+float mixture_bsdf_share(Bsdf bsdf) {
+    float eps = params.guide_epsilon;
+    return bsdf.kind == MATERIAL_CONDUCTOR ? 1.0 - (1.0 - eps) * min(bsdf.alpha, 1.0) : eps;
+}
+
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
 // probability p_sector; pure BSDF sampling where the guide has nothing.
 float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
     if (!guide_covers(g)) {
         return bsdf_pdf(bsdf, wo, wi);
     }
-    float eps = params.guide_epsilon;
+    float eps = mixture_bsdf_share(bsdf);
     // A guided direction is uniform within its sector: density p n / (2 pi).
     float guided = wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
     return eps * bsdf_pdf(bsdf, wo, wi) + (1.0 - eps) * guided;
@@ -46,7 +60,7 @@ float mixture_pdf(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi) {
 // A direction from the mixture, the sector it lies in and that sector's
 // probability; u = three uniform numbers.
 vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, out float p_sector) {
-    float eps = params.guide_epsilon;
+    float eps = mixture_bsdf_share(bsdf);
     uint a = grid_a();
     uint b = grid_b();
     if (guide_covers(g) && u.z >= eps) {
@@ -64,6 +78,42 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
     sector = square_sector(square, a, b);
     p_sector = guide_covers(g) ? guide_sector_probability(g, sector) : 0.0;
     return wi;
+}
+
+// Luminance the vertex g reflects toward wo of the light the guide expects
+// there: the target a transition that reached g learns (SPEC 4.2, 4.3:
+// (2 pi / n) sum_j Q_j f_s(w_j, wo) cos(theta_j)).
+// - Diffuse: exact, from the guide's irradiance-like sum.
+// - Rough conductor: one BSDF sample's estimate, Q of its sector times
+//   f cos / pdf, unbiased for Q constant over each sector. (A sum over all
+//   sectors would miss a lobe narrower than a sector and cost n reads.)
+// - Mirror: its reflectance times Q of the mirrored direction's sector.
+// - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
+//   share sees the other side, of which the guide at g knows nothing, so it
+//   takes the cosine-weighted mean of g's Q instead. A rough estimate only
+//   steers sampling; the image stays unbiased.
+float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo, inout uint rng) {
+    if (bsdf.kind == MATERIAL_DIFFUSE) {
+        return bsdf_reflect(bsdf, wo, guide_irradiance(g));
+    }
+    uint a = grid_a();
+    uint b = grid_b();
+    if (!bsdf_is_delta(bsdf)) {
+        vec2 square;
+        vec3 wi = bsdf_sample(bsdf, wo, rng_next2(rng), square);
+        float pdf = bsdf_pdf(bsdf, wo, wi);
+        return pdf > 0.0
+            ? luminance(bsdf_eval(bsdf, wo, wi)) / pdf * guide_sector_q(g, square_sector(square, a, b))
+            : 0.0;
+    }
+    float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
+    if (bsdf.kind == MATERIAL_CONDUCTOR) {
+        return luminance(bsdf.color) * mirrored;
+    }
+    float cos_t;
+    float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);
+    float through = luminance(bsdf.color) / (bsdf.eta * bsdf.eta) * INV_PI * guide_irradiance(g);
+    return f * mirrored + (1.0 - f) * through;
 }
 
 #endif

@@ -126,6 +126,14 @@ float guide_sector_probability(GuideVertex g, uint k) {
     return neural_w[k] / g.total;
 }
 
+// Of the vertex inferred last (neural_w).
+float guide_sector_q(GuideVertex g, uint k) {
+    if (g.total <= 0.0) {
+        return 0.0;
+    }
+    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? neural_w[k] / sector_cos(k, grid_a(), grid_b()) : neural_w[k];
+}
+
 // Inverse CDF by a scan; rounding past the end falls to the last sector of
 // non-zero weight, never to one the pdf calls impossible.
 uint guide_pick_sector(GuideVertex g, float u, out float p) {

@@ -24,7 +24,7 @@ void main() {
         return;
     }
     GuideVertex g = neural_infer(probe_in[0].xyz, probe_in[1].xyz);
-    Bsdf white = Bsdf(vec3(1.0));
+    Bsdf white = bsdf_diffuse(vec3(1.0));
     vec3 wo = vec3(0.0, 0.0, 1.0);
     uint sector;
     float p_sector;

@@ -35,14 +35,25 @@ void main() {
         uint sector = hemisphere_sector(w, uint(q.z), uint(q.w));
         probe_out[i] = vec4(w, float(sector));
     } else if (params.selector == PROBE_BSDF) {
-        // in = (u, v, grey albedo, 0), wo = the normal; out = (wi, pdf),
-        // and out[count + i] = (f cos, reflected estimate of irradiance 1)
-        vec4 q = probe_in[i];
-        Bsdf bsdf = Bsdf(vec3(q.z));
-        vec3 wo = vec3(0.0, 0.0, 1.0);
-        vec2 square;
-        vec3 wi = bsdf_sample(bsdf, wo, q.xy, square);
-        probe_out[i] = vec4(wi, bsdf_pdf(bsdf, wo, wi));
-        probe_out[params.item_count + i] = vec4(bsdf_eval(bsdf, wo, wi), bsdf_reflect(bsdf, wo, 1.0));
+        // in[4i], in[4i+1] = a Material; in[4i+2] = (wo, front side? 1 : 0);
+        // in[4i+3] = three uniform numbers. out[i] = (wi, pdf), out[count + i]
+        // = (f cos at wi, reflected estimate of irradiance 1), or for a delta
+        // lobe (wi, 0) and (its weight, 0).
+        Material m = Material(probe_in[4u * i], probe_in[4u * i + 1u]);
+        vec4 side = probe_in[4u * i + 2u];
+        vec3 u = probe_in[4u * i + 3u].xyz;
+        Bsdf bsdf = bsdf_of(m, side.w > 0.5);
+        vec3 wo = side.xyz;
+        if (bsdf_is_delta(bsdf)) {
+            vec3 weight;
+            vec3 wi = bsdf_sample_delta(bsdf, wo, u.z, weight);
+            probe_out[i] = vec4(wi, 0.0);
+            probe_out[params.item_count + i] = vec4(weight, 0.0);
+        } else {
+            vec2 square;
+            vec3 wi = bsdf_sample(bsdf, wo, u.xy, square);
+            probe_out[i] = vec4(wi, bsdf_pdf(bsdf, wo, wi));
+            probe_out[params.item_count + i] = vec4(bsdf_eval(bsdf, wo, wi), bsdf_reflect(bsdf, wo, 1.0));
+        }
     }
 }

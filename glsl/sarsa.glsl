@@ -144,6 +144,10 @@ float guide_sector_probability(GuideVertex g, uint k) {
     return load_sector(g.volume * sector_count() + k).p;
 }
 
+float guide_sector_q(GuideVertex g, uint k) {
+    return g.volume == NO_VOLUME ? 0.0 : max(load_q(g.volume * sector_count() + k), 0.0);
+}
+
 // Alias method: u, scaled to [0, n), picks a column; its fraction decides
 // between the column's sector and its alias.
 uint guide_pick_sector(GuideVertex g, float u, out float p) {

@@ -33,7 +33,7 @@ void main() {
         // the mixture with a white diffuse BSDF
         vec4 q = probe_in[i];
         GuideVertex g = guide_vertex(floatBitsToUint(q.x));
-        Bsdf white = Bsdf(vec3(1.0));
+        Bsdf white = bsdf_diffuse(vec3(1.0));
         vec3 wo = vec3(0.0, 0.0, 1.0);
         uint sector;
         float p_sector;

@@ -126,9 +126,15 @@ struct Triangle {
     float area;
 };
 
+// Material kinds (SPEC 3, "Materials"), in Material.color.w.
+#define MATERIAL_DIFFUSE 0
+#define MATERIAL_CONDUCTOR 1
+#define MATERIAL_DIELECTRIC 2
+
 struct Material {
-    vec4 albedo;       // rgb diffuse reflectance
-    vec4 emission;     // rgb radiance, emitted on the front side only
+    vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind
+    vec4 emission;     // rgb: radiance, emitted on the front side only;
+                       // w: GGX alpha (conductor; 0 is a mirror) or Ni (dielectric)
 };
 
 // Emissive triangle for next-event estimation; chosen by `cdf` (inclusive).

@@ -144,10 +144,13 @@ bool bounce() {
         return false;
     }
 
-    // Shade in the frame of the normal facing the ray (materials are two-sided).
+    // Shade in the frame of the normal facing the ray (materials are
+    // two-sided; a dielectric knows which side it is hit on).
     vec3 ns = cos_out > 0.0 ? n : -n;
-    vec3 position = origin + hit.t * dir + ns * eps;
-    Bsdf bsdf = bsdf_of(mat);
+    vec3 surface_point = origin + hit.t * dir;
+    vec3 position = surface_point + ns * eps;
+    Bsdf bsdf = bsdf_of(mat, cos_out > 0.0);
+    bool delta = bsdf_is_delta(bsdf);
     vec3 t;
     vec3 b;
     make_frame(ns, t, b);
@@ -156,7 +159,7 @@ bool bounce() {
     GuideVertex here = guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn).
-    float reflected = bsdf_reflect(bsdf, wo, guide_irradiance(here));
+    float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo, rng) : 0.0;
     if (depth == 0u) {
         path_estimate = reflected;
     }
@@ -171,7 +174,7 @@ bool bounce() {
         return false;
     }
 
-    if (nee) {
+    if (nee && !delta) {
         Triangle lt = load_triangle(texelFetch(light_texels, int(pick_light(rng_next(rng)))).x);
         vec2 u = rng_next2(rng);
         if (u.x + u.y > 1.0) {
@@ -208,25 +211,45 @@ bool bounce() {
     if (learn) {
         guide_learn(prev_vertex, prev_sector, prev_q, reflected, direct_lum, td_sq_sum, td_count, rng);
     }
-    uint sector;
-    float p_sector;
-    vec3 local = mixture_sample(here, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
-    float pdf = mixture_pdf_in(here, bsdf, wo, local, p_sector);
-    prev_vertex = here;
-    prev_sector = sector;
-    prev_q = guide_q(here, sector, p_sector);
-#else
-    vec2 square;
-    vec3 local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
-    float pdf = bsdf_pdf(bsdf, wo, local);
 #endif
-    if (pdf <= 0.0) {
-        return false;
+    // The bounce: a delta lobe's one direction (no MIS for what it hits,
+    // as NEE skipped it), or a density to sample and weigh by.
+    vec3 local;
+    vec3 weight;
+    float pdf = 0.0;
+    if (delta) {
+        local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
+#ifdef GUIDED
+        // Guides learn along reflections, which stay in this vertex's
+        // hemisphere, and do not sample here.
+        bool up = local.z > 0.0;
+        prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
+        prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
+        prev_vertex = up ? here : guide_none();
+#endif
+    } else {
+#ifdef GUIDED
+        uint sector;
+        float p_sector;
+        local = mixture_sample(here, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+        pdf = mixture_pdf_in(here, bsdf, wo, local, p_sector);
+        prev_vertex = here;
+        prev_sector = sector;
+        prev_q = guide_q(here, sector, p_sector);
+#else
+        vec2 square;
+        local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
+        pdf = bsdf_pdf(bsdf, wo, local);
+#endif
+        if (pdf <= 0.0) {
+            return false;
+        }
+        weight = bsdf_eval(bsdf, wo, local) / pdf;
     }
-    throughput *= bsdf_eval(bsdf, wo, local) / pdf;
+    throughput *= weight;
     prev_bsdf_pdf = pdf;
     dir = normalize(local.x * t + local.y * b + local.z * ns);
-    origin = position;
+    origin = surface_point + (local.z > 0.0 ? eps : -eps) * ns;
 
     if (depth + 1u >= RR_START_DEPTH) {
         float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);

@@ -2,12 +2,12 @@
 //! and tools. Directions are local (z along the shading normal on the side
 //! the path arrives from); `wo` points back along the path.
 
-use crate::sampling::{sample_cosine, square_to_hemisphere};
+use crate::sampling::{hemisphere_to_square, sample_cosine, square_to_hemisphere};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
-use std::f32::consts::FRAC_1_PI;
+use std::f32::consts::{FRAC_1_PI, PI};
 
-/// How the BSDF picks bounce directions (`--sampling`).
+/// How a diffuse BSDF picks bounce directions (`--sampling`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Sampling {
@@ -21,64 +21,212 @@ pub fn luminance(c: Vec3) -> f32 {
     c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
 }
 
-/// A material's scattering at a surface point. Every material so far is
-/// diffuse (two-sided Lambert).
+/// The smallest GGX α a rough conductor keeps: below it a lobe is a mirror
+/// to every purpose, and its D would lose float precision.
+pub const MIN_ALPHA: f32 = 1e-4;
+
+/// How a surface scatters, as SPEC §3 ("Materials") fixes it; the same for
+/// both sides except for a dielectric's orientation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Surface {
+    /// Two-sided Lambert with albedo `Kd`.
+    Diffuse { albedo: Vec3 },
+    /// Two-sided GGX conductor without a Fresnel term: reflectance `Ks`,
+    /// α = `Pr`² (0: a perfect mirror), Smith's separable masking-shadowing.
+    Conductor { reflectance: Vec3, alpha: f32 },
+    /// Smooth dielectric of index `Ni` on the side the normal does not face,
+    /// transmission tinted by `Tf`.
+    Dielectric { ior: f32, transmittance: Vec3 },
+}
+
+impl Surface {
+    /// The lobe's kind as the GPU's `Material.color.w` holds it.
+    pub fn kind(&self) -> u32 {
+        match self {
+            Surface::Diffuse { .. } => crate::shaders::MATERIAL_DIFFUSE,
+            Surface::Conductor { .. } => crate::shaders::MATERIAL_CONDUCTOR,
+            Surface::Dielectric { .. } => crate::shaders::MATERIAL_DIELECTRIC,
+        }
+    }
+
+    /// The surface's colour (Kd, Ks or Tf) and its parameter (α, Ni, or 0),
+    /// as the GPU's `Material` holds them.
+    pub fn color_and_parameter(&self) -> (Vec3, f32) {
+        match *self {
+            Surface::Diffuse { albedo } => (albedo, 0.0),
+            Surface::Conductor { reflectance, alpha } => (reflectance, alpha),
+            Surface::Dielectric { ior, transmittance } => (transmittance, ior),
+        }
+    }
+}
+
+/// The lobe at one surface point, seen from one side.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Lobe {
+    Diffuse(Sampling),
+    Conductor { alpha: f32 },
+    /// η = η_t / η_i: the index beyond the surface over the index on the
+    /// side the path arrives from.
+    Dielectric { eta: f32 },
+}
+
+/// A material's scattering at a surface point, seen from one side.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bsdf {
-    pub albedo: Vec3,
-    /// How `sample` draws directions (`--sampling`).
-    pub sampling: Sampling,
+    lobe: Lobe,
+    /// Kd, Ks or Tf.
+    pub color: Vec3,
+}
+
+/// GGX normal distribution, written without the cancellation of
+/// 1 − cos²θ so that narrow lobes keep their precision.
+fn ggx_d(alpha: f32, h: Vec3) -> f32 {
+    let a2 = alpha * alpha;
+    let t = h.x * h.x + h.y * h.y + a2 * h.z * h.z;
+    a2 / (PI * t * t)
+}
+
+/// Smith's masking of GGX for a direction above the surface.
+fn ggx_g1(alpha: f32, w: Vec3) -> f32 {
+    let z2 = w.z * w.z;
+    2.0 * w.z / (w.z + (alpha * alpha * (1.0 - z2) + z2).max(0.0).sqrt())
+}
+
+/// Exact Fresnel reflectance of a smooth dielectric for cos θ_i > 0 and
+/// η = η_t / η_i, and cos θ_t (0 under total internal reflection).
+pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> (f32, f32) {
+    let sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return (1.0, 0.0);
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    (0.5 * (rs * rs + rp * rp), cos_t)
 }
 
 impl Bsdf {
     pub fn diffuse(albedo: Vec3) -> Self {
-        Self {
-            albedo,
-            sampling: Sampling::Cosine,
+        Self::new(Surface::Diffuse { albedo }, true, Sampling::Cosine)
+    }
+
+    /// The BSDF of `surface` for a path arriving on its front side (the
+    /// side the triangle's normal faces) or its back.
+    pub fn new(surface: Surface, front: bool, sampling: Sampling) -> Self {
+        match surface {
+            Surface::Diffuse { albedo } => Self {
+                lobe: Lobe::Diffuse(sampling),
+                color: albedo,
+            },
+            Surface::Conductor { reflectance, alpha } => Self {
+                lobe: Lobe::Conductor {
+                    alpha: if alpha > 0.0 { alpha.max(MIN_ALPHA) } else { 0.0 },
+                },
+                color: reflectance,
+            },
+            Surface::Dielectric { ior, transmittance } => Self {
+                lobe: Lobe::Dielectric {
+                    eta: if front { ior } else { 1.0 / ior },
+                },
+                color: transmittance,
+            },
         }
     }
 
-    /// Whether the BSDF is a delta distribution; none so far is.
+    /// Whether the BSDF is a delta distribution (a mirror, smooth glass):
+    /// such a vertex samples with `sample_delta` and skips NEE and guiding.
     pub fn is_delta(&self) -> bool {
-        false
-    }
-
-    /// f_s(wo, wi) cos θ_i.
-    pub fn eval(&self, _wo: Vec3, wi: Vec3) -> Vec3 {
-        if wi.z > 0.0 {
-            self.albedo * (FRAC_1_PI * wi.z)
-        } else {
-            Vec3::ZERO
+        match self.lobe {
+            Lobe::Diffuse(_) => false,
+            Lobe::Conductor { alpha } => alpha == 0.0,
+            Lobe::Dielectric { .. } => true,
         }
     }
 
-    /// Solid-angle pdf of `sample` choosing wi.
-    pub fn pdf(&self, _wo: Vec3, wi: Vec3) -> f32 {
-        if wi.z <= 0.0 {
+    /// f_s(wo, wi) cos θ_i; zero for delta lobes.
+    pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return Vec3::ZERO;
+        }
+        match self.lobe {
+            Lobe::Diffuse(_) => self.color * (FRAC_1_PI * wi.z),
+            Lobe::Conductor { alpha } if alpha > 0.0 => {
+                let h = (wo + wi).normalize();
+                self.color * (ggx_d(alpha, h) * ggx_g1(alpha, wo) * ggx_g1(alpha, wi) / (4.0 * wo.z))
+            }
+            _ => Vec3::ZERO,
+        }
+    }
+
+    /// Solid-angle pdf of `sample` choosing wi; zero for delta lobes.
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
             return 0.0;
         }
-        match self.sampling {
-            Sampling::Cosine => wi.z * FRAC_1_PI,
-            Sampling::Uniform => 0.5 * FRAC_1_PI,
+        match self.lobe {
+            Lobe::Diffuse(Sampling::Cosine) => wi.z * FRAC_1_PI,
+            Lobe::Diffuse(Sampling::Uniform) => 0.5 * FRAC_1_PI,
+            // Visible normals: D_wo(h) / (4 wo·h) with D_wo(h) = G1(wo) (wo·h) D(h) / wo.z.
+            Lobe::Conductor { alpha } if alpha > 0.0 => {
+                let h = (wo + wi).normalize();
+                ggx_g1(alpha, wo) * ggx_d(alpha, h) / (4.0 * wo.z)
+            }
+            _ => 0.0,
         }
     }
 
-    /// A direction from two uniform numbers, and its point of the
-    /// equal-area square (the guides' sector grid).
-    pub fn sample(&self, _wo: Vec3, u: Vec2) -> (Vec3, Vec2) {
-        match self.sampling {
-            Sampling::Uniform => (square_to_hemisphere(u), u),
-            Sampling::Cosine => {
+    /// A direction from two uniform numbers (None where the lobe sends
+    /// none, as a rough conductor may below the horizon), and its point of
+    /// the equal-area square (the guides' sector grid). Not for delta lobes.
+    pub fn sample(&self, wo: Vec3, u: Vec2) -> Option<(Vec3, Vec2)> {
+        match self.lobe {
+            Lobe::Diffuse(Sampling::Uniform) => Some((square_to_hemisphere(u), u)),
+            Lobe::Diffuse(Sampling::Cosine) => {
                 let wi = sample_cosine(u);
-                (wi, Vec2::splat(0.5) + (u - 0.5) / (1.0 + wi.z).sqrt())
+                Some((wi, Vec2::splat(0.5) + (u - 0.5) / (1.0 + wi.z).sqrt()))
             }
+            Lobe::Conductor { alpha } => {
+                // Visible normals by spherical caps (Dupuy & Benyoub 2023).
+                let wh = Vec3::new(alpha * wo.x, alpha * wo.y, wo.z).normalize();
+                let phi = 2.0 * PI * u.x;
+                let z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
+                let s = (1.0 - z * z).max(0.0).sqrt();
+                let h = Vec3::new(s * phi.cos(), s * phi.sin(), z) + wh;
+                let m = Vec3::new(alpha * h.x, alpha * h.y, h.z.max(0.0)).normalize();
+                let wi = 2.0 * wo.dot(m) * m - wo;
+                (wi.z > 0.0).then(|| (wi, hemisphere_to_square(wi)))
+            }
+            Lobe::Dielectric { .. } => None,
+        }
+    }
+
+    /// A delta lobe's direction from one uniform number, and its weight
+    /// f cos / pdf: a mirror reflects; glass reflects with the Fresnel
+    /// probability and else refracts, its radiance scaled by 1 / η² as the
+    /// solid angle compresses.
+    pub fn sample_delta(&self, wo: Vec3, u: f32) -> (Vec3, Vec3) {
+        let mirror = Vec3::new(-wo.x, -wo.y, wo.z);
+        match self.lobe {
+            Lobe::Dielectric { eta } => {
+                let (f, cos_t) = fresnel_dielectric(wo.z, eta);
+                if u < f {
+                    (mirror, Vec3::ONE)
+                } else {
+                    (
+                        Vec3::new(-wo.x / eta, -wo.y / eta, -cos_t),
+                        self.color / (eta * eta),
+                    )
+                }
+            }
+            _ => (mirror, self.color),
         }
     }
 
     /// Luminance reflected toward wo of a guide's expected light, given as
-    /// (2π/n) Σ_j Q_j cos θ_j; exact for a diffuse lobe.
+    /// (2π/n) Σ_j Q_j cos θ_j; exact for a diffuse lobe (the other lobes'
+    /// targets are in glsl/guide.glsl).
     pub fn reflect(&self, _wo: Vec3, irradiance: f32) -> f32 {
-        luminance(self.albedo) * FRAC_1_PI * irradiance
+        luminance(self.color) * FRAC_1_PI * irradiance
     }
 }
 
@@ -87,20 +235,39 @@ mod tests {
     use super::*;
     use crate::sampling::{grid, hemisphere_to_square};
 
-    /// White furnace per sampler: the mean of f cos / pdf over its samples
-    /// is the albedo; each sample's square point is its equal-area point.
+    fn direction(theta_degrees: f32) -> Vec3 {
+        let t = theta_degrees.to_radians();
+        Vec3::new(t.sin(), 0.0, t.cos())
+    }
+
+    fn conductor(alpha: f32) -> Bsdf {
+        Bsdf::new(
+            Surface::Conductor {
+                reflectance: Vec3::ONE,
+                alpha,
+            },
+            true,
+            Sampling::Cosine,
+        )
+    }
+
+    /// White furnace per diffuse sampler: the mean of f cos / pdf over its
+    /// samples is the albedo; each sample's square point is its equal-area point.
     #[test]
     fn samplers_return_the_albedo_and_their_square_points() {
         let wo = Vec3::Z;
         for sampling in [Sampling::Cosine, Sampling::Uniform] {
-            let bsdf = Bsdf {
-                albedo: Vec3::new(1.0, 0.5, 0.25),
+            let bsdf = Bsdf::new(
+                Surface::Diffuse {
+                    albedo: Vec3::new(1.0, 0.5, 0.25),
+                },
+                true,
                 sampling,
-            };
+            );
             let mut sum = Vec3::ZERO;
             let n = 256;
             for u in grid(n) {
-                let (wi, square) = bsdf.sample(wo, u);
+                let (wi, square) = bsdf.sample(wo, u).unwrap();
                 assert!((wi.length() - 1.0).abs() < 1e-4);
                 sum += bsdf.eval(wo, wi) / bsdf.pdf(wo, wi);
                 let exact = hemisphere_to_square(wi);
@@ -111,7 +278,7 @@ mod tests {
             }
             let mean = sum / (n * n) as f32;
             assert!(
-                (mean - bsdf.albedo).abs().max_element() < 2e-3,
+                (mean - bsdf.color).abs().max_element() < 2e-3,
                 "{sampling:?}: {mean}"
             );
         }
@@ -125,5 +292,173 @@ mod tests {
         assert_eq!(bsdf.eval(a, -b), Vec3::ZERO);
         assert_eq!(bsdf.pdf(a, -b), 0.0);
         assert!(!bsdf.is_delta());
+    }
+
+    /// f_s(wo, wi) = f_s(wi, wo) for the rough conductor over a spread of
+    /// directions and roughnesses.
+    #[test]
+    fn conductor_is_reciprocal() {
+        for alpha in [0.05, 0.2, 0.5, 1.0] {
+            let bsdf = conductor(alpha);
+            for (a, b) in [(5.0f32, 40.0f32), (30.0, -60.0), (75.0, 10.0), (85.0, -85.0)] {
+                let wo = direction(a);
+                let wi = (direction(b.abs()) * Vec3::new(b.signum(), 1.0, 1.0)
+                    + Vec3::new(0.0, 0.3, 0.0))
+                .normalize();
+                let f1 = bsdf.eval(wo, wi).x / wi.z;
+                let f2 = bsdf.eval(wi, wo).x / wo.z;
+                assert!((f1 - f2).abs() <= 1e-4 * f1.max(1.0), "α {alpha}: {f1} vs {f2}");
+            }
+        }
+    }
+
+    /// The sampler's estimate of the directional albedo, mean of f cos / pdf,
+    /// equals the albedo integrated by quadrature, and neither exceeds 1
+    /// (single-scattering GGX loses energy at high roughness, never gains).
+    #[test]
+    fn conductor_conserves_energy_and_sampler_matches_its_integral() {
+        for alpha in [0.02, 0.1, 0.3, 0.6, 1.0] {
+            let bsdf = conductor(alpha);
+            for theta in [0.0, 30.0, 60.0, 80.0] {
+                let wo = direction(theta);
+                let n = 400;
+                let sampled: f32 = grid(n)
+                    .filter_map(|u| bsdf.sample(wo, u))
+                    .map(|(wi, _)| bsdf.eval(wo, wi).x / bsdf.pdf(wo, wi))
+                    .sum::<f32>()
+                    / (n * n) as f32;
+                // Quadrature over the equal-area square: every cell is 2π / m² sr.
+                let m = 1000;
+                let integral: f64 = grid(m)
+                    .map(|u| bsdf.eval(wo, square_to_hemisphere(u)).x as f64)
+                    .sum::<f64>()
+                    * 2.0
+                    * std::f64::consts::PI
+                    / (m * m) as f64;
+                assert!(sampled <= 1.0 + 1e-3, "α {alpha} θ {theta}: {sampled}");
+                // Narrow lobes need the sampler; quadrature only checks broad ones.
+                if alpha >= 0.1 {
+                    assert!(
+                        (sampled as f64 - integral).abs() < 5e-3,
+                        "α {alpha} θ {theta}: sampled {sampled}, quadrature {integral}"
+                    );
+                }
+                if theta == 0.0 && alpha <= 0.1 {
+                    assert!(sampled > 0.98, "α {alpha}: {sampled}");
+                }
+            }
+        }
+    }
+
+    /// Pearson's χ² of the visible-normal sampler against its pdf over an
+    /// equal-area grid of sectors, pooling sparse bins.
+    #[test]
+    fn conductor_sampler_follows_its_pdf() {
+        let (cells, samples) = (16u32, 200_000usize);
+        for alpha in [0.08, 0.3, 0.9] {
+            for theta in [10.0, 50.0, 80.0] {
+                let bsdf = conductor(alpha);
+                let wo = direction(theta);
+                let mut observed = vec![0.0f64; (cells * cells) as usize];
+                let mut rng = crate::fuzz::Rng::new(7 + theta as u64);
+                for _ in 0..samples {
+                    let u = Vec2::new(rng.unit(), rng.unit());
+                    if let Some((wi, _)) = bsdf.sample(wo, u) {
+                        observed[crate::sampling::hemisphere_sector(wi, cells, cells) as usize] +=
+                            1.0;
+                    }
+                }
+                // Expected counts: the pdf integrated over each cell.
+                let sub = 24;
+                let expected: Vec<f64> = (0..cells * cells)
+                    .map(|k| {
+                        let (i, j) = ((k % cells) as f32, (k / cells) as f32);
+                        let mut sum = 0.0f64;
+                        for s in grid(sub) {
+                            let u = (Vec2::new(i, j) + s) / cells as f32;
+                            sum += bsdf.pdf(wo, square_to_hemisphere(u)) as f64;
+                        }
+                        sum * 2.0 * std::f64::consts::PI
+                            / (sub * sub) as f64 / (cells * cells) as f64
+                            * samples as f64
+                    })
+                    .collect();
+                let (mut chi2, mut dof, mut pool_e, mut pool_o) = (0.0, 0usize, 0.0, 0.0);
+                for (e, o) in expected.iter().zip(&observed) {
+                    if *e < 5.0 {
+                        pool_e += e;
+                        pool_o += o;
+                    } else {
+                        chi2 += (o - e) * (o - e) / e;
+                        dof += 1;
+                    }
+                }
+                if pool_e >= 5.0 {
+                    chi2 += (pool_o - pool_e) * (pool_o - pool_e) / pool_e;
+                    dof += 1;
+                }
+                // Far beyond the 1e-6 quantile (mean dof, sd sqrt(2 dof)).
+                let limit = dof as f64 + 7.0 * (2.0 * dof as f64).sqrt();
+                assert!(
+                    chi2 < limit,
+                    "α {alpha} θ {theta}: χ² {chi2:.1} over {dof} bins"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn glass_splits_by_fresnel_and_refracts_by_snell() {
+        let glass = Surface::Dielectric {
+            ior: 1.5,
+            transmittance: Vec3::ONE,
+        };
+        let outside = Bsdf::new(glass, true, Sampling::Cosine);
+        let inside = Bsdf::new(glass, false, Sampling::Cosine);
+        assert!(outside.is_delta() && inside.is_delta());
+        // Normal incidence: ((η − 1) / (η + 1))² = 0.04.
+        assert!((fresnel_dielectric(1.0, 1.5).0 - 0.04).abs() < 1e-6);
+        for theta in [0.0f32, 20.0, 45.0, 70.0, 89.0] {
+            let wo = direction(theta);
+            let (f, _) = fresnel_dielectric(wo.z, 1.5);
+            let (r, wr) = outside.sample_delta(wo, f * 0.5);
+            assert_eq!((r, wr), (Vec3::new(-wo.x, -wo.y, wo.z), Vec3::ONE));
+            let (t, wt) = outside.sample_delta(wo, 0.5 * (1.0 + f));
+            // Snell: sin θ_t = sin θ_i / η, below the surface, unit length.
+            assert!((t.length() - 1.0).abs() < 1e-5 && t.z < 0.0);
+            assert!((t.x.abs() * 1.5 - wo.x).abs() < 1e-5);
+            assert!((wt - Vec3::splat(1.0 / 2.25)).abs().max_element() < 1e-6);
+            // Back through the surface from inside: the same path reversed,
+            // the same Fresnel split, and radiance scaled back up by η².
+            let back = -t;
+            let (f_in, _) = fresnel_dielectric(back.z, 1.0 / 1.5);
+            assert!((f_in - f).abs() < 1e-4, "θ {theta}: {f_in} vs {f}");
+            let (out, w_out) = inside.sample_delta(back, 0.999_999);
+            assert!((out + wo).length() < 1e-4 || f_in > 0.999_999);
+            assert!((w_out - Vec3::splat(2.25)).abs().max_element() < 1e-4);
+        }
+        // Beyond the critical angle inside: total internal reflection.
+        let grazing = direction(60.0);
+        assert_eq!(fresnel_dielectric(grazing.z, 1.0 / 1.5).0, 1.0);
+        assert_eq!(inside.sample_delta(grazing, 0.999).0.z, grazing.z);
+    }
+
+    #[test]
+    fn mirror_reflects_with_its_reflectance() {
+        let mirror = Bsdf::new(
+            Surface::Conductor {
+                reflectance: Vec3::new(0.9, 0.5, 0.1),
+                alpha: 0.0,
+            },
+            false,
+            Sampling::Cosine,
+        );
+        assert!(mirror.is_delta());
+        let wo = direction(35.0);
+        assert_eq!(mirror.eval(wo, wo), Vec3::ZERO);
+        assert_eq!(
+            mirror.sample_delta(wo, 0.3),
+            (Vec3::new(-wo.x, -wo.y, wo.z), Vec3::new(0.9, 0.5, 0.1))
+        );
     }
 }

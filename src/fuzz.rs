@@ -71,6 +71,11 @@ impl Rng {
         self.0.next_u64()
     }
 
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
     /// Uniform in 0..n (0 when n is 0).
     pub fn below(&mut self, n: usize) -> usize {
         if n == 0 {

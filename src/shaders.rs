@@ -53,7 +53,7 @@ pub struct Triangle {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct Material {
-    pub albedo: [f32; 4],
+    pub color: [f32; 4],
     pub emission: [f32; 4],
 }
 

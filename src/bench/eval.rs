@@ -180,10 +180,7 @@ fn scene_key(path: &Path, scene: &Scene, plan: &EvalPlan, max_depth: u32) -> u64
     h = fnv1a(bytemuck::cast_slice(&scene.triangles), h);
     // Materials come from the MTL, which the scene file does not contain.
     for m in &scene.materials {
-        h = fnv1a(
-            bytemuck::cast_slice(&[m.albedo.to_array(), m.emission.to_array()]),
-            h,
-        );
+        h = fnv1a(bytemuck::bytes_of(&m.gpu()), h);
     }
     let settings = format!(
         "{}x{} spp{} depth{} seed{} v{}",

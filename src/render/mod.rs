@@ -41,10 +41,7 @@ impl GpuScene {
         let materials: Vec<shaders::Material> = scene
             .materials
             .iter()
-            .map(|m| shaders::Material {
-                albedo: m.albedo.extend(0.0).into(),
-                emission: m.emission.extend(0.0).into(),
-            })
+            .map(|m| m.gpu())
             .collect();
         Ok(Self {
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,

@@ -277,9 +277,9 @@ pub fn sarsa_updates(
     Ok(out.iter().map(|v| v.x).collect())
 }
 
-/// What the GPU BSDF does with one pair of uniform numbers: the direction
-/// it samples, its pdf, f·cos there, and the reflected estimate of a unit
-/// irradiance.
+/// What the GPU BSDF does with one query: the direction it samples, its
+/// pdf, f·cos there, and the reflected estimate of a unit irradiance; for a
+/// delta lobe, pdf 0 and `eval` its weight f·cos/pdf.
 #[derive(Clone, Copy, Debug)]
 pub struct BsdfSample {
     pub wi: Vec3,
@@ -288,14 +288,23 @@ pub struct BsdfSample {
     pub reflected: f32,
 }
 
-/// GPU `bsdf_sample`, `bsdf_pdf`, `bsdf_eval` and `bsdf_reflect` of a grey
-/// diffuse BSDF seen along the normal, for each pair of uniform numbers.
+/// One query of the GPU BSDF: a material seen from its front side or not,
+/// wo, and three uniform numbers (two for sampling, one for delta lobes).
+#[derive(Clone, Debug)]
+pub struct BsdfQuery {
+    pub material: crate::scene::Material,
+    pub front: bool,
+    pub wo: Vec3,
+    pub u: Vec3,
+}
+
+/// GPU `bsdf_sample` (or `bsdf_sample_delta`), `bsdf_pdf`, `bsdf_eval` and
+/// `bsdf_reflect` for each query.
 pub fn bsdf_samples(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
-    albedo: f32,
     sampling: super::Sampling,
-    uniforms: &[Vec2],
+    queries: &[BsdfQuery],
 ) -> Result<Vec<BsdfSample>, RenderError> {
     let gpu_scene = GpuScene::upload(ctx, scene)?;
     let settings = RenderSettings::resolve(
@@ -309,11 +318,19 @@ pub fn bsdf_samples(
     params.selector = shaders::PROBE_BSDF;
     let pipeline =
         ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
-    let input: Vec<Vec4> = uniforms
+    let input: Vec<Vec4> = queries
         .iter()
-        .map(|u| Vec4::new(u.x, u.y, albedo, 0.0))
+        .flat_map(|q| {
+            let m = q.material.gpu();
+            [
+                Vec4::from(m.color),
+                Vec4::from(m.emission),
+                q.wo.extend(if q.front { 1.0 } else { 0.0 }),
+                q.u.extend(0.0),
+            ]
+        })
         .collect();
-    let n = uniforms.len();
+    let n = queries.len();
     let out = launch(
         ctx,
         &pipeline,

@@ -6,7 +6,7 @@ pub mod file;
 pub mod obj;
 pub mod procedural;
 
-use crate::bsdf::luminance;
+use crate::bsdf::{luminance, Surface};
 use crate::shaders;
 use file::{CameraDesc, RenderDefaults, SceneFile};
 use glam::Vec3;
@@ -40,8 +40,27 @@ pub enum SceneError {
 #[derive(Clone, Debug)]
 pub struct Material {
     pub name: String,
-    pub albedo: Vec3,
+    pub surface: Surface,
     pub emission: Vec3,
+}
+
+impl Material {
+    pub fn diffuse(name: &str, albedo: Vec3) -> Self {
+        Self {
+            name: name.into(),
+            surface: Surface::Diffuse { albedo },
+            emission: Vec3::ZERO,
+        }
+    }
+
+    /// The material as the kernels read it (`Material` of shared.h).
+    pub fn gpu(&self) -> shaders::Material {
+        let (color, parameter) = self.surface.color_and_parameter();
+        shaders::Material {
+            color: color.extend(self.surface.kind() as f32).into(),
+            emission: self.emission.extend(parameter).into(),
+        }
+    }
 }
 
 /// Pinhole camera in the right-handed look-at convention of SPEC §3.
@@ -232,11 +251,10 @@ impl Scene {
             }
             let g = procedural::generate(p);
             let m = materials.len() as u32;
-            materials.push(Material {
-                name: g.name.clone(),
-                albedo: check_color(path, "procedural albedo", g.albedo.into())?,
-                emission: Vec3::ZERO,
-            });
+            materials.push(Material::diffuse(
+                &g.name,
+                check_color(path, "procedural albedo", g.albedo.into())?,
+            ));
             sources.push((path.to_path_buf(), format!("procedural {}", g.name)));
             let src = sources.len() as u32 - 1;
             for t in g.triangles {
@@ -411,6 +429,101 @@ impl Default for Loader<'_> {
     }
 }
 
+/// The surface an MTL material describes (SPEC §3, "Materials"): glass for
+/// `d 0` with `Ni` > 1, a conductor for `Pm 1`, else diffuse. Keys the
+/// chosen surface does not use draw one warning per material; values out of
+/// range are errors naming the file and the material.
+fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneError> {
+    let fail = |message: String| SceneError::Invalid {
+        path: obj_path.to_path_buf(),
+        message: format!("material '{}': {message}", m.name),
+    };
+    let unit = |key: &str, c: Option<[f32; 3]>, default: f32| -> Result<Vec3, SceneError> {
+        let c = check_color(
+            obj_path,
+            &format!("{key} of material '{}'", m.name),
+            c.unwrap_or([default; 3]),
+        )?;
+        if c.max_element() > 1.0 {
+            return Err(fail(format!("{key} exceeds 1 (it would create energy)")));
+        }
+        Ok(c)
+    };
+    let in_unit = |key: &str, v: Option<f32>| match v {
+        Some(x) if !(0.0..=1.0).contains(&x) => {
+            Err(fail(format!("{key} {x} is outside [0, 1]")))
+        }
+        _ => Ok(()),
+    };
+    in_unit("Pm", m.metallic)?;
+    in_unit("Pr", m.roughness)?;
+    in_unit("d", m.dissolve)?;
+    if let Some(ior) = m.ior {
+        if !ior.is_finite() || ior <= 0.0 {
+            return Err(fail(format!("Ni {ior} must be a positive number")));
+        }
+    }
+    let metallic = m.metallic.unwrap_or(0.0);
+    if metallic > 0.0 && metallic < 1.0 {
+        return Err(fail(format!(
+            "Pm {metallic}: a material is a conductor (Pm 1) or not (Pm 0); blends are not supported"
+        )));
+    }
+    let glass = m.dissolve == Some(0.0);
+    let mut ignored: Vec<&str> = Vec::new();
+    let surface = if glass {
+        let ior = m.ior.unwrap_or(1.0);
+        if ior <= 1.0 {
+            return Err(fail(format!(
+                "d 0 (glass) needs Ni above 1, not {ior}"
+            )));
+        }
+        if metallic == 1.0 {
+            return Err(fail("Pm 1 (a conductor) and d 0 (glass) contradict each other".into()));
+        }
+        ignored.extend(m.diffuse.map(|_| "Kd"));
+        ignored.extend(m.specular.map(|_| "Ks"));
+        ignored.extend(m.roughness.map(|_| "Pr"));
+        Surface::Dielectric {
+            ior,
+            transmittance: unit("Tf", m.transmission, 1.0)?,
+        }
+    } else if metallic == 1.0 {
+        let roughness = m.roughness.unwrap_or(0.0);
+        ignored.extend(m.diffuse.map(|_| "Kd"));
+        Surface::Conductor {
+            reflectance: unit("Ks", m.specular, 1.0)?,
+            alpha: roughness * roughness,
+        }
+    } else {
+        ignored.extend(m.specular.map(|_| "Ks"));
+        ignored.extend(m.roughness.map(|_| "Pr"));
+        ignored.extend(m.transmission.map(|_| "Tf"));
+        if m.dissolve.is_some_and(|d| d < 1.0) {
+            ignored.push("d");
+        }
+        Surface::Diffuse {
+            albedo: unit("Kd", m.diffuse, 0.8)?,
+        }
+    };
+    ignored.extend(m.phong_keys.iter().copied());
+    ignored.dedup();
+    if !ignored.is_empty() {
+        let kind = match surface {
+            Surface::Diffuse { .. } => "diffuse",
+            Surface::Conductor { .. } => "a conductor",
+            Surface::Dielectric { .. } => "glass",
+        };
+        log::warn!(
+            "{}: material '{}' is {kind}; ignoring {} (see SPEC §3, \"Materials\")",
+            obj_path.display(),
+            m.name,
+            ignored.join(", ")
+        );
+    }
+    Ok(surface)
+}
+
 fn load_obj(
     obj_path: &Path,
     loader: &Loader<'_>,
@@ -454,23 +567,9 @@ fn load_obj(
     }
     let base = materials.len() as u32;
     for m in &parsed.materials {
-        let albedo = check_color(
-            obj_path,
-            &format!("Kd of material '{}'", m.name),
-            m.diffuse.unwrap_or([0.8; 3]),
-        )?;
-        if albedo.max_element() > 1.0 {
-            return Err(SceneError::Invalid {
-                path: obj_path.to_path_buf(),
-                message: format!(
-                    "Kd of material '{}' exceeds 1 (it would create energy)",
-                    m.name
-                ),
-            });
-        }
         materials.push(Material {
             name: m.name.clone(),
-            albedo,
+            surface: surface_of(obj_path, m)?,
             emission: check_color(
                 obj_path,
                 &format!("Ke of material '{}'", m.name),
@@ -480,11 +579,7 @@ fn load_obj(
     }
     // Faces without a material get a neutral grey.
     let default_material = materials.len() as u32;
-    materials.push(Material {
-        name: "default".into(),
-        albedo: Vec3::splat(0.8),
-        emission: Vec3::ZERO,
-    });
+    materials.push(Material::diffuse("default", Vec3::splat(0.8)));
     for group in parsed.groups {
         out.sources
             .push((obj_path.to_path_buf(), format!("object '{}'", group.name)));
@@ -497,4 +592,92 @@ fn load_obj(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Loads a one-triangle scene lit by its environment whose material
+    /// is `mtl`.
+    fn load(mtl: &str) -> Result<Scene, SceneError> {
+        let read = |p: &Path| -> std::io::Result<String> {
+            Ok(match p.file_name().unwrap().to_str().unwrap() {
+                "s.toml" => "mesh = \"s.obj\"\nenvironment = [1, 1, 1]\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov_y = 40\n".into(),
+                "s.obj" => "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n".into(),
+                _ => format!("newmtl m\n{mtl}"),
+            })
+        };
+        Scene::load_with(
+            Path::new("s.toml"),
+            &Loader {
+                read: &read,
+                max_triangles: 10,
+            },
+        )
+    }
+
+    #[test]
+    fn mtl_keys_make_the_surfaces_of_spec() {
+        let surface = |mtl: &str| load(mtl).unwrap().materials[0].surface;
+        assert_eq!(
+            surface("Pm 1\nKs 0.9 0.8 0.7\nPr 0.5\nKd 0.1 0.1 0.1\n"),
+            Surface::Conductor {
+                reflectance: Vec3::new(0.9, 0.8, 0.7),
+                alpha: 0.25
+            }
+        );
+        assert_eq!(
+            surface("Pm 1\n"),
+            Surface::Conductor {
+                reflectance: Vec3::ONE,
+                alpha: 0.0
+            }
+        );
+        assert_eq!(
+            surface("Ni 1.5\nd 0\nTf 1 0.9 0.8\n"),
+            Surface::Dielectric {
+                ior: 1.5,
+                transmittance: Vec3::new(1.0, 0.9, 0.8)
+            }
+        );
+        assert_eq!(
+            surface("Ni 1.33\nTr 1\n"),
+            Surface::Dielectric {
+                ior: 1.33,
+                transmittance: Vec3::ONE
+            }
+        );
+        // An exporter's leftovers on a diffuse material: warned of, ignored.
+        assert_eq!(
+            surface("Ns 250\nKa 1 1 1\nKd 0.5 0.5 0.5\nKs 0.5 0.5 0.5\nNi 1.45\nd 1\nillum 2\n"),
+            Surface::Diffuse {
+                albedo: Vec3::splat(0.5)
+            }
+        );
+    }
+
+    #[test]
+    fn out_of_range_material_values_name_file_and_material() {
+        for (mtl, want) in [
+            ("Pm 1\nPr 1.5\n", "material 'm': Pr 1.5 is outside [0, 1]"),
+            ("Pm 1\nPr -0.1\n", "Pr -0.1 is outside [0, 1]"),
+            ("Ni 1\nd 0\n", "d 0 (glass) needs Ni above 1, not 1"),
+            ("d 0\n", "needs Ni above 1"),
+            ("Ni 0.8\nd 0\n", "needs Ni above 1, not 0.8"),
+            ("Ni -2\n", "Ni -2 must be a positive number"),
+            ("Pm 0.5\n", "blends are not supported"),
+            ("Pm 2\n", "Pm 2 is outside [0, 1]"),
+            ("Pm 1\nKs 1.2 1 1\n", "Ks exceeds 1"),
+            ("Ni 1.5\nd 0\nTf -1 1 1\n", "Tf of material 'm'"),
+            ("Pm 1\nNi 1.5\nd 0\n", "contradict"),
+            ("d 1.5\n", "d 1.5 is outside [0, 1]"),
+        ] {
+            let Err(e) = load(mtl) else {
+                panic!("{mtl:?} loaded");
+            };
+            let e = e.to_string();
+            assert!(e.contains(want) && e.contains("s.obj"), "{mtl:?}: {e}");
+        }
+    }
 }

@@ -5,7 +5,7 @@
 use glam::Vec3;
 
 /// A material as the MTL file gives it; keys the renderer does not use are
-/// kept out.
+/// kept out (`scene` turns these into a surface, SPEC §3).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MtlMaterial {
     pub name: String,
@@ -13,6 +13,20 @@ pub struct MtlMaterial {
     pub diffuse: Option<[f32; 3]>,
     /// `Ke`, emitted radiance.
     pub emission: Option<[f32; 3]>,
+    /// `Ks`, specular reflectance (a conductor's reflectance).
+    pub specular: Option<[f32; 3]>,
+    /// `Tf`, transmission filter (glass's tint).
+    pub transmission: Option<[f32; 3]>,
+    /// `Pm`, metallic: 1 makes a conductor.
+    pub metallic: Option<f32>,
+    /// `Pr`, roughness.
+    pub roughness: Option<f32>,
+    /// `Ni`, index of refraction.
+    pub ior: Option<f32>,
+    /// `d` (or 1 − `Tr`), dissolve: 0 with `Ni` > 1 makes glass.
+    pub dissolve: Option<f32>,
+    /// Keys of the MTL's Phong model (`Ns`, `illum`) that were present.
+    pub phong_keys: Vec<&'static str>,
 }
 
 /// The triangles of one `o` / `g` group of an OBJ file.
@@ -90,24 +104,39 @@ pub fn parse_mtl(text: &str) -> Result<Vec<MtlMaterial>, (usize, String)> {
                     ..Default::default()
                 });
             }
-            "Kd" | "Ke" => {
+            "Kd" | "Ke" | "Ks" | "Tf" => {
                 let c = color(words, key).map_err(fail)?;
                 let Some(m) = materials.last_mut() else {
                     return Err(fail(format!("{key} before any newmtl")));
                 };
-                if key == "Kd" {
-                    m.diffuse = Some(c);
-                } else {
-                    m.emission = Some(c);
+                *match key {
+                    "Kd" => &mut m.diffuse,
+                    "Ke" => &mut m.emission,
+                    "Ks" => &mut m.specular,
+                    _ => &mut m.transmission,
+                } = Some(c);
+            }
+            "Pm" | "Pr" | "Ni" | "d" | "Tr" | "Ns" | "illum" => {
+                let v = number(words.next(), key).map_err(fail)?;
+                let Some(m) = materials.last_mut() else {
+                    return Err(fail(format!("{key} before any newmtl")));
+                };
+                match key {
+                    "Pm" => m.metallic = Some(v),
+                    "Pr" => m.roughness = Some(v),
+                    "Ni" => m.ior = Some(v),
+                    "d" => m.dissolve = Some(v),
+                    "Tr" => m.dissolve = Some(1.0 - v),
+                    "Ns" => m.phong_keys.push("Ns"),
+                    _ => m.phong_keys.push("illum"),
                 }
             }
-            // Exporters write these; the renderer does not use them yet, but
-            // a value that is there must still be well formed.
-            "Ka" | "Ks" | "Tf" => {
+            // Exporters write these; the renderer does not use them, but a
+            // value that is there must still be well formed.
+            "Ka" => {
                 color(words, key).map_err(fail)?;
             }
-            "Ns" | "Ni" | "d" | "Tr" | "illum" | "Pm" | "Pr" | "Ps" | "Pc" | "Pcr" | "aniso"
-            | "anisor" | "sharpness" => {
+            "Ps" | "Pc" | "Pcr" | "aniso" | "anisor" | "sharpness" => {
                 number(words.next(), key).map_err(fail)?;
             }
             // Texture maps and anything else: not used.
