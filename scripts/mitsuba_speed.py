@@ -16,8 +16,12 @@ Debian's libLLVM-19 when unset.
 The scene is rebuilt to match qtrace's estimator in expectation:
   * the same triangles (OBJ polygons fanned like qtrace's loader, procedural
     bumpy spheres regenerated), flat-shaded, one mesh per material;
-  * diffuse surfaces scatter on both sides (qtrace shades with the normal
-    facing the ray), so every BSDF is wrapped in `twosided`;
+  * diffuse surfaces and conductors scatter on both sides (qtrace shades
+    with the normal facing the ray), so their BSDFs are wrapped in
+    `twosided`; materials as SPEC §3 maps them: `Pm 1` is `roughconductor`
+    (GGX, alpha = Pr^2, `material none`, `specular_reflectance` Ks) or
+    `conductor` for Pr 0, and `d 0` with `Ni` > 1 is `dielectric`
+    (`int_ior` Ni, `specular_transmittance` Tf; the normal's side is outside);
   * emitters emit on the side of (v1-v0)x(v2-v0), which is Mitsuba's face
     normal for the same vertex order, so the OBJ winding carries over;
   * qtrace ends a path at any emitter it hits; here emissive meshes get a
@@ -128,8 +132,19 @@ def read_scene_file(path):
     return doc
 
 
+def surface_of(keys):
+    """The surface SPEC §3 gives an MTL material's keys, as a hashable tuple:
+    ("diffuse", Kd), ("conductor", Ks, alpha) or ("dielectric", Ni, Tf)."""
+    if keys.get("d", 1.0) == 0.0 and keys.get("Ni", 1.0) > 1.0:
+        return ("dielectric", keys["Ni"], keys.get("Tf", (1.0, 1.0, 1.0)))
+    if keys.get("Pm", 0.0) == 1.0:
+        return ("conductor", keys.get("Ks", (1.0, 1.0, 1.0)), keys.get("Pr", 0.0) ** 2)
+    return ("diffuse", keys.get("Kd", DEFAULT_ALBEDO))
+
+
 def read_mtl(path):
-    """Material name -> (albedo, emission), defaulting like qtrace's loader."""
+    """Material name -> (surface, emission), defaulting like qtrace's loader
+    (which also checks the values; qtrace renders the scene first)."""
     materials = {}
     current = None
     try:
@@ -142,15 +157,21 @@ def read_mtl(path):
             continue
         if parts[0] == "newmtl":
             current = " ".join(parts[1:])
-            materials[current] = [DEFAULT_ALBEDO, (0.0, 0.0, 0.0)]
-        elif parts[0] in ("Kd", "Ke") and current is not None:
-            rgb = tuple(float(v) for v in parts[1:4])
-            materials[current][0 if parts[0] == "Kd" else 1] = rgb
-    return {k: tuple(v) for k, v in materials.items()}
+            materials[current] = {}
+        elif current is None:
+            continue
+        elif parts[0] in ("Kd", "Ke", "Ks", "Tf"):
+            values = [float(v) for v in parts[1:4]]
+            materials[current][parts[0]] = tuple(values * 3 if len(values) == 1 else values)
+        elif parts[0] in ("Pm", "Pr", "Ni", "d"):
+            materials[current][parts[0]] = float(parts[1])
+        elif parts[0] == "Tr":
+            materials[current]["d"] = 1.0 - float(parts[1])
+    return {k: (surface_of(v), v.get("Ke", (0.0, 0.0, 0.0))) for k, v in materials.items()}
 
 
 def read_obj(path):
-    """Triangles grouped by (albedo, emission): {material: [v0, v1, v2, ...]}."""
+    """Triangles grouped by (surface, emission): {material: [v0, v1, v2, ...]}."""
     try:
         lines = open(path, encoding="utf-8").read().splitlines()
     except OSError as e:
@@ -158,7 +179,7 @@ def read_obj(path):
     positions = []
     materials = {}
     groups = {}
-    default = (DEFAULT_ALBEDO, (0.0, 0.0, 0.0))
+    default = (("diffuse", DEFAULT_ALBEDO), (0.0, 0.0, 0.0))
     current = default
     base = os.path.dirname(path)
     for number, line in enumerate(lines, 1):
@@ -227,7 +248,7 @@ def load_scene(path):
             groups.setdefault(material, []).extend(tris)
     for p in doc.get("procedural", []):
         albedo = vec3(path, p["albedo"], "procedural albedo")
-        groups.setdefault((albedo, (0.0, 0.0, 0.0)), []).extend(bumpy_sphere(p))
+        groups.setdefault((("diffuse", albedo), (0.0, 0.0, 0.0)), []).extend(bumpy_sphere(p))
     if not groups:
         fail(f"{path}: the scene has no triangles")
     environment = vec3(path, doc.get("environment", [0.0, 0.0, 0.0]), "environment")
@@ -280,14 +301,27 @@ def rgb(value):
     return {"type": "rgb", "value": list(value)}
 
 
-def build_mesh(mi, name, tris, albedo, emission):
+def bsdf_dict(surface):
+    kind = surface[0]
+    if kind == "dielectric":
+        return {"type": "dielectric", "int_ior": surface[1], "ext_ior": 1.0,
+                "specular_transmittance": rgb(surface[2])}
+    if kind == "conductor":
+        _, ks, alpha = surface
+        inner = ({"type": "roughconductor", "distribution": "ggx", "alpha": alpha}
+                 if alpha > 0.0 else {"type": "conductor"})
+        inner.update({"material": "none", "specular_reflectance": rgb(ks)})
+        return {"type": "twosided", "bsdf": inner}
+    return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": rgb(surface[1])}}
+
+
+def build_mesh(mi, name, tris, surface, emission):
     props = mi.Properties()
     if max(emission) > 0.0:
         props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": rgb((0.0, 0.0, 0.0))})
         props["emitter"] = mi.load_dict({"type": "area", "radiance": rgb(emission)})
     else:
-        props["bsdf"] = mi.load_dict({"type": "twosided",
-                                      "bsdf": {"type": "diffuse", "reflectance": rgb(albedo)}})
+        props["bsdf"] = mi.load_dict(bsdf_dict(surface))
     # Unshared vertices and no vertex normals: flat shading with the face
     # normal of each triangle's own vertex order.
     mesh = mi.Mesh(name, len(tris), len(tris) // 3, props=props,
@@ -335,8 +369,8 @@ def build_scene(mi, path, doc, groups, environment, width, height, max_depth):
     }
     if max(environment) > 0.0:
         scene["environment"] = {"type": "constant", "radiance": rgb(environment)}
-    for k, ((albedo, emission), tris) in enumerate(groups.items()):
-        scene[f"mesh_{k}"] = build_mesh(mi, f"mesh_{k}", tris, albedo, emission)
+    for k, ((surface, emission), tris) in enumerate(groups.items()):
+        scene[f"mesh_{k}"] = build_mesh(mi, f"mesh_{k}", tris, surface, emission)
     return mi.load_dict(scene)
 
 
