@@ -382,7 +382,7 @@ pub fn inspect_summary(scene: &Scene) -> String {
     let mut lines = vec![
         format!("scene        {}", scene.path.display()),
         format!("triangles    {}", scene.triangles.len()),
-        format!("materials    {}", scene.materials.len()),
+        format!("materials    {}", material_summary(scene)),
         format!(
             "emitters     {} triangles, {:.4} units² of {:.4} total",
             scene.lights.len(),
@@ -586,4 +586,24 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
     }
     println!("report: {}", plan.out.join("index.html").display());
     check_validation(&ctx)
+}
+
+/// "7 (5 diffuse, 1 conductor, 1 glass)": how many materials of each kind.
+fn material_summary(scene: &Scene) -> String {
+    use crate::bsdf::Surface;
+    let mut counts = [0usize; 3];
+    for m in &scene.materials {
+        counts[match m.surface {
+            Surface::Diffuse { .. } => 0,
+            Surface::Conductor { .. } => 1,
+            Surface::Dielectric { .. } => 2,
+        }] += 1;
+    }
+    let kinds: Vec<String> = ["diffuse", "conductor", "glass"]
+        .iter()
+        .zip(counts)
+        .filter(|(_, n)| *n > 0)
+        .map(|(k, n)| format!("{n} {k}"))
+        .collect();
+    format!("{} ({})", scene.materials.len(), kinds.join(", "))
 }
