@@ -146,9 +146,14 @@ pub fn render(
     }
     let scene = Scene::load(scene_path)?;
     let bad = || format!("{}: bad render settings", scene_path.display());
+    let method = overrides.method.unwrap_or(Method::Pt).name();
+    guides
+        .check_used(&[method])
+        .map_err(anyhow::Error::msg)
+        .with_context(bad)?;
     let overrides = Overrides {
         guide: guides
-            .resolve(&scene, overrides.method.unwrap_or(Method::Pt).name())
+            .resolve(&scene, method)
             .map_err(anyhow::Error::msg)
             .with_context(bad)?,
         ..overrides
@@ -427,6 +432,8 @@ fn check_scenes(
     configs: &[bench::Config],
     guides: &GuideSources,
 ) -> Result<()> {
+    let methods: Vec<&str> = configs.iter().map(|c| c.method.name()).collect();
+    guides.check_used(&methods).map_err(anyhow::Error::msg)?;
     for path in scenes {
         let scene = Scene::load(path)?;
         for config in configs {

@@ -364,6 +364,7 @@ fn bench_checks_guide_settings_first() {
     for args in [
         &["--quick", "--methods", "sarsa", "--set", "sarsa.epsilonx=2"][..],
         &["--speed", "--methods", "neural", "--set", "neural.width=6"][..],
+        &["--quick", "--methods", "pt,pt+nee", "--set", "sarsa.epsilon=0.3"][..],
     ] {
         let output = common::qtrace()
             .args(["bench", "scenes/cornell-box.toml", "--out"])
@@ -377,7 +378,8 @@ fn bench_checks_guide_settings_first() {
         assert_eq!(stderr.lines().count(), 1, "{stderr}");
         assert!(
             stderr.contains("[sarsa] unknown field `epsilonx`")
-                || stderr.contains("[neural] width = 6"),
+                || stderr.contains("[neural] width = 6")
+                || stderr.contains("sets the sarsa guide, but the method is pt, pt"),
             "{stderr}"
         );
     }

@@ -248,6 +248,21 @@ pub struct GuideSources {
 }
 
 impl GuideSources {
+    /// Refuses a `--set` for a guide none of `methods` uses: it would
+    /// change nothing, which is surely not what was meant.
+    pub fn check_used(&self, methods: &[&str]) -> Result<(), String> {
+        for set in &self.sets {
+            let guide = set.split_once('.').map_or("", |(g, _)| g.trim());
+            if GUIDES.contains(&guide) && !methods.contains(&guide) {
+                let methods = methods.join(", ");
+                return Err(format!(
+                    "--set '{set}' sets the {guide} guide, but the method is {methods}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The settings of the guide of method `method` (None for a method
     /// without one): the scene's table, then the config file's, then the
     /// assignments, key by key.
@@ -282,12 +297,10 @@ impl GuideSources {
                     "--set '{set}': no guide named '{guide}' (guides: sarsa, neural)"
                 ));
             };
-            if guide != method {
-                return Err(format!(
-                    "--set '{set}' sets the {guide} guide, but the method is {method}"
-                ));
+            // Another method's guide: check_used says whether any method uses it.
+            if guide == method {
+                table.insert(key.to_string(), parse_value(value.trim()));
             }
-            table.insert(key.to_string(), parse_value(value.trim()));
         }
         match tables.iter().find(|(n, _)| n == method) {
             Some((_, table)) => GuideSettings::from_table(method, table).map(Some),
