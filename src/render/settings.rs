@@ -87,7 +87,7 @@ impl RenderSettings {
     pub fn learns_in_pass(&self, index: u32) -> bool {
         self.guide
             .as_ref()
-            .is_some_and(|g| g.common().learns_in_pass(index))
+            .is_some_and(|g| g.learns_in_pass(index))
     }
 
     /// The pass before which the image restarts, if the method's guide is

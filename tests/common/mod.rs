@@ -372,7 +372,9 @@ pub fn assert_converges_to_pt(name: &str, scene: &Scene, guided: Overrides) -> R
 /// than the first, and every pass reports a finite loss.
 pub fn assert_learning_shows(name: &str, out: &RenderOutput) {
     let p = &out.stats.passes;
-    assert!(p.iter().all(|r| r.loss.is_some_and(f64::is_finite)));
+    // Passes that learn report a finite loss (learning thins out over a render).
+    assert!(p[0].loss.is_some());
+    assert!(p.iter().all(|r| r.loss.is_none_or(f64::is_finite)));
     let first = p[0].zero_contribution_fraction;
     let last = p[p.len() - 8..]
         .iter()
