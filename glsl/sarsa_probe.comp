@@ -29,16 +29,17 @@ void main() {
         uint v = nearest_volume(t, load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
         probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
     } else if (params.selector == PROBE_GUIDE_SAMPLE) {
-        // in = (volume bits, u1, u2, u3); out = (local direction, pdf) of
-        // the mixture with a white diffuse BSDF
-        vec4 q = probe_in[i];
+        // in[0], in[1] = a Material, in[2] = (wo, front side? 1 : 0),
+        // in[3 + i] = (volume bits, u1, u2, u3); out = (local direction, pdf)
+        // of the mixture with that material's BSDF
+        vec4 q = probe_in[3u + i];
         GuideVertex g = guide_vertex(floatBitsToUint(q.x));
-        Bsdf white = bsdf_diffuse(vec3(1.0));
-        vec3 wo = vec3(0.0, 0.0, 1.0);
+        Bsdf bsdf = bsdf_of(Material(probe_in[0], probe_in[1]), probe_in[2].w > 0.5);
+        vec3 wo = probe_in[2].xyz;
         uint sector;
         float p_sector;
-        vec3 w = mixture_sample(g, white, wo, q.yzw, sector, p_sector);
-        probe_out[i] = vec4(w, mixture_pdf_in(g, white, wo, w, p_sector));
+        vec3 w = mixture_sample(g, bsdf, wo, q.yzw, sector, p_sector);
+        probe_out[i] = vec4(w, mixture_pdf_in(g, bsdf, wo, w, p_sector));
     } else if (params.selector == PROBE_SARSA_UPDATE) {
         // in[2i] = (volume bits, sector bits, next volume bits, albedo or
         // -emitted), in[2i+1].x = the share of an emitted target NEE carries;

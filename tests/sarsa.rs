@@ -6,7 +6,8 @@ mod common;
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
-use qtrace::bsdf::Bsdf;
+use qtrace::bsdf::{Bsdf, Sampling, Surface};
+use qtrace::scene::Material;
 use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
@@ -197,9 +198,28 @@ fn guided_sampler_matches_its_pdf() {
     let uniforms: Vec<Vec3> = (0..draws)
         .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
         .collect();
-    let samples = probe::guide_samples(&ctx, &scene, &guide, v as u32, &uniforms).unwrap();
-    common::assert_no_validation_errors(&ctx);
-    common::assert_mixture_sampler(&samples, &p, s.common.epsilon as f64, s.common.grid);
+    let eps = s.common.epsilon;
+    // A diffuse vertex seen along its normal, and rough conductors seen at
+    // 40°, whose mixture gives the guide (1 − ε) α.
+    let wo = Vec3::new(0.643, 0.0, 0.766).normalize();
+    for (surface, wo, share) in [
+        (Surface::Diffuse { albedo: Vec3::ONE }, Vec3::Z, eps),
+        (Surface::Conductor { reflectance: Vec3::ONE, alpha: 0.3 }, wo, 1.0 - (1.0 - eps) * 0.3),
+        (Surface::Conductor { reflectance: Vec3::ONE, alpha: 0.8 }, wo, 1.0 - (1.0 - eps) * 0.8),
+    ] {
+        let material = Material {
+            name: "probe".into(),
+            surface,
+            emission: Vec3::ZERO,
+        };
+        let samples =
+            probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        let bsdf = Bsdf::new(surface, true, Sampling::Cosine);
+        common::assert_mixture_sampler_with(&samples, &p, share as f64, s.common.grid, &|w| {
+            bsdf.pdf(wo, w) as f64
+        });
+    }
 }
 
 /// cos θ at the centre of each sector.

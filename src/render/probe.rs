@@ -170,17 +170,24 @@ pub fn nearest_volumes(
 }
 
 /// Directions the GPU guide sampler draws for volume `volume` from the given
-/// uniform triples, with the pdf it reports for each.
+/// uniform triples, at a vertex of `material` (front side) seen from `wo`,
+/// with the pdf it reports for each.
 pub fn guide_samples(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     guide: &SarsaGuide,
     volume: u32,
+    (material, wo): (&crate::scene::Material, Vec3),
     uniforms: &[Vec3],
 ) -> Result<Vec<(Vec3, f32)>, RenderError> {
-    let input: Vec<Vec4> = uniforms
-        .iter()
-        .map(|u| Vec4::new(f32::from_bits(volume), u.x, u.y, u.z))
+    let m = material.gpu();
+    let input: Vec<Vec4> = [Vec4::from(m.color), Vec4::from(m.emission), wo.extend(1.0)]
+        .into_iter()
+        .chain(
+            uniforms
+                .iter()
+                .map(|u| Vec4::new(f32::from_bits(volume), u.x, u.y, u.z)),
+        )
         .collect();
     let out = run(
         ctx,

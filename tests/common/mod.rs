@@ -262,6 +262,19 @@ pub fn chi2_survival(chi2: f64, dof: f64) -> f64 {
 /// with probability p[k], uniform inside it) over an a×b `grid`. Each
 /// reported pdf must be the mixture's, and the directions must follow it.
 pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid: [u32; 2]) {
+    assert_mixture_sampler_with(samples, p, eps, grid, &|w: Vec3| w.z as f64 / PI);
+}
+
+/// [`assert_mixture_sampler`] for any BSDF: `bsdf_pdf` is its sampler's
+/// solid-angle density (which may lose mass below the horizon: such draws
+/// must come with pdf 0) and `eps` its share of the mixture.
+pub fn assert_mixture_sampler_with(
+    samples: &[(Vec3, f32)],
+    p: &[f64],
+    eps: f64,
+    grid: [u32; 2],
+    bsdf_pdf: &dyn Fn(Vec3) -> f64,
+) {
     let (a, b) = (grid[0] as usize, grid[1] as usize);
     let n = a * b;
     let draws = samples.len();
@@ -270,10 +283,11 @@ pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid
     let (ba, bb) = (a * sub, b * sub);
     let mut observed = vec![0f64; ba * bb];
     for (w, pdf) in samples {
-        assert!(
-            w.z >= 0.0 && (w.length() - 1.0).abs() < 1e-4,
-            "bad direction {w}"
-        );
+        assert!((w.length() - 1.0).abs() < 1e-4, "bad direction {w}");
+        if w.z <= 0.0 {
+            assert_eq!(*pdf, 0.0, "a direction below the horizon at {w}");
+            continue;
+        }
         let u = sampling::hemisphere_to_square(*w);
         let (i, j) = (
             ((u.x * ba as f32) as usize).min(ba - 1),
@@ -282,7 +296,7 @@ pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid
         observed[i + ba * j] += 1.0;
         // The reported pdf is the mixture's. Within rounding of a sector edge
         // the CPU may place the direction in the neighbouring sector: accept either.
-        let pdf_in = |k: usize| eps * w.z as f64 / PI + (1.0 - eps) * p[k] * n as f64 / (2.0 * PI);
+        let pdf_in = |k: usize| eps * bsdf_pdf(*w) + (1.0 - eps) * p[k] * n as f64 / (2.0 * PI);
         let near: Vec<usize> = [
             (0.0, 0.0),
             (1e-5, 0.0),
@@ -303,7 +317,7 @@ pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid
             pdf_in(near[0])
         );
     }
-    // Expected bin probabilities: the cosine part integrated over the bin
+    // Expected bin probabilities: the BSDF part integrated over the bin
     // (dω = 2π du dv under the equal-area map), the guided part uniform in its sector.
     let m = 12;
     let mut chi2 = 0.0;
@@ -317,10 +331,10 @@ pub fn assert_mixture_sampler(samples: &[(Vec3, f32)], p: &[f64], eps: f64, grid
                         (i as f32 + (x as f32 + 0.5) / m as f32) / ba as f32,
                         (j as f32 + (y as f32 + 0.5) / m as f32) / bb as f32,
                     );
-                    cos_integral += sampling::square_to_hemisphere(u).z as f64;
+                    cos_integral += bsdf_pdf(sampling::square_to_hemisphere(u));
                 }
             }
-            let cos_prob = 2.0 * cos_integral / (m * m) as f64 / (ba * bb) as f64;
+            let cos_prob = 2.0 * PI * cos_integral / (m * m) as f64 / (ba * bb) as f64;
             let k = (i / sub) + a * (j / sub);
             let prob = eps * cos_prob + (1.0 - eps) * p[k] / (sub * sub) as f64;
             let e = prob * draws as f64;
