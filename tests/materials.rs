@@ -250,22 +250,28 @@ fn glossy_scenes_converge_to_the_same_image_for_every_method() {
     }
 }
 
+/// `neural` too: on rough metal without NEE, and with NEE past a mirror
+/// and through glass (delta vertices, where it infers and learns but does
+/// not sample).
 #[test]
-fn neural_converges_to_pt_on_the_glossy_cornell_box() {
-    let settings = NeuralSettings {
-        width: 16,
-        batch: 1024,
-        ..Default::default()
-    };
-    common::assert_converges_to_pt(
-        "glossy-cornell-neural",
-        &common::scene("glossy-cornell"),
-        Overrides {
-            method: Some(Method::Neural),
-            spp: Some(1024),
-            seed: Some(401),
-            guide: Some(GuideSettings::Neural(settings)),
+fn neural_converges_to_pt_on_glossy_and_glass_scenes() {
+    for (name, nee) in [("glossy-cornell", false), ("glass-cornell", true)] {
+        let settings = NeuralSettings {
+            width: 16,
+            batch: 1024,
             ..Default::default()
-        },
-    );
+        };
+        common::assert_converges_to_pt(
+            &format!("{name}-neural-nee{nee}"),
+            &common::scene(name),
+            Overrides {
+                method: Some(Method::Neural),
+                spp: Some(1024),
+                nee,
+                seed: Some(401),
+                guide: Some(GuideSettings::Neural(settings)),
+                ..Default::default()
+            },
+        );
+    }
 }
