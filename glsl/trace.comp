@@ -156,7 +156,9 @@ bool bounce() {
     make_frame(ns, t, b);
     vec3 wo = vec3(-dot(dir, t), -dot(dir, b), abs(cos_out));
 #ifdef GUIDED
-    GuideVertex here = guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
+    // A delta vertex is never guided: unless it learns, the guide's lookup
+    // there (a network inference, for neural) would only tune the roulette.
+    GuideVertex here = delta && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn).
     float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo, rng) : 0.0;
