@@ -238,16 +238,48 @@ def cornell_light(sc):
 # --------------------------------------------------------------------------
 
 
-def make_cornell_box():
-    sc = Scene("cornell-box")
+def cornell_scene(name, blocks=()):
+    """A Cornell room with its light, its three colours, and the materials
+    `blocks` name (name, MTL lines) for the short and tall blocks."""
+    sc = Scene(name)
     sc.material("white", WHITE)
     sc.material("red", RED)
     sc.material("green", GREEN)
+    for material, lines in blocks:
+        sc.material(material, None, extra=lines)
     cornell_room(sc)
     cornell_light(sc)
-    sc.box("short_box", "white", (185.0, 169.0), (165.0, 165.0), (0.0, 165.0), -17.0, bottom=False)
-    sc.box("tall_box", "white", (368.0, 351.0), (165.0, 165.0), (0.0, 330.0), 17.0, bottom=False)
     return sc
+
+
+def short_box(sc, mat):
+    sc.box("short_box", mat, (185.0, 169.0), (165.0, 165.0), (0.0, 165.0), -17.0, bottom=False)
+
+
+def tall_box(sc, mat, y_range=(0.0, 330.0), bottom=False):
+    sc.box("tall_box", mat, (368.0, 351.0), (165.0, 165.0), y_range, 17.0, bottom=bottom)
+
+
+def make_cornell_box():
+    sc = cornell_scene("cornell-box")
+    short_box(sc, "white")
+    tall_box(sc, "white")
+    return sc
+
+
+def blocked_light_and_box(sc, box_material):
+    """The indirectly lit room's contents: a blocker slab high near the back
+    wall, the light just above it facing the ceiling, and a floor box."""
+    # opaque blocker slab (closed box, outward normals)
+    sc.box_from_corners(
+        "blocker", "white",
+        [(178.0, 380.0, 300.0), (378.0, 380.0, 300.0), (378.0, 380.0, 500.0), (178.0, 380.0, 500.0)],
+        [(178.0, 400.0, 300.0), (378.0, 400.0, 300.0), (378.0, 400.0, 500.0), (178.0, 400.0, 500.0)],
+        bottom=True)
+    sc.rect("light", "light", 1, 400.5, (198.0, 358.0), (320.0, 480.0), +1)
+    sc.light_dirs["light"] = UP
+    sc.box("floor_box", box_material, (200.0, 170.0), (120.0, 120.0), (0.0, 120.0), 20.0,
+           bottom=False)
 
 
 def make_indirect_room():
@@ -255,27 +287,12 @@ def make_indirect_room():
     sc.material("white", (0.7, 0.7, 0.7))
     sc.material("light", LIGHT_KD, (20.0, 20.0, 20.0))
     cornell_room(sc, left="white", right="white", white="white")
-    # opaque blocker slab high near the back wall (closed box, outward normals)
-    sc.box_from_corners(
-        "blocker", "white",
-        [(178.0, 380.0, 300.0), (378.0, 380.0, 300.0), (378.0, 380.0, 500.0), (178.0, 380.0, 500.0)],
-        [(178.0, 400.0, 300.0), (378.0, 400.0, 300.0), (378.0, 400.0, 500.0), (178.0, 400.0, 500.0)],
-        bottom=True)
-    # light just above the slab, facing the ceiling
-    sc.rect("light", "light", 1, 400.5, (198.0, 358.0), (320.0, 480.0), +1)
-    sc.light_dirs["light"] = UP
-    sc.box("floor_box", "white", (200.0, 170.0), (120.0, 120.0), (0.0, 120.0), 20.0, bottom=False)
+    blocked_light_and_box(sc, "white")
     return sc
 
 
 def make_complex_direct():
-    sc = Scene("complex-direct")
-    sc.material("white", WHITE)
-    sc.material("red", RED)
-    sc.material("green", GREEN)
-    cornell_room(sc)
-    cornell_light(sc)
-    return sc
+    return cornell_scene("complex-direct")
 
 
 # door-ajar geometry
@@ -391,16 +408,10 @@ def glass(ni, tf=(1.0, 1.0, 1.0)):
 def make_glossy_cornell():
     """The Cornell box with metal blocks: a rough gold short box and a
     polished steel tall box; lit directly."""
-    sc = Scene("glossy-cornell")
-    sc.material("white", WHITE)
-    sc.material("red", RED)
-    sc.material("green", GREEN)
-    sc.material("gold", None, extra=conductor((0.95, 0.75, 0.35), 0.55))
-    sc.material("steel", None, extra=conductor((0.85, 0.85, 0.85), 0.3))
-    cornell_room(sc)
-    cornell_light(sc)
-    sc.box("short_box", "gold", (185.0, 169.0), (165.0, 165.0), (0.0, 165.0), -17.0, bottom=False)
-    sc.box("tall_box", "steel", (368.0, 351.0), (165.0, 165.0), (0.0, 330.0), 17.0, bottom=False)
+    sc = cornell_scene("glossy-cornell", [("gold", conductor((0.95, 0.75, 0.35), 0.55)),
+                                          ("steel", conductor((0.85, 0.85, 0.85), 0.3))])
+    short_box(sc, "gold")
+    tall_box(sc, "steel")
     return sc
 
 
@@ -416,30 +427,17 @@ def make_glossy_room():
     # the ceiling is metal: replace the white one cornell_room made
     sc.faces = [f for f in sc.faces if f[0] != "ceiling"]
     sc.rect("ceiling", "metal_ceiling", 1, H, (0, W), (0, D), -1)
-    sc.box_from_corners(
-        "blocker", "white",
-        [(178.0, 380.0, 300.0), (378.0, 380.0, 300.0), (378.0, 380.0, 500.0), (178.0, 380.0, 500.0)],
-        [(178.0, 400.0, 300.0), (378.0, 400.0, 300.0), (378.0, 400.0, 500.0), (178.0, 400.0, 500.0)],
-        bottom=True)
-    sc.rect("light", "light", 1, 400.5, (198.0, 358.0), (320.0, 480.0), +1)
-    sc.light_dirs["light"] = UP
-    sc.box("floor_box", "copper", (200.0, 170.0), (120.0, 120.0), (0.0, 120.0), 20.0, bottom=False)
+    blocked_light_and_box(sc, "copper")
     return sc
 
 
 def make_glass_cornell():
     """The Cornell box with a glass tall block and a mirror short block."""
-    sc = Scene("glass-cornell")
-    sc.material("white", WHITE)
-    sc.material("red", RED)
-    sc.material("green", GREEN)
-    sc.material("glass", None, extra=glass(1.5, (0.95, 0.98, 0.95)))
-    sc.material("mirror", None, extra=conductor((0.9, 0.9, 0.9), 0.0))
-    cornell_room(sc)
-    cornell_light(sc)
-    sc.box("short_box", "mirror", (185.0, 169.0), (165.0, 165.0), (0.0, 165.0), -17.0, bottom=False)
+    sc = cornell_scene("glass-cornell", [("glass", glass(1.5, (0.95, 0.98, 0.95))),
+                                         ("mirror", conductor((0.9, 0.9, 0.9), 0.0))])
+    short_box(sc, "mirror")
     # closed (with a bottom), so that inside and outside are well defined
-    sc.box("tall_box", "glass", (368.0, 351.0), (165.0, 165.0), (0.5, 330.0), 17.0, bottom=True)
+    tall_box(sc, "glass", (0.5, 330.0), bottom=True)
     return sc
 
 
