@@ -64,10 +64,14 @@ impl Surface {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Lobe {
     Diffuse(Sampling),
-    Conductor { alpha: f32 },
+    Conductor {
+        alpha: f32,
+    },
     /// η = η_t / η_i: the index beyond the surface over the index on the
     /// side the path arrives from.
-    Dielectric { eta: f32 },
+    Dielectric {
+        eta: f32,
+    },
 }
 
 /// A material's scattering at a surface point, seen from one side.
@@ -120,7 +124,11 @@ impl Bsdf {
             },
             Surface::Conductor { reflectance, alpha } => Self {
                 lobe: Lobe::Conductor {
-                    alpha: if alpha > 0.0 { alpha.max(MIN_ALPHA) } else { 0.0 },
+                    alpha: if alpha > 0.0 {
+                        alpha.max(MIN_ALPHA)
+                    } else {
+                        0.0
+                    },
                 },
                 color: reflectance,
             },
@@ -152,7 +160,8 @@ impl Bsdf {
             Lobe::Diffuse(_) => self.color * (FRAC_1_PI * wi.z),
             Lobe::Conductor { alpha } if alpha > 0.0 => {
                 let h = (wo + wi).normalize();
-                self.color * (ggx_d(alpha, h) * ggx_g1(alpha, wo) * ggx_g1(alpha, wi) / (4.0 * wo.z))
+                self.color
+                    * (ggx_d(alpha, h) * ggx_g1(alpha, wo) * ggx_g1(alpha, wi) / (4.0 * wo.z))
             }
             _ => Vec3::ZERO,
         }
@@ -300,14 +309,22 @@ mod tests {
     fn conductor_is_reciprocal() {
         for alpha in [0.05, 0.2, 0.5, 1.0] {
             let bsdf = conductor(alpha);
-            for (a, b) in [(5.0f32, 40.0f32), (30.0, -60.0), (75.0, 10.0), (85.0, -85.0)] {
+            for (a, b) in [
+                (5.0f32, 40.0f32),
+                (30.0, -60.0),
+                (75.0, 10.0),
+                (85.0, -85.0),
+            ] {
                 let wo = direction(a);
                 let wi = (direction(b.abs()) * Vec3::new(b.signum(), 1.0, 1.0)
                     + Vec3::new(0.0, 0.3, 0.0))
                 .normalize();
                 let f1 = bsdf.eval(wo, wi).x / wi.z;
                 let f2 = bsdf.eval(wi, wo).x / wo.z;
-                assert!((f1 - f2).abs() <= 1e-4 * f1.max(1.0), "α {alpha}: {f1} vs {f2}");
+                assert!(
+                    (f1 - f2).abs() <= 1e-4 * f1.max(1.0),
+                    "α {alpha}: {f1} vs {f2}"
+                );
             }
         }
     }
@@ -379,7 +396,8 @@ mod tests {
                             sum += bsdf.pdf(wo, square_to_hemisphere(u)) as f64;
                         }
                         sum * 2.0 * std::f64::consts::PI
-                            / (sub * sub) as f64 / (cells * cells) as f64
+                            / (sub * sub) as f64
+                            / (cells * cells) as f64
                             * samples as f64
                     })
                     .collect();

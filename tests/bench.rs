@@ -364,7 +364,13 @@ fn bench_checks_guide_settings_first() {
     for args in [
         &["--quick", "--methods", "sarsa", "--set", "sarsa.epsilonx=2"][..],
         &["--speed", "--methods", "neural", "--set", "neural.width=6"][..],
-        &["--quick", "--methods", "pt,pt+nee", "--set", "sarsa.epsilon=0.3"][..],
+        &[
+            "--quick",
+            "--methods",
+            "pt,pt+nee",
+            "--set",
+            "sarsa.epsilon=0.3",
+        ][..],
     ] {
         let output = common::qtrace()
             .args(["bench", "scenes/cornell-box.toml", "--out"])

@@ -7,9 +7,9 @@ use common::Lcg;
 
 use glam::{Vec2, Vec3};
 use qtrace::bsdf::{Bsdf, Surface};
-use qtrace::scene::Material;
 use qtrace::render::{probe, Sampling};
 use qtrace::sampling;
+use qtrace::scene::Material;
 
 fn check_traversal(name: &str, count: usize) {
     let ctx = common::gpu();
@@ -139,7 +139,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             // cos θ_o from 0.02 to 1: grazing directions included.
             let z = 0.02 + 0.98 * a;
             let r = (1.0 - z * z).sqrt();
-            let phi = 6.283_185 * b;
+            let phi = std::f32::consts::TAU * b;
             queries.push(probe::BsdfQuery {
                 material: Material {
                     name: "probe".into(),
@@ -157,19 +157,33 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         common::assert_no_validation_errors(&ctx);
         for (q, g) in queries.iter().zip(&out) {
             let cpu = Bsdf::new(q.material.surface, q.front, sampling);
-            let what = format!("{sampling:?} {:?} front {} wo {} u {}", q.material.surface, q.front, q.wo, q.u);
+            let what = format!(
+                "{sampling:?} {:?} front {} wo {} u {}",
+                q.material.surface, q.front, q.wo, q.u
+            );
             // Relative closeness: a narrow GGX lobe's values reach 1e4.
-            let close = |a: Vec3, b: Vec3| (a - b).abs().max_element() <= 2e-4 * (1.0 + b.abs().max_element());
+            let close = |a: Vec3, b: Vec3| {
+                (a - b).abs().max_element() <= 2e-4 * (1.0 + b.abs().max_element())
+            };
             if cpu.is_delta() {
                 let (wi, weight) = cpu.sample_delta(q.wo, q.u.z);
                 assert!(close(g.wi, wi), "{what}: GPU {} vs CPU {wi}", g.wi);
-                assert!(close(g.eval, weight), "{what}: GPU weight {} vs CPU {weight}", g.eval);
+                assert!(
+                    close(g.eval, weight),
+                    "{what}: GPU weight {} vs CPU {weight}",
+                    g.eval
+                );
                 assert_eq!(g.pdf, 0.0);
                 continue;
             }
             let Some((wi, _)) = cpu.sample(q.wo, q.u.truncate()) else {
                 // Below the horizon: the GPU's pdf there is zero too.
-                assert!(g.wi.z <= 1e-5 && g.pdf == 0.0, "{what}: GPU {} pdf {}", g.wi, g.pdf);
+                assert!(
+                    g.wi.z <= 1e-5 && g.pdf == 0.0,
+                    "{what}: GPU {} pdf {}",
+                    g.wi,
+                    g.pdf
+                );
                 continue;
             };
             assert!(close(g.wi, wi), "{what}: GPU {} vs CPU {wi}", g.wi);
@@ -177,8 +191,17 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 continue; // grazing: pdf and f are too sensitive to the direction's last bits
             }
             let pdf = cpu.pdf(q.wo, wi);
-            assert!((g.pdf - pdf).abs() <= 2e-4 * (1.0 + pdf), "{what}: GPU pdf {} vs CPU {pdf}", g.pdf);
-            assert!(close(g.eval, cpu.eval(q.wo, wi)), "{what}: GPU f cos {} vs CPU {}", g.eval, cpu.eval(q.wo, wi));
+            assert!(
+                (g.pdf - pdf).abs() <= 2e-4 * (1.0 + pdf),
+                "{what}: GPU pdf {} vs CPU {pdf}",
+                g.pdf
+            );
+            assert!(
+                close(g.eval, cpu.eval(q.wo, wi)),
+                "{what}: GPU f cos {} vs CPU {}",
+                g.eval,
+                cpu.eval(q.wo, wi)
+            );
             if matches!(q.material.surface, Surface::Diffuse { .. }) {
                 assert!((g.reflected - cpu.reflect(q.wo, 1.0)).abs() < 1e-6);
             }

@@ -13,14 +13,7 @@ use std::path::Path;
 
 /// Writes a scene of `obj` and `mtl` seen from `eye` looking at the origin
 /// (y up) under a uniform environment `environment`, and loads it.
-fn write_scene(
-    dir: &Path,
-    obj: &str,
-    mtl: &str,
-    eye: Vec3,
-    fov_y: f32,
-    environment: f32,
-) -> Scene {
+fn write_scene(dir: &Path, obj: &str, mtl: &str, eye: Vec3, fov_y: f32, environment: f32) -> Scene {
     std::fs::write(dir.join("s.obj"), format!("mtllib s.mtl\n{obj}")).unwrap();
     std::fs::write(dir.join("s.mtl"), mtl).unwrap();
     std::fs::write(
@@ -37,7 +30,10 @@ fn write_scene(
 
 /// A square of side 2s in the plane z = 0, facing +z.
 fn quad(s: f32) -> String {
-    format!("v {} {} 0\nv {s} {} 0\nv {s} {s} 0\nv {} {s} 0\nusemtl m\nf 1 2 3 4\n", -s, -s, -s, -s)
+    format!(
+        "v {} {} 0\nv {s} {} 0\nv {s} {s} 0\nv {} {s} 0\nusemtl m\nf 1 2 3 4\n",
+        -s, -s, -s, -s
+    )
 }
 
 /// A cube of side 2s about the origin, faces outward.
@@ -80,8 +76,17 @@ fn albedo(surface: Surface, wo: Vec3) -> f32 {
 /// Image mean and its standard error from the per-pixel variances.
 fn mean_and_error(out: &qtrace::RenderOutput) -> (f64, f64) {
     let n = (3 * out.image.pixels.len()) as f64;
-    let var: f64 = out.variance.pixels.iter().flatten().map(|&v| v as f64).sum();
-    (out.image.mean(), (var / out.stats.image_spp as f64).sqrt() / n)
+    let var: f64 = out
+        .variance
+        .pixels
+        .iter()
+        .flatten()
+        .map(|&v| v as f64)
+        .sum();
+    (
+        out.image.mean(),
+        (var / out.stats.image_spp as f64).sqrt() / n,
+    )
 }
 
 fn render(scene: &Scene, method: Method, nee: bool, size: u32, spp: u32) -> qtrace::RenderOutput {
@@ -211,7 +216,10 @@ fn a_mirror_shows_the_analytic_image_of_a_light() {
                 inside += (cover == 1.0) as usize;
             }
         }
-        assert!(inside >= 8, "the light's image covers {inside} whole pixels");
+        assert!(
+            inside >= 8,
+            "the light's image covers {inside} whole pixels"
+        );
     }
 }
 

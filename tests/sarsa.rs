@@ -7,7 +7,6 @@ use common::Lcg;
 
 use glam::{Vec2, Vec3};
 use qtrace::bsdf::{Bsdf, Sampling, Surface};
-use qtrace::scene::Material;
 use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
@@ -15,6 +14,7 @@ use qtrace::guide::{Common, GuideSettings};
 use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
+use qtrace::scene::Material;
 use std::f64::consts::PI;
 
 /// Points where the renderer looks volumes up: on random triangles, one ray
@@ -204,8 +204,22 @@ fn guided_sampler_matches_its_pdf() {
     let wo = Vec3::new(0.643, 0.0, 0.766).normalize();
     for (surface, wo, share) in [
         (Surface::Diffuse { albedo: Vec3::ONE }, Vec3::Z, eps),
-        (Surface::Conductor { reflectance: Vec3::ONE, alpha: 0.3 }, wo, 1.0 - (1.0 - eps) * 0.3),
-        (Surface::Conductor { reflectance: Vec3::ONE, alpha: 0.8 }, wo, 1.0 - (1.0 - eps) * 0.8),
+        (
+            Surface::Conductor {
+                reflectance: Vec3::ONE,
+                alpha: 0.3,
+            },
+            wo,
+            1.0 - (1.0 - eps) * 0.3,
+        ),
+        (
+            Surface::Conductor {
+                reflectance: Vec3::ONE,
+                alpha: 0.8,
+            },
+            wo,
+            1.0 - (1.0 - eps) * 0.8,
+        ),
     ] {
         let material = Material {
             name: "probe".into(),
@@ -213,7 +227,8 @@ fn guided_sampler_matches_its_pdf() {
             emission: Vec3::ZERO,
         };
         let samples =
-            probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms).unwrap();
+            probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms)
+                .unwrap();
         common::assert_no_validation_errors(&ctx);
         let bsdf = Bsdf::new(surface, true, Sampling::Cosine);
         common::assert_mixture_sampler_with(&samples, &p, share as f64, s.common.grid, &|w| {

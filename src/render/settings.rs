@@ -85,9 +85,7 @@ pub struct RenderSettings {
 impl RenderSettings {
     /// Whether the method's guide learns in pass `index`.
     pub fn learns_in_pass(&self, index: u32) -> bool {
-        self.guide
-            .as_ref()
-            .is_some_and(|g| g.learns_in_pass(index))
+        self.guide.as_ref().is_some_and(|g| g.learns_in_pass(index))
     }
 
     /// The pass before which the image restarts, if the method's guide is

@@ -450,9 +450,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
         Ok(c)
     };
     let in_unit = |key: &str, v: Option<f32>| match v {
-        Some(x) if !(0.0..=1.0).contains(&x) => {
-            Err(fail(format!("{key} {x} is outside [0, 1]")))
-        }
+        Some(x) if !(0.0..=1.0).contains(&x) => Err(fail(format!("{key} {x} is outside [0, 1]"))),
         _ => Ok(()),
     };
     in_unit("Pm", m.metallic)?;
@@ -474,12 +472,12 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     let surface = if glass {
         let ior = m.ior.unwrap_or(1.0);
         if ior <= 1.0 {
-            return Err(fail(format!(
-                "d 0 (glass) needs Ni above 1, not {ior}"
-            )));
+            return Err(fail(format!("d 0 (glass) needs Ni above 1, not {ior}")));
         }
         if metallic == 1.0 {
-            return Err(fail("Pm 1 (a conductor) and d 0 (glass) contradict each other".into()));
+            return Err(fail(
+                "Pm 1 (a conductor) and d 0 (glass) contradict each other".into(),
+            ));
         }
         ignored.extend(m.diffuse.map(|_| "Kd"));
         ignored.extend(m.specular.map(|_| "Ks"));
