@@ -70,6 +70,9 @@ float eps;
 GuideVertex prev_vertex;
 uint prev_sector;
 float prev_q;
+// Whether prev_q is what the guide expects along the path's ray (else the
+// roulette follows the throughput alone).
+bool guided_roulette;
 bool learn;
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
@@ -99,6 +102,7 @@ void begin_path(uint sample_index) {
     prev_vertex = guide_none();
     prev_sector = 0u;
     prev_q = 0.0;
+    guided_roulette = false;
     path_estimate = 0.0;
 #endif
     td_count = 0u;
@@ -225,8 +229,16 @@ bool bounce() {
         // Guides learn along reflections, which stay in this vertex's
         // hemisphere, and do not sample here.
         bool up = local.z > 0.0;
-        prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
-        prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
+        if (guide_covers(here)) {
+            prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
+            prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
+            guided_roulette = true;
+        } else {
+            // Not looked up (a pass that does not learn): the roulette keeps
+            // what the vertex before expected from this direction, per unit
+            // of the throughput it had then.
+            prev_q /= max(luminance(weight), 1e-6);
+        }
         prev_vertex = up ? here : guide_none();
 #endif
     } else {
@@ -238,6 +250,7 @@ bool bounce() {
         prev_vertex = here;
         prev_sector = sector;
         prev_q = guide_q(here, sector, p_sector);
+        guided_roulette = guide_covers(here);
 #else
         vec2 square;
         local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
@@ -263,7 +276,7 @@ bool bounce() {
         // against the estimate for the whole path (weight window at 1).
         // Never below the throughput rule, so a Q that underestimates ends
         // no more of a path's continuations than that rule would.
-        if (guide_covers(here) && path_estimate > 0.0) {
+        if (guided_roulette && path_estimate > 0.0) {
             float expected = luminance(throughput) * prev_q;
             q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
         }
