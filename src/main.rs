@@ -66,7 +66,7 @@ struct RenderArgs {
     /// with its default fixed-point tallies).
     #[arg(long)]
     seed: Option<u32>,
-    /// BSDF direction sampling (alone, or as the BSDF half of a guide's mixture).
+    /// How diffuse surfaces sample directions (alone, or as the BSDF half of a guide's mixture); metal and glass always sample their own lobes.
     #[arg(long, value_enum)]
     sampling: Option<Sampling>,
     #[command(flatten)]
