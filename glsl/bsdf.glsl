@@ -13,6 +13,11 @@ float luminance(vec3 c) {
 // The smallest GGX alpha a rough conductor keeps (MIN_ALPHA in src/bsdf.rs).
 #define MIN_ALPHA 1e-4
 
+// False where the scene's materials are all diffuse: the kernel is then built
+// without the other lobes, whose code costs on lavapipe even when no lane
+// takes it (measured: 10-40% of a trace pass on the diffuse scenes).
+layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
+
 // A material's scattering at a surface point, seen from one side
 // (SPEC 3, "Materials").
 struct Bsdf {
@@ -35,10 +40,15 @@ Bsdf bsdf_diffuse(vec3 albedo) {
     return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0);
 }
 
+// Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
+bool bsdf_is(Bsdf bsdf, uint kind) {
+    return (NON_DIFFUSE ? bsdf.kind : MATERIAL_DIFFUSE) == kind;
+}
+
 // Whether the BSDF is a delta distribution (a mirror, smooth glass): such a
 // vertex samples with bsdf_sample_delta and skips NEE and guiding.
 bool bsdf_is_delta(Bsdf bsdf) {
-    return bsdf.kind == MATERIAL_DIELECTRIC || (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha == 0.0);
+    return bsdf_is(bsdf, MATERIAL_DIELECTRIC) || (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha == 0.0);
 }
 
 // GGX normal distribution, written without the cancellation of
@@ -60,10 +70,10 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return vec3(0.0);
     }
-    if (bsdf.kind == MATERIAL_DIFFUSE) {
+    if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf.color * (INV_PI * wi.z);
     }
-    if (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha > 0.0) {
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
         return bsdf.color * (ggx_d(bsdf.alpha, h) * ggx_g1(bsdf.alpha, wo) * ggx_g1(bsdf.alpha, wi) / (4.0 * wo.z));
     }
@@ -78,10 +88,10 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
     }
-    if (bsdf.kind == MATERIAL_DIFFUSE) {
+    if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : wi.z * INV_PI;
     }
-    if (bsdf.kind == MATERIAL_CONDUCTOR && bsdf.alpha > 0.0) {
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
         return ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
     }
@@ -94,7 +104,7 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
 // which samplers built on the concentric map know without inverting it
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
-    if (bsdf.kind == MATERIAL_CONDUCTOR) {
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         // Visible normals by spherical caps (Dupuy & Benyoub 2023).
         float alpha = bsdf.alpha;
         vec3 wh = normalize(vec3(alpha * wo.xy, wo.z));
@@ -138,7 +148,7 @@ float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
 // compresses.
 vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
     vec3 mirror = vec3(-wo.xy, wo.z);
-    if (bsdf.kind == MATERIAL_DIELECTRIC) {
+    if (bsdf_is(bsdf, MATERIAL_DIELECTRIC)) {
         float cos_t;
         float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);
         if (u < f) {

@@ -37,7 +37,7 @@ float guide_q(GuideVertex g, uint k, float p) {
 // diffuse lobe). Delta lobes do not mix (bsdf_sample_delta).
 float mixture_bsdf_share(Bsdf bsdf) {
     float eps = params.guide_epsilon;
-    return bsdf.kind == MATERIAL_CONDUCTOR ? 1.0 - (1.0 - eps) * min(bsdf.alpha, 1.0) : eps;
+    return bsdf_is(bsdf, MATERIAL_CONDUCTOR) ? 1.0 - (1.0 - eps) * min(bsdf.alpha, 1.0) : eps;
 }
 
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
@@ -93,7 +93,7 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
 //   takes the cosine-weighted mean of g's Q instead. A rough estimate only
 //   steers sampling; the image stays unbiased.
 float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo, inout uint rng) {
-    if (bsdf.kind == MATERIAL_DIFFUSE) {
+    if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf_reflect(bsdf, wo, guide_irradiance(g));
     }
     uint a = grid_a();
@@ -107,7 +107,7 @@ float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo, inout uint rng) {
             : 0.0;
     }
     float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
-    if (bsdf.kind == MATERIAL_CONDUCTOR) {
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         return luminance(bsdf.color) * mirrored;
     }
     float cos_t;

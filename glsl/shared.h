@@ -130,6 +130,9 @@ struct Triangle {
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
 #define MATERIAL_DIELECTRIC 2
+// Specialization constant of the kernels that shade: whether the scene has a
+// material that is not diffuse (constants 0-3 are a network's shape).
+#define SPEC_NON_DIFFUSE 4
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind

@@ -222,8 +222,12 @@ impl Renderer {
             shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
         )?;
         let push = size_of::<PassParams>() as u32;
-        // A guide's kernel may be built for its shape (the network's).
-        let constants = guide.as_ref().map_or(Vec::new(), |g| g.constants());
+        // A guide's kernel may be built for its shape (the network's); every
+        // trace kernel, for whether the scene has materials beyond diffuse.
+        let mut constants = guide.as_ref().map_or(Vec::new(), |g| g.constants());
+        debug_assert!(constants.len() <= shaders::SPEC_NON_DIFFUSE as usize);
+        constants.resize(shaders::SPEC_NON_DIFFUSE as usize, 0);
+        constants.push(scene.has_non_diffuse() as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

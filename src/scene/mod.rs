@@ -169,6 +169,13 @@ impl Scene {
         format!("{name} {:016x}", self.fingerprint)
     }
 
+    /// Whether a material is not diffuse (metal or glass).
+    pub fn has_non_diffuse(&self) -> bool {
+        self.materials
+            .iter()
+            .any(|m| !matches!(m.surface, Surface::Diffuse { .. }))
+    }
+
     /// The scene's table of guide `name` (empty when it has none).
     pub fn guide_table(&self, name: &str) -> &toml::Table {
         static EMPTY: std::sync::OnceLock<toml::Table> = std::sync::OnceLock::new();
