@@ -49,6 +49,15 @@ impl Surface {
         }
     }
 
+    /// What users call the surface: "diffuse", "conductor" or "glass".
+    pub fn name(&self) -> &'static str {
+        match self {
+            Surface::Diffuse { .. } => "diffuse",
+            Surface::Conductor { .. } => "conductor",
+            Surface::Dielectric { .. } => "glass",
+        }
+    }
+
     /// The surface's colour (Kd, Ks or Tf) and its parameter (α, Ni, or 0),
     /// as the GPU's `Material` holds them.
     pub fn color_and_parameter(&self) -> (Vec3, f32) {

@@ -597,20 +597,15 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
 
 /// "7 (5 diffuse, 1 conductor, 1 glass)": how many materials of each kind.
 fn material_summary(scene: &Scene) -> String {
-    use crate::bsdf::Surface;
-    let mut counts = [0usize; 3];
+    let mut kinds: Vec<(&str, usize)> = Vec::new();
     for m in &scene.materials {
-        counts[match m.surface {
-            Surface::Diffuse { .. } => 0,
-            Surface::Conductor { .. } => 1,
-            Surface::Dielectric { .. } => 2,
-        }] += 1;
+        let name = m.surface.name();
+        match kinds.iter_mut().find(|(k, _)| *k == name) {
+            Some((_, n)) => *n += 1,
+            None => kinds.push((name, 1)),
+        }
     }
-    let kinds: Vec<String> = ["diffuse", "conductor", "glass"]
-        .iter()
-        .zip(counts)
-        .filter(|(_, n)| *n > 0)
-        .map(|(k, n)| format!("{n} {k}"))
-        .collect();
+    kinds.sort_by_key(|&(_, n)| std::cmp::Reverse(n));
+    let kinds: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
     format!("{} ({})", scene.materials.len(), kinds.join(", "))
 }

@@ -169,6 +169,17 @@ pub fn nearest_volumes(
         .collect())
 }
 
+/// A shading point as the probes read it: the material's two texels, then
+/// (wo, 1 on the front side or 0).
+fn shading_texels(material: &crate::scene::Material, wo: Vec3, front: bool) -> [Vec4; 3] {
+    let m = material.gpu();
+    [
+        Vec4::from(m.color),
+        Vec4::from(m.emission),
+        wo.extend(if front { 1.0 } else { 0.0 }),
+    ]
+}
+
 /// Directions the GPU guide sampler draws for volume `volume` from the given
 /// uniform triples, at a vertex of `material` (front side) seen from `wo`,
 /// with the pdf it reports for each.
@@ -180,8 +191,7 @@ pub fn guide_samples(
     (material, wo): (&crate::scene::Material, Vec3),
     uniforms: &[Vec3],
 ) -> Result<Vec<(Vec3, f32)>, RenderError> {
-    let m = material.gpu();
-    let input: Vec<Vec4> = [Vec4::from(m.color), Vec4::from(m.emission), wo.extend(1.0)]
+    let input: Vec<Vec4> = shading_texels(material, wo, true)
         .into_iter()
         .chain(
             uniforms
@@ -328,13 +338,8 @@ pub fn bsdf_samples(
     let input: Vec<Vec4> = queries
         .iter()
         .flat_map(|q| {
-            let m = q.material.gpu();
-            [
-                Vec4::from(m.color),
-                Vec4::from(m.emission),
-                q.wo.extend(if q.front { 1.0 } else { 0.0 }),
-                q.u.extend(0.0),
-            ]
+            let [color, emission, side] = shading_texels(&q.material, q.wo, q.front);
+            [color, emission, side, q.u.extend(0.0)]
         })
         .collect();
     let n = queries.len();

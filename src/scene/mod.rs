@@ -173,7 +173,7 @@ impl Scene {
     pub fn has_non_diffuse(&self) -> bool {
         self.materials
             .iter()
-            .any(|m| !matches!(m.surface, Surface::Diffuse { .. }))
+            .any(|m| m.surface.kind() != shaders::MATERIAL_DIFFUSE)
     }
 
     /// The scene's table of guide `name` (empty when it has none).
@@ -514,15 +514,11 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     ignored.extend(m.phong_keys.iter().copied());
     ignored.dedup();
     if !ignored.is_empty() {
-        let kind = match surface {
-            Surface::Diffuse { .. } => "diffuse",
-            Surface::Conductor { .. } => "a conductor",
-            Surface::Dielectric { .. } => "glass",
-        };
         log::warn!(
-            "{}: material '{}' is {kind}; ignoring {} (see SPEC §3, \"Materials\")",
+            "{}: material '{}' ({}): ignoring {} (see SPEC §3, \"Materials\")",
             obj_path.display(),
             m.name,
+            surface.name(),
             ignored.join(", ")
         );
     }
