@@ -94,16 +94,27 @@ float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, in
 
 // The nearest hit before tmax (any_hit false), or any hit (shadow rays).
 // Each step reads one node and visits both its children, so every lane does
-// the same work per step (lavapipe runs both sides of a branch). The walk
-// goes to the first child the ray meets along the node's axis if its box was
-// entered, else to the other, else on to the node's escape for the ray's
-// octant: no stack, whose per-lane writes and reads cost lavapipe more than
-// the sibling subtrees the walk then enters without testing their boxes.
+// the same work per step (lavapipe runs both sides of a branch). Children
+// are taken in the order the ray's direction octant meets them along the
+// node's axis. When the ray enters both boxes, the walk goes into the first
+// and keeps the second on a stack of three held in registers (an indexed
+// per-lane array would cost lavapipe a scatter per push and a gather per
+// pop); when it enters neither, it pops. A push onto a full stack drops the
+// oldest entry, the last due, and from then on an empty stack sends the walk
+// along the node's escape link for the octant: the next node of the
+// octant's depth-first order after its subtree, a safe continuation from any
+// node because each entry popped since came earlier in that order.
 Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
     Hit hit = Hit(tmax, NO_HIT);
     vec3 inv_d = safe_inverse(d);
     uint octant = (d.x < 0.0 ? 1u : 0u) | (d.y < 0.0 ? 2u : 0u) | (d.z < 0.0 ? 4u : 0u);
     uint node = 0u;
+    // The stack, top first, its depth, and whether it ever dropped an entry.
+    uint s0 = 0u;
+    uint s1 = 0u;
+    uint s2 = 0u;
+    uint depth = 0u;
+    bool lost = false;
     while (node != BVH_NO_CHILD) {
         int base = int(8u * node);
         uvec4 a0 = texelFetch(node_texels, base);
@@ -123,7 +134,22 @@ Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
         bool swap = ((octant >> b0.w) & 1u) != 0u;
         uint first = swap ? a1.w : a0.w;
         uint second = swap ? a0.w : a1.w;
-        node = (swap ? t1 : t0) != FAR ? first : ((swap ? t0 : t1) != FAR ? second : escape);
+        bool hit_first = (swap ? t1 : t0) != FAR;
+        bool hit_second = (swap ? t0 : t1) != FAR;
+        if (hit_first && hit_second) {
+            lost = lost || depth == 3u;
+            depth = min(depth + 1u, 3u);
+            s2 = s1;
+            s1 = s0;
+            s0 = second;
+        }
+        uint popped = depth > 0u ? s0 : (lost ? escape : BVH_NO_CHILD);
+        if (!hit_first && !hit_second && depth > 0u) {
+            depth -= 1u;
+            s0 = s1;
+            s1 = s2;
+        }
+        node = hit_first ? first : (hit_second ? second : popped);
     }
     return hit;
 }

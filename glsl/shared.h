@@ -101,7 +101,8 @@
 // side. Walks visit the children in the order a ray's direction meets them
 // along that axis, so each of the 8 direction octants has a depth-first
 // order of the nodes, and `escapes[octant]` is the node after this one's
-// subtree in it (BVH_NO_CHILD after the last): the walk needs no stack.
+// subtree in it (BVH_NO_CHILD after the last): where the walk's short stack
+// overflowed, it goes on from there.
 struct BvhNode {
     vec3 a0;
     uint child0;
