@@ -6,7 +6,9 @@
 //   guide_covers(g)          whether it has a sector distribution at g
 //   guide_total(g)           the total weight w of that distribution
 //   guide_irradiance(g)      (2 pi / n) sum_j Q_j cos(theta_j), for targets
-//   guide_sector_probability(g, k), guide_pick_sector(g, u, out p)
+//   guide_sector_probability(g, k)
+//   guide_choose_sector(g, pick, u, sector, out p)  with pick, a sector
+//       drawn by u and its probability p; else p of `sector`
 //   guide_sector_q(g, k)     Q of sector k (0 where the guide has nothing)
 //   guide_learn(from, k, q, reflected, direct, ...)  a transition from vertex
 //       `from` through sector k (whose Q was q) reached a surface that
@@ -63,8 +65,17 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
     float eps = mixture_bsdf_share(bsdf);
     uint a = grid_a();
     uint b = grid_b();
-    if (guide_covers(g) && u.z >= eps) {
-        sector = guide_pick_sector(g, (u.z - eps) / (1.0 - eps), p_sector);
+    bool guided = guide_covers(g) && u.z >= eps;
+    // Both sides are worked out (lavapipe runs both sides of a branch
+    // anyway), so that one read of the guide's table serves either.
+    vec2 square;
+    vec3 wi = bsdf_sample(bsdf, wo, u.xy, square);
+    sector = square_sector(square, a, b);
+    p_sector = 0.0;
+    if (guide_covers(g)) {
+        sector = guide_choose_sector(g, guided, guided ? (u.z - eps) / (1.0 - eps) : 0.0, sector, p_sector);
+    }
+    if (guided) {
         // Uniform within the sector, clear of its edges: rounding in the map
         // must not move the direction into a neighbouring sector, so that
         // the sector is the one a pdf lookup finds. (The strip left out is
@@ -73,10 +84,6 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
         return square_to_hemisphere(vec2((float(sector % a) + inner.x) / float(a),
                                          (float(sector / a) + inner.y) / float(b)));
     }
-    vec2 square;
-    vec3 wi = bsdf_sample(bsdf, wo, u.xy, square);
-    sector = square_sector(square, a, b);
-    p_sector = guide_covers(g) ? guide_sector_probability(g, sector) : 0.0;
     return wi;
 }
 

@@ -153,6 +153,14 @@ uint guide_pick_sector(GuideVertex g, float u, out float p) {
     return k;
 }
 
+uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
+    if (pick) {
+        return guide_pick_sector(g, u, p);
+    }
+    p = guide_sector_probability(g, sector);
+    return sector;
+}
+
 // Per pixel, the transition its path kept for training (two vec4s:
 // position and target; normal and sector + 1, or 0 when it offers none).
 // src/guide/neural.rs's gather pass packs the offered ones into the batch

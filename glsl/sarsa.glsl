@@ -148,16 +148,18 @@ float guide_sector_q(GuideVertex g, uint k) {
     return g.volume == NO_VOLUME ? 0.0 : max(load_q(g.volume * sector_count() + k), 0.0);
 }
 
-// Alias method: u, scaled to [0, n), picks a column; its fraction decides
-// between the column's sector and its alias.
-uint guide_pick_sector(GuideVertex g, float u, out float p) {
+// One read of the alias table serves either side of the mixture: with
+// `pick`, the alias method (u, scaled to [0, n), picks a column; its
+// fraction decides between the column's sector and its alias); without, the
+// probability of `sector`, which BSDF sampling chose.
+uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
     uint n = sector_count();
     float x = u * float(n);
-    uint k = min(uint(x), n - 1u);
-    SectorEntry e = load_sector(g.volume * n + k);
-    bool keep = x - float(k) < e.threshold;
+    uint column = min(uint(x), n - 1u);
+    SectorEntry e = load_sector(g.volume * n + (pick ? column : sector));
+    bool keep = !pick || x - float(column) < e.threshold;
     p = keep ? e.p : e.p_alias;
-    return keep ? k : e.alias;
+    return pick ? (keep ? column : e.alias) : sector;
 }
 
 // Records `target` for (from, k); with NEE, q is the sampling table's Q,
