@@ -6,7 +6,8 @@
 // (2 pi / n) sum_j Q_j cos(theta_j), the total weight of its distribution
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
 // sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
-// as an alias table, so a sample costs one read instead of a CDF search.
+// as an alias table in whole units (see SectorEntry), so a sample costs one
+// read instead of a CDF search.
 
 #include "shared.h"
 #include "atomics.glsl"
@@ -41,10 +42,20 @@ void fold(uint i) {
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec2 volume_sums[]; };
 
+// The working column of sector k while the table is built: units kept
+// (up to W while a column is tall) and alias.
+uint kept(uint i) {
+    return sectors[i].column & 0xffffu;
+}
+
+void set_column(uint i, uint units, uint alias) {
+    sectors[i].column = units | (alias << 16);
+}
+
 // First index from `from` on whose column is short of (or, with `large`, at
-// least) one sector's worth, n if none.
-uint next_column(uint base, uint from, uint n, bool large) {
-    while (from < n && (sectors[base + from].threshold >= 1.0) != large) {
+// least) one column's worth c, n if none.
+uint next_column(uint base, uint from, uint n, uint c, bool large) {
+    while (from < n && (kept(base + from) >= c) != large) {
         ++from;
     }
     return from;
@@ -58,6 +69,10 @@ void main() {
     uint a = params.sector_grid & 0xffffu;
     uint b = params.sector_grid >> 16;
     uint n = a * b;
+    // Units per column and in all; the float division is exact after the
+    // floor (its fraction is at least 1 / n, far above its rounding).
+    uint c = uint(65535.0 / float(n));
+    uint units = n * c;
     uint base = v * n;
     bool cos_weighted = (params.flags & FLAG_COS_DISTRIBUTION) != 0u;
     bool nee = (params.flags & FLAG_NEE) != 0u;
@@ -73,43 +88,58 @@ void main() {
         weighted += q * cos_k;
         // With NEE, scattering should find what NEE does not already carry.
         float qs = nee ? max(q - q_direct[base + k], 0.0) : q;
-        float w = cos_weighted ? qs * cos_k : qs;
-        total += w;
-        sectors[base + k].p = w;
+        total += cos_weighted ? qs * cos_k : qs;
     }
     volume_sums[v] = vec2(weighted * 2.0 * PI / float(n), total);
+    // Whole units: sector k gets the units between the floors of its
+    // running sum's start and end (scaled to W), the last end being W, so
+    // the weights add up to W exactly (the last sector takes what rounding
+    // left) and a zero weight stays zero. An all-zero volume samples
+    // sectors uniformly.
+    float scale = total > 0.0 ? float(units) / total : 0.0;
+    float running = 0.0;
+    uint start = 0u;
     for (uint k = 0u; k < n; ++k) {
-        // An all-zero volume samples sectors uniformly.
-        float p = total > 0.0 ? sectors[base + k].p / total : 1.0 / float(n);
-        sectors[base + k] = SectorEntry(p * float(n), k, p, p);
+        uint w = c;
+        if (total > 0.0) {
+            float q = max(q_values[base + k], 0.0);
+            float qs = nee ? max(q - q_direct[base + k], 0.0) : q;
+            running += cos_weighted ? qs * sector_cos(k, a, b) : qs;
+            uint end = k + 1u == n ? units : min(uint(running * scale), units);
+            w = end - start;
+            start = end;
+        }
+        sectors[base + k].weights = w;
+        set_column(base + k, w, k);
     }
 
     // Vose's alias construction as one sweep without work lists: short
     // columns are filled in index order, each from the current tall column l,
     // which moves on once it has become short itself. A column that becomes
     // short behind the sweep is filled next; one ahead of it, when reached.
-    uint s = next_column(base, 0u, n, false);
-    uint l = next_column(base, 0u, n, true);
+    // In whole units every column ends with exactly c.
+    uint s = next_column(base, 0u, n, c, false);
+    uint l = next_column(base, 0u, n, c, true);
     uint short_column = s;
     while (short_column < n && l < n) {
-        float missing = 1.0 - sectors[base + short_column].threshold;
-        sectors[base + short_column].alias = l;
-        float left = sectors[base + l].threshold - missing;
-        sectors[base + l].threshold = left;
-        if (left < 1.0) {
+        uint missing = c - kept(base + short_column);
+        set_column(base + short_column, kept(base + short_column), l);
+        uint left = kept(base + l) - missing;
+        set_column(base + l, left, l);
+        if (left < c) {
             uint now_short = l;
-            l = next_column(base, l + 1u, n, true);
+            l = next_column(base, l + 1u, n, c, true);
             if (now_short < s) {
                 short_column = now_short;
                 continue;
             }
         }
-        s = next_column(base, s + 1u, n, false);
+        s = next_column(base, s + 1u, n, c, false);
         short_column = s;
     }
-    // Columns left over hold one sector's worth up to rounding: they keep
-    // themselves (alias k) or, at threshold >= 1, always do.
     for (uint k = 0u; k < n; ++k) {
-        sectors[base + k].p_alias = sectors[base + sectors[base + k].alias].p;
+        uint alias = sectors[base + k].column >> 16;
+        uint w = sectors[base + k].weights & 0xffffu;
+        sectors[base + k].weights = w | ((sectors[base + alias].weights & 0xffffu) << 16);
     }
 }

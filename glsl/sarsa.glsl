@@ -9,7 +9,7 @@
 
 // The tables the trace kernel only reads are uniform texel buffers of raw
 // words (one vector gather per read on lavapipe; see scene.glsl).
-layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 1 per SectorEntry
+layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 2 SectorEntry per texel
 // Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), total weight of
 // its sector distribution), two volumes per texel; see guide_build.comp.
 layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
@@ -27,8 +27,17 @@ layout(set = 0, binding = B_LOOKUP_CELLS) uniform usamplerBuffer lookup_cell_tex
 layout(set = 0, binding = B_LOOKUP_ITEMS) uniform usamplerBuffer lookup_item_texels;
 
 SectorEntry load_sector(uint i) {
-    uvec4 t = texelFetch(sector_texels, int(i));
-    return SectorEntry(uintBitsToFloat(t.x), t.y, uintBitsToFloat(t.z), uintBitsToFloat(t.w));
+    uvec4 t = texelFetch(sector_texels, int(i >> 1u));
+    return (i & 1u) == 0u ? SectorEntry(t.x, t.y) : SectorEntry(t.z, t.w);
+}
+
+// Units of one column of the alias tables, and P(k) of w units.
+uint sector_column_units() {
+    return uint(65535.0 / float(sector_count()));
+}
+
+float sector_probability_of(uint units) {
+    return float(units) / float(sector_count() * sector_column_units());
 }
 
 float load_q(uint i) {
@@ -141,7 +150,7 @@ float guide_irradiance(GuideVertex g) {
 }
 
 float guide_sector_probability(GuideVertex g, uint k) {
-    return load_sector(g.volume * sector_count() + k).p;
+    return sector_probability_of(load_sector(g.volume * sector_count() + k).weights & 0xffffu);
 }
 
 float guide_sector_q(GuideVertex g, uint k) {
@@ -150,16 +159,19 @@ float guide_sector_q(GuideVertex g, uint k) {
 
 // One read of the alias table serves either side of the mixture: with
 // `pick`, the alias method (u, scaled to [0, n), picks a column; its
-// fraction decides between the column's sector and its alias); without, the
-// probability of `sector`, which BSDF sampling chose.
+// fraction, in the column's units, decides between the column's sector and
+// its alias); without, the probability of `sector`, which BSDF sampling
+// chose.
 uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
     uint n = sector_count();
+    uint c = sector_column_units();
     float x = u * float(n);
     uint column = min(uint(x), n - 1u);
     SectorEntry e = load_sector(g.volume * n + (pick ? column : sector));
-    bool keep = !pick || x - float(column) < e.threshold;
-    p = keep ? e.p : e.p_alias;
-    return pick ? (keep ? column : e.alias) : sector;
+    uint unit = min(uint((x - float(column)) * float(c)), c - 1u);
+    bool keep = !pick || unit < (e.column & 0xffffu);
+    p = sector_probability_of(keep ? e.weights & 0xffffu : e.weights >> 16);
+    return pick ? (keep ? column : e.column >> 16) : sector;
 }
 
 // Records `target` for (from, k); with NEE, q is the sampling table's Q,

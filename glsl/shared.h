@@ -198,14 +198,14 @@ struct PassParams {
     float guide_epsilon; // guides: weight of cosine sampling in the mixture
 };
 
-// One sector of a volume's sampling distribution, as an alias table (Walker):
-// column k keeps itself with probability `threshold`, else gives `alias`;
-// p and p_alias are the two sectors' probabilities, for the pdf.
+// One sector of a volume's sampling distribution, as an alias table (Walker)
+// in whole units: sector k has weight w_k of W = n C units, C = 65535 / n
+// a column, and P(k) = w_k / W is the exact probability of a draw, which
+// keeps the pdf right in 8 bytes. Column k keeps `kept` of its C units for
+// sector k and gives the rest to `alias`; w_alias is the alias's weight.
 struct SectorEntry {
-    float threshold;
-    uint alias;
-    float p;
-    float p_alias;
+    uint weights; // w_k | w_alias << 16
+    uint column;  // kept | alias << 16
 };
 
 // One training transition of the Neural-Q network (its input is in the

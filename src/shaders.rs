@@ -123,10 +123,30 @@ pub struct PassParams {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct SectorEntry {
-    pub threshold: f32,
-    pub alias: u32,
-    pub p: f32,
-    pub p_alias: f32,
+    pub weights: u32,
+    pub column: u32,
+}
+
+impl SectorEntry {
+    /// Units of one column of an alias table over `n` sectors.
+    pub fn column_units(n: u32) -> u32 {
+        65535 / n
+    }
+    /// P(k) of this entry's sector in a table over `n` sectors.
+    pub fn p(&self, n: u32) -> f32 {
+        (self.weights & 0xffff) as f32 / (n * Self::column_units(n)) as f32
+    }
+    /// Units of the column its own sector keeps.
+    pub fn kept(&self) -> u32 {
+        self.column & 0xffff
+    }
+    pub fn alias(&self) -> u32 {
+        self.column >> 16
+    }
+    /// The alias's weight, in units.
+    pub fn alias_weight(&self) -> u32 {
+        self.weights >> 16
+    }
 }
 
 // The network's kernels size their workgroup memory for MLP_LANES invocations.

@@ -15,6 +15,7 @@ use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
 use qtrace::scene::Material;
+use qtrace::shaders::SectorEntry;
 use std::f64::consts::PI;
 
 /// Points where the renderer looks volumes up: on random triangles, one ray
@@ -114,7 +115,8 @@ fn probabilities(p: &[f32], v: usize, n: usize) -> Vec<f64> {
 }
 
 /// Every volume's alias table gives each sector exactly its probability:
-/// its own column's kept share plus what other columns hand it.
+/// its own column's kept units plus what other columns hand it, in whole
+/// units, and the probabilities follow the distribution.
 #[test]
 fn alias_tables_give_each_sector_its_probability() {
     let ctx = common::gpu();
@@ -139,26 +141,52 @@ fn alias_tables_give_each_sector_its_probability() {
     guide.upload_q(&ctx, &q).unwrap();
     let table = guide.download_sectors().unwrap();
     common::assert_no_validation_errors(&ctx);
+    let c = SectorEntry::column_units(n as u32);
+    let units = n as u32 * c;
     for v in 0..64 {
         let t = &table[v * n..(v + 1) * n];
-        let total: f64 = t.iter().map(|e| e.p as f64).sum();
-        assert!((total - 1.0).abs() < 1e-5, "volume {v}: P sums to {total}");
-        let mut given = vec![0.0f64; n];
+        // Whole units: the weights add up to W exactly, and each column
+        // hands out exactly its own c units.
+        let total: u32 = t.iter().map(|e| e.weights & 0xffff).sum();
+        assert_eq!(total, units, "volume {v}: weights");
+        let mut given = vec![0u32; n];
         for (k, e) in t.iter().enumerate() {
-            let keep = (e.threshold as f64).min(1.0);
-            given[k] += keep;
-            given[e.alias as usize] += 1.0 - keep;
+            assert!(
+                e.kept() <= c && (e.alias() as usize) < n,
+                "volume {v} sector {k}: {e:?}"
+            );
+            given[k] += e.kept();
+            given[e.alias() as usize] += c - e.kept();
             assert_eq!(
-                e.p_alias, t[e.alias as usize].p,
-                "volume {v} sector {k}: p_alias"
+                e.alias_weight(),
+                t[e.alias() as usize].weights & 0xffff,
+                "volume {v} sector {k}: the alias's weight"
             );
         }
         for k in 0..n {
-            let want = t[k].p as f64;
-            let got = given[k] / n as f64;
+            assert_eq!(
+                given[k],
+                t[k].weights & 0xffff,
+                "volume {v} sector {k}: the table's units"
+            );
+        }
+        // P follows Q cos θ (the default distribution) to within rounding
+        // to units.
+        let [a, b] = s.common.grid;
+        let w: Vec<f64> = (0..n)
+            .map(|k| q[v * n + k] as f64 * sampling::sector_cos(k as u32, a, b) as f64)
+            .collect();
+        let w_total: f64 = w.iter().sum();
+        for k in 0..n {
+            let p = t[k].p(n as u32) as f64;
+            let want = if w_total > 0.0 {
+                w[k] / w_total
+            } else {
+                1.0 / n as f64
+            };
             assert!(
-                (got - want).abs() < 1e-6,
-                "volume {v} sector {k}: table gives {got}, P = {want}"
+                (p - want).abs() <= 2.0 / units as f64,
+                "volume {v} sector {k}: P {p} against Q's share {want}"
             );
         }
     }
@@ -366,16 +394,18 @@ fn check_update(atomics: Atomics) {
                 "{atomics:?} round {round} Q[{i}]: GPU {g} vs CPU {c}"
             );
         }
-        // And the distribution is Q·cos θ_k normalised (the default).
+        // And the distribution is Q·cos θ_k normalised (the default), to
+        // within the alias tables' whole units.
         let cos = sector_cosines(n, s.common.grid);
         let probs = guide.download_probabilities().unwrap();
+        let unit = 1.0 / (n as u32 * SectorEntry::column_units(n as u32)) as f64;
         for v in 0..6 {
             let w = |k: usize| q[v * n + k] as f64 * cos[k];
             let total: f64 = (0..n).map(w).sum();
             for (k, pk) in probabilities(&probs, v, n).iter().enumerate() {
                 let want = w(k) / total;
                 assert!(
-                    (pk - want).abs() < 1e-5,
+                    (pk - want).abs() < 2.0 * unit,
                     "volume {v} sector {k}: P {pk} vs {want}"
                 );
             }

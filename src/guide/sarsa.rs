@@ -399,7 +399,8 @@ impl SarsaGuide {
 
     /// Current sector probabilities P(k), volume-major.
     pub fn download_probabilities(&self) -> gpu::Result<Vec<f32>> {
-        Ok(self.download_sectors()?.iter().map(|e| e.p).collect())
+        let n = self.settings.sectors();
+        Ok(self.download_sectors()?.iter().map(|e| e.p(n)).collect())
     }
 
     /// Running means of the share of targets NEE carries, volume-major.
