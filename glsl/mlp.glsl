@@ -30,10 +30,24 @@ shared vec4 mlp_vectors[MLP_LANES * MLP_SPAN4];
 #define MLP_V(i) mlp_vectors[(i) * MLP_LANES + gl_LocalInvocationIndex]
 #endif
 
+#ifdef MLP_PARAMS_ONLY
 layout(std430, set = 0, binding = B_MLP_PARAMS) buffer MlpParams { vec4 mlp_params[]; };
 
+vec4 mlp_w(uint i4) {
+    return mlp_params[i4];
+}
+#else
+// Kernels that only read the parameters read them as texels: lavapipe turns
+// a storage-buffer read into a loop over lanes, a texel read into one gather.
+layout(set = 0, binding = B_MLP_PARAMS) uniform usamplerBuffer mlp_param_texels;
+
+vec4 mlp_w(uint i4) {
+    return uintBitsToFloat(texelFetch(mlp_param_texels, int(i4)));
+}
+#endif
+
 float mlp_param(uint i) {
-    return mlp_params[i >> 2][i & 3u];
+    return mlp_w(i >> 2)[i & 3u];
 }
 
 // Where layer l's weights start (in floats); its biases follow them.
@@ -91,14 +105,14 @@ void mlp_hidden_layer(uint l) {
     uint bias4 = row4 + MLP_WIDTH * fan_in4;
     // Four units at a time, so each input vec4 is read once for four rows.
     for (uint o4 = 0u; o4 < MLP_W4; o4++) {
-        vec4 z = mlp_params[bias4 + o4];
+        vec4 z = mlp_w(bias4 + o4);
         uint row = row4 + 4u * o4 * fan_in4;
         for (uint i = 0u; i < fan_in4; i++) {
             vec4 x = MLP_V(from + i);
-            z += vec4(dot(mlp_params[row + i], x),
-                      dot(mlp_params[row + fan_in4 + i], x),
-                      dot(mlp_params[row + 2u * fan_in4 + i], x),
-                      dot(mlp_params[row + 3u * fan_in4 + i], x));
+            z += vec4(dot(mlp_w(row + i), x),
+                      dot(mlp_w(row + fan_in4 + i), x),
+                      dot(mlp_w(row + 2u * fan_in4 + i), x),
+                      dot(mlp_w(row + 3u * fan_in4 + i), x));
         }
         MLP_V(to + o4) = max(z, vec4(0.0));
     }
@@ -125,8 +139,8 @@ vec4 mlp_output4(uint k4) {
     uint r3 = last / 4u + min(first + 3u, MLP_OUTPUTS - 1u) * MLP_W4;
     for (uint i = 0u; i < MLP_W4; i++) {
         vec4 x = MLP_V(h + i);
-        z += vec4(dot(mlp_params[r0 + i], x), dot(mlp_params[r1 + i], x),
-                  dot(mlp_params[r2 + i], x), dot(mlp_params[r3 + i], x));
+        z += vec4(dot(mlp_w(r0 + i), x), dot(mlp_w(r1 + i), x),
+                  dot(mlp_w(r2 + i), x), dot(mlp_w(r3 + i), x));
     }
     uint bias = last + MLP_OUTPUTS * MLP_WIDTH;
     for (uint c = 0u; c < 4u; c++) {
@@ -142,7 +156,7 @@ float mlp_output(uint k) {
     uint h = mlp_last_region();
     float z = mlp_param(last + MLP_OUTPUTS * MLP_WIDTH + k);
     for (uint i = 0u; i < MLP_W4; i++) {
-        z += dot(mlp_params[row + i], MLP_V(h + i));
+        z += dot(mlp_w(row + i), MLP_V(h + i));
     }
     return z;
 }

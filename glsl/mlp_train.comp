@@ -49,7 +49,7 @@ void main() {
     uint from = mlp_last_region();
     uint to = from == 0u ? MLP_A4 : 0u;
     for (uint i = 0u; i < MLP_W4; i++) {
-        vec4 d = mix(vec4(0.0), mlp_params[out_row + i] * delta_out, greaterThan(MLP_V(from + i), vec4(0.0)));
+        vec4 d = mix(vec4(0.0), mlp_w(out_row + i) * delta_out, greaterThan(MLP_V(from + i), vec4(0.0)));
         MLP_V(to + i) = d;
         deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
     }
@@ -65,7 +65,7 @@ void main() {
             float d_o = MLP_V(from + o / 4u)[o % 4u];
             if (d_o != 0.0) {
                 for (uint j = 0u; j < MLP_W4; j++) {
-                    MLP_V(to + j) += d_o * mlp_params[w4 + o * MLP_W4 + j];
+                    MLP_V(to + j) += d_o * mlp_w(w4 + o * MLP_W4 + j);
                 }
             }
         }
