@@ -68,9 +68,10 @@ pub struct SpeedRow {
     pub wall_seconds: f64,
     pub samples_per_second: f64,
     pub rays_per_second: f64,
-    /// GPU ms of one sample pass, all its dispatches together (sum of medians).
+    /// GPU ms of a sample pass, all its dispatches together, averaged over
+    /// the passes (see [`mean_pass_ms`]).
     pub pass_ms: f64,
-    /// Median GPU ms per pass name.
+    /// Median GPU ms per pass name, where it ran.
     pub pass_breakdown_ms: Vec<(String, f64)>,
     /// `pass_ms` over the first configuration's on the same scene.
     pub pass_cost_ratio: f64,
@@ -112,6 +113,24 @@ pub enum SpeedEvent<'a> {
     PeerMissing(&'a str),
 }
 
+/// GPU ms per sample pass: each dispatch kind's time over the `spp` passes,
+/// so one that runs in some passes only (a guide's update once its
+/// learning thins out) counts as often as it runs. Each kind's slowest
+/// dispatch is left out, as it may include the driver's shader compilation.
+pub fn mean_pass_ms(timings: &[crate::gpu::PassTiming], spp: u32) -> f64 {
+    let total: f64 = timings
+        .iter()
+        .map(|t| {
+            if t.count > 1 {
+                (t.total_ms - t.max_ms) * t.count as f64 / (t.count - 1) as f64
+            } else {
+                t.total_ms
+            }
+        })
+        .sum();
+    total / spp.max(1) as f64
+}
+
 /// Renders every configuration on every scene `repeats` times, keeping each
 /// one's fastest run, then the peer once per scene; `progress` hears of each.
 pub fn speed(
@@ -146,7 +165,7 @@ pub fn speed(
                     .iter()
                     .map(|t| (t.name.clone(), t.median_ms))
                     .collect();
-                let pass_ms = breakdown.iter().map(|(_, ms)| ms).sum();
+                let pass_ms = mean_pass_ms(&s.gpu_passes, s.spp);
                 let row = SpeedRow {
                     scene: path.clone(),
                     config: config.label(),
