@@ -466,6 +466,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn shaders_find_the_same_column_units_by_float_division() {
+        // The shaders take ⌊65535 / n⌋ as uint(65535.0 / float(n)): exact,
+        // because a fraction of at least 1 / n stands far above the rounding.
+        for n in 1..=64 * 64u32 {
+            assert_eq!(
+                (65535.0f32 / n as f32) as u32,
+                SectorEntry::column_units(n),
+                "n = {n}"
+            );
+        }
+    }
+
+    #[test]
     fn default_volume_count_follows_the_image() {
         let s = SarsaSettings::default();
         assert_eq!(s.for_image(256, 256).volumes, Some(1024));
