@@ -16,6 +16,9 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
+
+#include "grid.glsl"
+
 layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
 // The pass's tallies, as the trace kernel's atomics wrote them (float
@@ -52,6 +55,14 @@ void set_column(uint i, uint units, uint alias) {
     sectors[i].column = units | (alias << 16);
 }
 
+// Sector i's weight in its volume's distribution, from its Q (at least 0)
+// and cos(theta): Q, or Q cos(theta) with FLAG_COS_DISTRIBUTION; with NEE,
+// Q less the share NEE carries, as scattering should find what NEE does not.
+float distribution_weight(uint i, float q, float cos_k) {
+    float qs = (params.flags & FLAG_NEE) != 0u ? max(q - q_direct[i], 0.0) : q;
+    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? qs * cos_k : qs;
+}
+
 // First index from `from` on whose column is short of (or, with `large`, at
 // least) one column's worth c, n if none.
 uint next_column(uint base, uint from, uint n, uint c, bool large) {
@@ -66,16 +77,13 @@ void main() {
     if (v >= params.volume_count) {
         return;
     }
-    uint a = params.sector_grid & 0xffffu;
-    uint b = params.sector_grid >> 16;
-    uint n = a * b;
-    // Units per column and in all; the float division is exact after the
-    // floor (its fraction is at least 1 / n, far above its rounding).
-    uint c = uint(65535.0 / float(n));
+    uint a = grid_a();
+    uint b = grid_b();
+    uint n = sector_count();
+    // Units per column and in all.
+    uint c = sector_column_units();
     uint units = n * c;
     uint base = v * n;
-    bool cos_weighted = (params.flags & FLAG_COS_DISTRIBUTION) != 0u;
-    bool nee = (params.flags & FLAG_NEE) != 0u;
     bool learned = (params.flags & FLAG_LEARN) != 0u;
     float weighted = 0.0;
     float total = 0.0;
@@ -86,9 +94,7 @@ void main() {
         float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;
-        // With NEE, scattering should find what NEE does not already carry.
-        float qs = nee ? max(q - q_direct[base + k], 0.0) : q;
-        total += cos_weighted ? qs * cos_k : qs;
+        total += distribution_weight(base + k, q, cos_k);
     }
     volume_sums[v] = vec2(weighted * 2.0 * PI / float(n), total);
     // Whole units: sector k gets the units between the floors of its
@@ -102,9 +108,7 @@ void main() {
     for (uint k = 0u; k < n; ++k) {
         uint w = c;
         if (total > 0.0) {
-            float q = max(q_values[base + k], 0.0);
-            float qs = nee ? max(q - q_direct[base + k], 0.0) : q;
-            running += cos_weighted ? qs * sector_cos(k, a, b) : qs;
+            running += distribution_weight(base + k, max(q_values[base + k], 0.0), sector_cos(k, a, b));
             uint end = k + 1u == n ? units : min(uint(running * scale), units);
             w = end - start;
             start = end;

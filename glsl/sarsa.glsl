@@ -31,11 +31,7 @@ SectorEntry load_sector(uint i) {
     return (i & 1u) == 0u ? SectorEntry(t.x, t.y) : SectorEntry(t.z, t.w);
 }
 
-// Units of one column of the alias tables, and P(k) of w units.
-uint sector_column_units() {
-    return uint(65535.0 / float(sector_count()));
-}
-
+// P(k) of a sector with w units.
 float sector_probability_of(uint units) {
     return float(units) / float(sector_count() * sector_column_units());
 }

@@ -132,9 +132,13 @@ impl SectorEntry {
     pub fn column_units(n: u32) -> u32 {
         65535 / n
     }
+    /// Units of its own sector's weight.
+    pub fn weight(&self) -> u32 {
+        self.weights & 0xffff
+    }
     /// P(k) of this entry's sector in a table over `n` sectors.
     pub fn p(&self, n: u32) -> f32 {
-        (self.weights & 0xffff) as f32 / (n * Self::column_units(n)) as f32
+        self.weight() as f32 / (n * Self::column_units(n)) as f32
     }
     /// Units of the column its own sector keeps.
     pub fn kept(&self) -> u32 {

@@ -143,11 +143,12 @@ fn alias_tables_give_each_sector_its_probability() {
     common::assert_no_validation_errors(&ctx);
     let c = SectorEntry::column_units(n as u32);
     let units = n as u32 * c;
+    let cos = sector_cosines(n, s.common.grid);
     for v in 0..64 {
         let t = &table[v * n..(v + 1) * n];
         // Whole units: the weights add up to W exactly, and each column
         // hands out exactly its own c units.
-        let total: u32 = t.iter().map(|e| e.weights & 0xffff).sum();
+        let total: u32 = t.iter().map(|e| e.weight()).sum();
         assert_eq!(total, units, "volume {v}: weights");
         let mut given = vec![0u32; n];
         for (k, e) in t.iter().enumerate() {
@@ -159,23 +160,20 @@ fn alias_tables_give_each_sector_its_probability() {
             given[e.alias() as usize] += c - e.kept();
             assert_eq!(
                 e.alias_weight(),
-                t[e.alias() as usize].weights & 0xffff,
+                t[e.alias() as usize].weight(),
                 "volume {v} sector {k}: the alias's weight"
             );
         }
         for k in 0..n {
             assert_eq!(
                 given[k],
-                t[k].weights & 0xffff,
+                t[k].weight(),
                 "volume {v} sector {k}: the table's units"
             );
         }
         // P follows Q cos θ (the default distribution) to within rounding
         // to units.
-        let [a, b] = s.common.grid;
-        let w: Vec<f64> = (0..n)
-            .map(|k| q[v * n + k] as f64 * sampling::sector_cos(k as u32, a, b) as f64)
-            .collect();
+        let w: Vec<f64> = (0..n).map(|k| q[v * n + k] as f64 * cos[k]).collect();
         let w_total: f64 = w.iter().sum();
         for k in 0..n {
             let p = t[k].p(n as u32) as f64;
