@@ -28,6 +28,9 @@ def main():
     ap.add_argument("--warmup", type=float, default=3.0, help="seconds before sampling (JIT compile)")
     ap.add_argument("--seconds", type=float, default=5.0, help="seconds of sampling")
     ap.add_argument("--top", type=int, default=8, help="functions to list")
+    ap.add_argument("--annotate", type=int, default=0, metavar="K",
+                    help="also print the K busiest functions' instructions with their samples "
+                         "(for a large function, its 40 busiest instructions)")
     ap.add_argument("command", nargs=argparse.REMAINDER, help="-- the render command")
     args = ap.parse_args()
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
@@ -87,6 +90,13 @@ def main():
     for count, start, size, fetch in sorted(functions, reverse=True)[:args.top]:
         what = f"texel fetch, descriptor offset {fetch}" if fetch else "shader code"
         print(f"{100 * count / max(total, 1):5.1f}%  {size:6d}  {what} at {start:#x}")
+    for count, start, size, fetch in sorted(functions, reverse=True)[:args.annotate]:
+        body = [a for a in sorted(code) if start <= a < start + size]
+        if len(body) > 120:
+            body = sorted(sorted(body, key=lambda a: -samples.get(a, 0))[:40])
+        print(f"\n{start:#x}: {100 * count / max(total, 1):.1f}%")
+        for a in body:
+            print(f"{100 * samples.get(a, 0) / max(total, 1):6.2f}%  {a - start:6d}  {code[a]}")
 
 
 if __name__ == "__main__":
