@@ -36,6 +36,16 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ),
     ("trace", "trace_neural", &["METHOD_NEURAL"]),
     ("trace", "trace_neural_nee", &["METHOD_NEURAL", "WITH_NEE"]),
+    (
+        "trace",
+        "trace_neural_table",
+        &["METHOD_NEURAL", "NEURAL_TABLE"],
+    ),
+    (
+        "trace",
+        "trace_neural_table_nee",
+        &["METHOD_NEURAL", "NEURAL_TABLE", "WITH_NEE"],
+    ),
     ("sarsa_probe", "sarsa_probe_fixed", &["FIXED_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe", &["FLOAT_ATOMICS"]),
     ("sarsa_probe", "sarsa_probe_cas", &[]),

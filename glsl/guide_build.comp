@@ -3,7 +3,8 @@
 // pass accumulated into Q. With alpha = 1 / (1 + visits), Q is the running
 // mean of its targets, so Q <- (Q N + sum) / (N + count); the share NEE
 // carries likewise. Then, always: the irradiance-like sum the Sarsa target needs,
-// (2 pi / n) sum_j Q_j cos(theta_j), the total weight of its distribution
+// (2 pi / n) sum_j Q_j cos(theta_j) (with FLAG_MAX_TARGET, which only Neural-Q
+// sets, max_j Q_j cos(theta_j)), the total weight of its distribution
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
 // sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
 // as an alias table in whole units (see SectorEntry), so a sample costs one
@@ -86,6 +87,7 @@ void main() {
     uint base = v * n;
     bool learned = (params.flags & FLAG_LEARN) != 0u;
     float weighted = 0.0;
+    float best = 0.0;
     float total = 0.0;
     for (uint k = 0u; k < n; ++k) {
         if (learned) {
@@ -94,9 +96,11 @@ void main() {
         float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
         weighted += q * cos_k;
+        best = max(best, q * cos_k);
         total += distribution_weight(base + k, q, cos_k);
     }
-    volume_sums[v] = vec2(weighted * 2.0 * PI / float(n), total);
+    bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
+    volume_sums[v] = vec2(max_target ? best : weighted * 2.0 * PI / float(n), total);
     // Whole units: sector k gets the units between the floors of its
     // running sum's start and end (scaled to W), the last end being W, so
     // the weights add up to W exactly (the last sector takes what rounding

@@ -1,15 +1,31 @@
 // The Neural-Q guide (SPEC 4.3) behind the guide seam of guide.glsl: the
-// state encoding, inference of every sector's Q at a path vertex, sector
-// sampling from it, and offering transitions to the training batch. Needs
-// shared.h, sampling.glsl, bsdf.glsl and the `params` push constants; the
-// sector grid must have MLP_OUTPUTS sectors.
+// state encoding, inference of every sector's Q at a path vertex and sector
+// sampling from it; neural_offer.glsl offers the transitions to training.
+// Needs shared.h, sampling.glsl, bsdf.glsl and the `params` push constants;
+// the sector grid must have MLP_OUTPUTS sectors.
 #ifndef QTRACE_NEURAL_GLSL
 #define QTRACE_NEURAL_GLSL
 
 #include "grid.glsl"
 #include "mlp.glsl"
 
-layout(std430, set = 0, binding = B_MLP_COUNT) buffer Batch { MlpBatch batch; };
+// What the guide knows at a path vertex: the state (p, n), the total of
+// the sector weights it inferred into neural_w (negative: the vertex before
+// the camera ray, which has no state) and (2 pi / n) sum_j Q_j cos(theta_j)
+// (expected target), or max_j Q_j cos(theta_j) (Q-learning).
+struct GuideVertex {
+    vec3 p;
+    vec3 n;
+    float total;
+    float reach;
+};
+
+bool guide_has_state(GuideVertex g) {
+    return g.total >= 0.0;
+}
+
+#include "neural_offer.glsl"
+
 layout(std430, set = 0, binding = B_MLP_INPUTS) writeonly buffer BatchInputs { vec4 batch_inputs[]; };
 layout(std430, set = 0, binding = B_MLP_TARGETS) writeonly buffer BatchTargets { MlpTarget batch_targets[]; };
 layout(std430, set = 0, binding = B_NEURAL_VERTICES) readonly buffer Vertices { vec4 neural_vertices[]; };
@@ -60,17 +76,6 @@ void neural_encode(vec3 p, vec3 n) {
 // The sampling weight of every sector at the current vertex: Q, or Q cos
 // theta. (Kept, not recomputed: measured 20% faster on llvmpipe.)
 float neural_w[MLP_OUTPUTS];
-
-// What the guide knows at a path vertex: the state (p, n), the total of
-// the sector weights it inferred into neural_w (negative: the vertex before
-// the camera ray, which has no state) and (2 pi / n) sum_j Q_j cos(theta_j)
-// (expected target), or max_j Q_j cos(theta_j) (Q-learning).
-struct GuideVertex {
-    vec3 p;
-    vec3 n;
-    float total;
-    float reach;
-};
 
 GuideVertex guide_none() {
     return GuideVertex(vec3(0.0), vec3(0.0), -1.0, 0.0);
@@ -159,58 +164,6 @@ uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out flo
     }
     p = guide_sector_probability(g, sector);
     return sector;
-}
-
-// Per pixel, the transition its path kept for training (two vec4s:
-// position and target; normal and sector + 1, or 0 when it offers none).
-// src/guide/neural.rs's gather pass packs the offered ones into the batch
-// in pixel order, so which transitions train, and in what order, does not
-// depend on the order invocations run: one seed, one network.
-layout(std430, set = 0, binding = B_NEURAL_PENDING) buffer Pending { vec4 pending[]; };
-
-// The path's kept transition: one of its transitions, uniformly (reservoir
-// sampling over them as they land).
-uint kept_count;
-vec3 kept_p;
-vec3 kept_n;
-uint kept_k;
-float kept_target;
-
-void guide_begin_path() {
-    kept_count = 0u;
-}
-
-// Q learns all the light that reaches `from` through sector k beyond NEE at
-// `from`: what the vertex it reached reflects, NEE there included.
-void guide_learn(GuideVertex from, uint k, float q, float reflected, float direct,
-                 inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    if (from.total >= 0.0) {
-        float target = reflected + direct;
-        float td = target - q;
-        td_sq_sum += td * td;
-        td_count += 1u;
-        kept_count += 1u;
-        if (rng_next(rng) * float(kept_count) < 1.0) {
-            kept_p = from.p;
-            kept_n = from.n;
-            kept_k = k;
-            kept_target = target;
-        }
-    }
-}
-
-// With NEE, of an emitter it reached, only the MIS share scattering brings.
-void guide_learn_emitter(GuideVertex from, uint k, float q, float le, float mis_weight,
-                         inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    guide_learn(from, k, q, le * mis_weight, 0.0, td_sq_sum, td_count, rng);
-}
-
-// A learning pass's path at pixel `index` ended: it offers its kept
-// transition with the batch's probability.
-void guide_end_path(uint index, inout uint rng) {
-    bool offer = kept_count > 0u && rng_next(rng) < batch.probability;
-    pending[2u * index] = vec4(kept_p, kept_target);
-    pending[2u * index + 1u] = vec4(kept_n, offer ? float(kept_k + 1u) : 0.0);
 }
 
 #endif

@@ -46,6 +46,8 @@
 #define B_NEURAL_VERTICES 28
 #define B_LOOKUP_TRIANGLES 29
 #define B_NEURAL_PENDING 30
+// Neural-Q with inference at the volumes: each volume's point and normal.
+#define B_NEURAL_STATES 31
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

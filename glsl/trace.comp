@@ -15,8 +15,10 @@ layout(push_constant) uniform Push { PassParams params; };
 
 #if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
 #define GUIDED
-#ifdef METHOD_SARSA
+#if defined(METHOD_SARSA)
 #include "sarsa.glsl"
+#elif defined(NEURAL_TABLE)
+#include "neural_table.glsl"
 #else
 #include "neural.glsl"
 #endif

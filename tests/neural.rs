@@ -8,7 +8,7 @@ use common::Lcg;
 use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
-use qtrace::guide::neural::{encode, scene_vertices, Encoding, Target};
+use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target};
 use qtrace::guide::{Common, Distribution, GuideSettings, NeuralGuide, NeuralSettings};
 use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
 use qtrace::sampling;
@@ -178,9 +178,18 @@ fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
     assert_eq!(guided.stats.image_spp, spp - reset.unwrap_or(0));
 }
 
+/// Inference at every vertex.
 #[test]
 fn neural_converges_to_pt_on_the_cornell_box() {
-    unbiased("cornell-box", false, 1024, small());
+    unbiased(
+        "cornell-box",
+        false,
+        1024,
+        NeuralSettings {
+            inference: Inference::Vertices,
+            ..small()
+        },
+    );
 }
 
 #[test]
@@ -188,8 +197,8 @@ fn neural_with_nee_converges_to_pt_on_the_cornell_box() {
     unbiased("cornell-box", true, 256, small());
 }
 
-/// With the Q-learning target, sampling in proportion to Q, and the image
-/// restarted after 128 training passes.
+/// Inference at every vertex, with the Q-learning target, sampling in
+/// proportion to Q, and the image restarted after 128 training passes.
 #[test]
 fn neural_converges_to_pt_on_the_indirectly_lit_room() {
     unbiased(
@@ -197,6 +206,7 @@ fn neural_converges_to_pt_on_the_indirectly_lit_room() {
         false,
         1024,
         NeuralSettings {
+            inference: Inference::Vertices,
             target: Target::Max,
             common: Common {
                 distribution: Distribution::Q,
@@ -206,6 +216,95 @@ fn neural_converges_to_pt_on_the_indirectly_lit_room() {
             ..small()
         },
     );
+}
+
+/// Inference at the volumes (the default) samples from tables instead of
+/// the network: the converged image is still pt's.
+#[test]
+fn neural_inferring_at_volumes_converges_to_pt_on_the_cornell_box() {
+    unbiased(
+        "cornell-box",
+        false,
+        1024,
+        NeuralSettings {
+            inference: Inference::Volumes,
+            ..small()
+        },
+    );
+}
+
+/// ... with NEE, the Q-learning target (the tables' max sums) and sampling
+/// in proportion to Q.
+#[test]
+fn neural_inferring_at_volumes_with_nee_converges_to_pt_on_the_indirectly_lit_room() {
+    unbiased(
+        "indirect-room",
+        true,
+        256,
+        NeuralSettings {
+            inference: Inference::Volumes,
+            target: Target::Max,
+            common: Common {
+                distribution: Distribution::Q,
+                ..Default::default()
+            },
+            ..small()
+        },
+    );
+}
+
+/// The tables hold the network's Q at every volume's point and normal, as
+/// the CPU twin infers it, and sample in proportion to Q cos(theta) (to
+/// within the alias table's rounding to whole units, 2 in 65535).
+#[test]
+fn volume_tables_hold_the_network_at_the_volumes() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let settings = NeuralSettings {
+        inference: Inference::Volumes,
+        volumes: Some(100),
+        ..small()
+    };
+    let guide = NeuralGuide::new(&ctx, &scene, &settings, 5, 64 * 64).unwrap();
+    let shape = guide.network.shape;
+    let mut rng = Lcg(11);
+    let mut p = shape.init(3, 0.5);
+    for layer in &shape.layers() {
+        for o in 0..layer.fan_out {
+            p[layer.bias(o)] += rng.next() - 0.5;
+        }
+    }
+    guide.network.upload_params(&p).unwrap();
+    guide.refresh(&ctx).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let table = guide.table().expect("inference at the volumes has tables");
+    assert_eq!(table.volumes.len(), 100);
+    let q = table.download_q().unwrap();
+    let probabilities = table.download_probabilities().unwrap();
+    let n = shape.outputs as usize;
+    let (a, b) = (settings.common.grid[0], settings.common.grid[1]);
+    let cos: Vec<f32> = (0..n as u32)
+        .map(|k| sampling::sector_cos(k, a, b))
+        .collect();
+    for (v, volume) in table.volumes.iter().enumerate() {
+        let x = guide.encode(volume.position.into(), volume.normal.into());
+        let cpu = shape.forward(&p, &x);
+        assert_close(
+            &format!("Q at volume {v}"),
+            &q[v * n..(v + 1) * n],
+            &cpu,
+            1e-5,
+        );
+        let total: f32 = (0..n).map(|k| cpu[k] * cos[k]).sum();
+        for k in 0..n {
+            let expected = cpu[k] * cos[k] / total;
+            let got = probabilities[v * n + k];
+            assert!(
+                (got - expected).abs() <= 3.0 / 65535.0,
+                "volume {v} sector {k}: P {got}, Q cos share {expected}"
+            );
+        }
+    }
 }
 
 /// The white furnace (every pixel 1): the guided estimator matches it even

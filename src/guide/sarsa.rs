@@ -371,8 +371,8 @@ impl SarsaGuide {
         });
     }
 
-    /// Folds this pass's targets into Q and rebuilds every distribution, in
-    /// one pass over the volumes; `params` must ask to learn.
+    /// Folds this pass's targets into Q (where `params` asks to learn) and
+    /// rebuilds every distribution, in one pass over the volumes.
     pub fn record_update(&self, rec: &mut Recorder<'_>, params: &PassParams) {
         self.record_build(rec, bytemuck::bytes_of(params));
     }

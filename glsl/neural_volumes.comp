@@ -1,0 +1,38 @@
+#version 460
+// Neural-Q with inference at the volumes: Q of every sector at each radiance
+// volume's point and normal, the network's output as the trace kernel would
+// infer it there, into the Q table guide_build.comp turns into the volumes'
+// sums and alias tables.
+
+#include "shared.h"
+#include "rng.glsl"
+#include "sampling.glsl"
+
+layout(local_size_x = MLP_LANES) in;
+
+layout(push_constant) uniform Push { PassParams params; };
+
+#include "bsdf.glsl"
+#include "neural.glsl"
+
+// Per volume: (position, 0), (normal, 0).
+layout(std430, set = 0, binding = B_NEURAL_STATES) readonly buffer States { vec4 states[]; };
+layout(std430, set = 0, binding = B_Q) writeonly buffer QValues { float q_values[]; };
+
+void main() {
+    uint v = gl_GlobalInvocationID.x;
+    if (v >= params.volume_count) {
+        return;
+    }
+    neural_encode(states[2u * v].xyz, states[2u * v + 1u].xyz);
+    mlp_hidden_layers();
+    for (uint k4 = 0u; 4u * k4 < MLP_OUTPUTS; k4++) {
+        vec4 z = mlp_output4(k4);
+        for (uint c = 0u; c < 4u; c++) {
+            uint k = 4u * k4 + c;
+            if (k < MLP_OUTPUTS) {
+                q_values[v * MLP_OUTPUTS + k] = mlp_softplus(z[c]);
+            }
+        }
+    }
+}

@@ -1,0 +1,161 @@
+// Radiance volumes and the tables that guide sampling in them (SPEC 4.2):
+// the nearest-volume lookup, each volume's alias table over sectors, its
+// sums and Q. The reading side of the guide seam (guide.glsl) for the guides
+// that sample from these tables: Expected Sarsa (sarsa.glsl), which learns
+// them, and Neural-Q with inference at the volumes (neural_table.glsl),
+// whose network fills them. Needs shared.h, sampling.glsl, bsdf.glsl and
+// the `params` push constants.
+#ifndef QTRACE_VOLUMES_GLSL
+#define QTRACE_VOLUMES_GLSL
+
+#include "grid.glsl"
+
+// The tables the trace kernel only reads are uniform texel buffers of raw
+// words (one vector gather per read on lavapipe; see scene.glsl).
+layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 2 SectorEntry per texel
+// Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), or the max
+// target's max_j Q_j cos(theta_j); total weight of its sector
+// distribution), two volumes per texel; see guide_build.comp.
+layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
+layout(set = 0, binding = B_Q) uniform usamplerBuffer q_texels; // 4 Q per texel
+// The lookup tables of src/guide/lookup.rs: per triangle, its cells or its
+// two sides' volumes; cells (uvec2, two per texel); list entries (volume
+// position, volume index bits).
+layout(set = 0, binding = B_LOOKUP_TRIANGLES) uniform usamplerBuffer lookup_triangle_texels;
+layout(set = 0, binding = B_LOOKUP_CELLS) uniform usamplerBuffer lookup_cell_texels;
+layout(set = 0, binding = B_LOOKUP_ITEMS) uniform usamplerBuffer lookup_item_texels;
+
+SectorEntry load_sector(uint i) {
+    uvec4 t = texelFetch(sector_texels, int(i >> 1u));
+    return (i & 1u) == 0u ? SectorEntry(t.x, t.y) : SectorEntry(t.z, t.w);
+}
+
+// P(k) of a sector with w units.
+float sector_probability_of(uint units) {
+    return float(units) / float(sector_count() * sector_column_units());
+}
+
+float load_q(uint i) {
+    return uintBitsToFloat(texelFetch(q_texels, int(i >> 2u))[i & 3u]);
+}
+
+
+// Exact nearest volume to p, a point shading the front (or back) side of
+// triangle `tri` (index `triangle`), among the volumes facing that side;
+// NO_VOLUME if none. The triangle's entry or its cell holds the answer, or a
+// short list that does.
+uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
+    uvec4 t = texelFetch(lookup_triangle_texels, int(triangle));
+    if (t.y == 0u) {
+        return front ? t.z : t.w;
+    }
+    uint nu = t.y & 0xffffu;
+    uint nv = t.y >> 16;
+    uint cell = t.x + (front ? 0u : nu * nv);
+    if (nu * nv > 1u) {
+        // Barycentric coordinates of p: its offset is along the triangle's
+        // normal, so it drops out. (Triangles with a small angle at v0, where
+        // these lose precision, have one cell; see src/guide/lookup.rs.)
+        vec3 q = p - tri.v0;
+        float d00 = dot(tri.e1, tri.e1);
+        float d01 = dot(tri.e1, tri.e2);
+        float d11 = dot(tri.e2, tri.e2);
+        float d20 = dot(q, tri.e1);
+        float d21 = dot(q, tri.e2);
+        float inv = 1.0 / (d00 * d11 - d01 * d01);
+        vec2 uv = vec2(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv;
+        uvec2 c = uvec2(clamp(uv * vec2(nu, nv), vec2(0.0), vec2(nu - 1u, nv - 1u)));
+        cell += c.x + nu * c.y;
+    }
+    uvec4 pair = texelFetch(lookup_cell_texels, int(cell >> 1u));
+    uvec2 entry = (cell & 1u) == 0u ? pair.xy : pair.zw;
+    if (entry.y == 0u) {
+        return entry.x;
+    }
+    uint best = NO_VOLUME;
+    float best_d2 = FAR;
+    for (uint i = entry.x; i < entry.x + entry.y; ++i) {
+        vec4 item = uintBitsToFloat(texelFetch(lookup_item_texels, int(i)));
+        vec3 d = item.xyz - p;
+        float d2 = dot(d, d);
+        if (d2 < best_d2) {
+            best = floatBitsToUint(item.w);
+            best_d2 = d2;
+        }
+    }
+    return best;
+}
+
+// A volume's sums, zero for NO_VOLUME.
+vec2 volume_sums_of(uint v) {
+    if (v == NO_VOLUME) {
+        return vec2(0.0);
+    }
+    uvec4 pair = texelFetch(volume_sum_texels, int(v >> 1u));
+    return uintBitsToFloat((v & 1u) == 0u ? pair.xy : pair.zw);
+}
+
+// The guide seam's reading side (guide.glsl).
+
+// A path vertex's volume and that volume's sums; and the vertex's point and
+// normal (zero before the camera ray), which a learner that is not the
+// table itself (neural_table.glsl) learns at. Sarsa leaves them unread, so
+// they cost nothing there.
+struct GuideVertex {
+    uint volume;
+    vec2 sums;
+    vec3 p;
+    vec3 n;
+};
+
+GuideVertex guide_vertex(uint volume) {
+    return GuideVertex(volume, volume_sums_of(volume), vec3(0.0), vec3(0.0));
+}
+
+GuideVertex guide_none() {
+    return GuideVertex(NO_VOLUME, vec2(0.0), vec3(0.0), vec3(0.0));
+}
+
+GuideVertex guide_at(uint triangle, Triangle tri, vec3 p, vec3 n, bool front) {
+    uint v = nearest_volume(triangle, tri, p, front);
+    return GuideVertex(v, volume_sums_of(v), p, n);
+}
+
+bool guide_covers(GuideVertex g) {
+    return g.volume != NO_VOLUME;
+}
+
+float guide_total(GuideVertex g) {
+    return g.sums.y;
+}
+
+float guide_irradiance(GuideVertex g) {
+    return g.sums.x;
+}
+
+float guide_sector_probability(GuideVertex g, uint k) {
+    return sector_probability_of(load_sector(g.volume * sector_count() + k).weights & 0xffffu);
+}
+
+float guide_sector_q(GuideVertex g, uint k) {
+    return g.volume == NO_VOLUME ? 0.0 : max(load_q(g.volume * sector_count() + k), 0.0);
+}
+
+// One read of the alias table serves either side of the mixture: with
+// `pick`, the alias method (u, scaled to [0, n), picks a column; its
+// fraction, in the column's units, decides between the column's sector and
+// its alias); without, the probability of `sector`, which BSDF sampling
+// chose.
+uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
+    uint n = sector_count();
+    uint c = sector_column_units();
+    float x = u * float(n);
+    uint column = min(uint(x), n - 1u);
+    SectorEntry e = load_sector(g.volume * n + (pick ? column : sector));
+    uint unit = min(uint((x - float(column)) * float(c)), c - 1u);
+    bool keep = !pick || unit < (e.column & 0xffffu);
+    p = sector_probability_of(keep ? e.weights & 0xffffu : e.weights >> 16);
+    return pick ? (keep ? column : e.column >> 16) : sector;
+}
+
+#endif
