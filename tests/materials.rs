@@ -266,7 +266,7 @@ fn neural_converges_to_pt_on_glossy_and_glass_scenes() {
     for (name, nee) in [("glossy-cornell", false), ("glass-cornell", true)] {
         let settings = NeuralSettings {
             width: 16,
-            batch: 1024,
+            batch: Some(1024),
             ..Default::default()
         };
         common::assert_converges_to_pt(

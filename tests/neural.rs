@@ -148,7 +148,7 @@ fn gpu_training_step_matches_cpu() {
 fn small() -> NeuralSettings {
     NeuralSettings {
         width: 16,
-        batch: 1024,
+        batch: Some(1024),
         ..Default::default()
     }
 }

@@ -16,7 +16,7 @@ fn overrides(method: Method, spp: u32, seed: u32) -> Overrides {
             ..Default::default()
         })),
         Method::Neural => Some(GuideSettings::Neural(NeuralSettings {
-            batch: 1024,
+            batch: Some(1024),
             ..Default::default()
         })),
     };

@@ -207,6 +207,7 @@ impl GuideSettings {
                 let all = NeuralSettings {
                     common,
                     volumes: Some(0),
+                    batch: Some(0),
                     ..Default::default()
                 };
                 e(x, Self::Neural(all))
@@ -537,7 +538,7 @@ mod tests {
             width: 8,
             layers: 3,
             learning_rate: 1e-3,
-            batch: 100,
+            batch: Some(100),
             steps: 2,
             target: neural::Target::Max,
             encoding: neural::Encoding::Vertices,
