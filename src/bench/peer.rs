@@ -46,12 +46,22 @@ pub enum PeerError {
 }
 
 /// The interpreter (`QTRACE_PEER_PYTHON`, default `python3`) and the script
-/// (`QTRACE_PEER_SCRIPT`, default the one in this source tree).
+/// (`QTRACE_PEER_SCRIPT`; else the one in the source tree the binary was
+/// built from, if it is still there; else `scripts/` of the current
+/// directory, for a binary built elsewhere and run from a checkout).
 fn command() -> (String, PathBuf) {
     let python = std::env::var("QTRACE_PEER_PYTHON").unwrap_or_else(|_| "python3".into());
+    const SCRIPT: &str = "scripts/mitsuba_speed.py";
     let script = std::env::var_os("QTRACE_PEER_SCRIPT")
         .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba_speed.py"));
+        .unwrap_or_else(|| {
+            let built = Path::new(env!("CARGO_MANIFEST_DIR")).join(SCRIPT);
+            if built.is_file() {
+                built
+            } else {
+                PathBuf::from(SCRIPT)
+            }
+        });
     (python, script)
 }
 
