@@ -540,6 +540,8 @@ fn bad_neural_options() {
         ("neural.layers=0", "layers"),
         ("neural.layers=-1", "layers"),
         ("neural.encoding=fourier", "encoding"),
+        ("neural.inference=everywhere", "inference"),
+        ("neural.volumes=0", "volumes"),
         ("neural.widht=8", "unknown field"),
     ] {
         expect_error(
@@ -600,6 +602,14 @@ fn bad_neural_options() {
         ],
         &[],
         &["batch in [neural]", "MiB"],
+    );
+    // Tables at the volumes beyond a storage buffer.
+    expect_error(
+        &dir,
+        &scene,
+        &["--method", "neural", "--set", "neural.volumes=4194304"],
+        &[],
+        &["neural volumes", "sectors in [neural]", "MiB"],
     );
 }
 

@@ -256,7 +256,7 @@ impl NeuralSettings {
             ));
         }
         match self.inference {
-            Inference::Volumes => self.table().check_device(scene, device),
+            Inference::Volumes => self.table().check_tables_fit(scene, device, "neural"),
             Inference::Vertices => Ok(()),
         }
     }

@@ -108,18 +108,34 @@ impl SarsaSettings {
     /// Checks the tables fit `device`'s buffers, before placing volumes
     /// (which takes a while for huge counts).
     pub fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String> {
+        self.check_tables_fit(scene, device, "sarsa")
+    }
+
+    /// [`SarsaSettings::check_device`] for the tables of the guide whose
+    /// table is `[guide]` (Neural-Q's inference at the volumes has them too).
+    pub fn check_tables_fit(
+        &self,
+        scene: &Scene,
+        device: &DeviceInfo,
+        guide: &str,
+    ) -> Result<(), String> {
         let count = self.volume_count(volumes::placement_area(scene));
         // The largest per-sector buffer is the alias table.
         let bytes = count as u64 * self.sectors() as u64 * size_of::<SectorEntry>() as u64;
         let limit = device.max_storage_buffer_range;
         if bytes > limit {
             return Err(format!(
-                "{} sarsa volumes of {} sectors need {} MiB per guide buffer; device '{}' allows {} MiB: use fewer volumes or sectors, or a smaller memory_mib in [sarsa]",
+                "{} {guide} volumes of {} sectors need {} MiB per guide buffer; device '{}' allows {} MiB: use fewer volumes or sectors{} in [{guide}]",
                 count,
                 self.sectors(),
                 bytes >> 20,
                 device.name,
-                limit >> 20
+                limit >> 20,
+                if guide == "sarsa" {
+                    ", or a smaller memory_mib"
+                } else {
+                    ""
+                }
             ));
         }
         Ok(())
