@@ -603,6 +603,21 @@ fn bad_neural_options() {
         &[],
         &["batch in [neural]", "MiB"],
     );
+    // Training on the volumes' means needs inference at the volumes.
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "neural",
+            "--set",
+            "neural.training=volumes",
+            "--set",
+            "neural.inference=vertices",
+        ],
+        &[],
+        &["[neural] training", "inference"],
+    );
     // Tables at the volumes beyond a storage buffer.
     expect_error(
         &dir,

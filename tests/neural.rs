@@ -8,7 +8,7 @@ use common::Lcg;
 use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
-use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target};
+use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target, Training};
 use qtrace::guide::{Common, Distribution, GuideSettings, NeuralGuide, NeuralSettings};
 use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
 use qtrace::sampling;
@@ -250,6 +250,93 @@ fn neural_inferring_at_volumes_with_nee_converges_to_pt_on_the_indirectly_lit_ro
             },
             ..small()
         },
+    );
+}
+
+/// Training on the volumes' target means: still pt's image, with and
+/// without NEE (whose share the sampling tables leave out).
+#[test]
+fn neural_training_on_volume_means_converges_to_pt_on_the_cornell_box() {
+    unbiased(
+        "cornell-box",
+        false,
+        1024,
+        NeuralSettings {
+            training: Training::Volumes,
+            steps: 2,
+            ..small()
+        },
+    );
+}
+
+#[test]
+fn neural_training_on_volume_means_with_nee_converges_to_pt_on_the_indirectly_lit_room() {
+    unbiased(
+        "indirect-room",
+        true,
+        256,
+        NeuralSettings {
+            training: Training::Volumes,
+            ..small()
+        },
+    );
+}
+
+/// Each row training draws from the volumes is a volume's encoded state, a
+/// sector and that cell's mean target.
+#[test]
+fn training_rows_drawn_from_volumes_are_cells_of_the_target_means() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let settings = NeuralSettings {
+        training: Training::Volumes,
+        volumes: Some(50),
+        batch: Some(300),
+        ..small()
+    };
+    let mut guide = NeuralGuide::new(&ctx, &scene, &settings, 5, 64 * 64).unwrap();
+    let n = settings.sectors() as usize;
+    let means = guide
+        .target_means()
+        .expect("training on the volumes has means");
+    let volumes = means.volumes.clone();
+    // A distinct mean per cell names the cell a row drew.
+    let q: Vec<f32> = (0..volumes.len() * n)
+        .map(|c| ((c / n) * 1000 + c % n + 1) as f32)
+        .collect();
+    means.upload_q(&ctx, &q).unwrap();
+    let mut params = qtrace::shaders::PassParams::default();
+    guide.set_params(&mut params, true);
+    ctx.submit(None, |rec| guide.record_update(rec, &params))
+        .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let inputs = guide.network.download_inputs().unwrap();
+    let targets = guide.network.download_targets().unwrap();
+    let width = guide.network.shape.inputs as usize;
+    let mut seen = std::collections::HashSet::new();
+    for (row, t) in targets.iter().take(300).enumerate() {
+        let v = (t.target as usize - 1) / 1000;
+        let k = (t.target as usize - 1) % 1000;
+        assert_eq!(
+            k, t.sector as usize,
+            "row {row}: target {} for sector {}",
+            t.target, t.sector
+        );
+        let volume = &volumes[v];
+        let expected = encode(scene.bounds(), volume.position.into(), volume.normal.into());
+        assert_close(
+            &format!("row {row}'s input"),
+            &inputs[row * width..(row + 1) * width],
+            &expected,
+            1e-5,
+        );
+        seen.insert((v, k));
+    }
+    // Drawn at random: many distinct cells.
+    assert!(
+        seen.len() > 250,
+        "{} distinct cells in 300 rows",
+        seen.len()
     );
 }
 

@@ -264,6 +264,23 @@ impl GuideSettings {
                     spirv::TRACE_SARSA_CAS,
                 ],
             )?,
+            // Training on the volumes adds targets as Sarsa's kernel does.
+            Self::Neural(n) if n.training == neural::Training::Volumes => {
+                let variants = if nee {
+                    [
+                        spirv::TRACE_SARSA_NEE_FIXED,
+                        spirv::TRACE_SARSA_NEE,
+                        spirv::TRACE_SARSA_NEE_CAS,
+                    ]
+                } else {
+                    [
+                        spirv::TRACE_SARSA_FIXED,
+                        spirv::TRACE_SARSA,
+                        spirv::TRACE_SARSA_CAS,
+                    ]
+                };
+                n.table().pick(device, variants)?
+            }
             Self::Neural(n) => match (n.inference, nee) {
                 (neural::Inference::Vertices, false) => spirv::TRACE_NEURAL,
                 (neural::Inference::Vertices, true) => spirv::TRACE_NEURAL_NEE,
@@ -543,6 +560,7 @@ mod tests {
             target: neural::Target::Max,
             encoding: neural::Encoding::Vertices,
             inference: neural::Inference::Volumes,
+            training: neural::Training::Volumes,
             volumes: Some(99),
             ..Default::default()
         });

@@ -134,6 +134,11 @@ impl Network {
     }
 
     /// Buffers a kernel that fills the batch or reads the network binds.
+    /// Rows the batch holds.
+    pub fn capacity(&self) -> u32 {
+        self.capacity
+    }
+
     pub fn bindings(&self) -> [(u32, &Buffer); 4] {
         [
             (shaders::B_MLP_PARAMS, &self.params),
@@ -159,6 +164,14 @@ impl Network {
     /// sets how likely the next pass offers each transition.
     pub fn record_training(&mut self, rec: &mut Recorder<'_>, steps: u32) {
         for _ in 0..steps {
+            self.record_step(rec);
+        }
+        self.record_reset(rec);
+    }
+
+    /// Records one training step on the batch as it stands.
+    pub fn record_step(&mut self, rec: &mut Recorder<'_>) {
+        {
             self.steps += 1;
             let push = self.push();
             let push = bytemuck::bytes_of(&push);
@@ -185,6 +198,10 @@ impl Network {
                 groups: [self.shape.outputs, 1, 1],
             });
         }
+    }
+
+    /// Records the batch's reset: empty, and the next pass's offer chance.
+    pub fn record_reset(&mut self, rec: &mut Recorder<'_>) {
         rec.dispatch(Pass {
             name: "mlp batch reset",
             pipeline: &self.batch_pass,

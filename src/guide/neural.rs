@@ -56,6 +56,20 @@ pub enum Inference {
     Volumes,
 }
 
+/// What the network trains on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Training {
+    /// Each path offers one of its transitions, at its own point and normal.
+    #[default]
+    Transitions,
+    /// Every transition's TD target is tallied at its nearest volume and
+    /// sector (as Sarsa tallies its own), folded into running means, and
+    /// each training step draws rows from those means: a volume's state,
+    /// a sector, the mean target. Needs `inference = "volumes"`.
+    Volumes,
+}
+
 /// The `[neural]` table. The network has one output per sector of the grid.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -78,6 +92,7 @@ pub struct NeuralSettings {
     pub target: Target,
     pub encoding: Encoding,
     pub inference: Inference,
+    pub training: Training,
     /// Radiance volumes for `inference = "volumes"`; None: as Sarsa's
     /// default, one per `sarsa::PIXELS_PER_VOLUME` pixels of the image.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -96,6 +111,7 @@ impl Default for NeuralSettings {
             target: Target::Expected,
             encoding: Encoding::Frequency,
             inference: Inference::Volumes,
+            training: Training::Transitions,
             volumes: None,
         }
     }
@@ -228,6 +244,9 @@ impl NeuralSettings {
             return Err(format!("steps = {} must lie in 1..=64", self.steps));
         }
         self.table().validate()?;
+        if self.training == Training::Volumes && self.inference != Inference::Volumes {
+            return Err("training = \"volumes\" needs inference = \"volumes\"".into());
+        }
         self.shape().validate()
     }
 
@@ -341,7 +360,7 @@ fn kernel_bindings<'a>(
 struct VolumeTable {
     guide: SarsaGuide,
     /// Per volume: (position, 0), (normal, 0).
-    _states: Buffer,
+    states: Buffer,
     infer: ComputePipeline,
     infer_set: DescriptorSet,
 }
@@ -376,6 +395,16 @@ pub struct NeuralGuide {
     gather: ComputePipeline,
     gather_set: DescriptorSet,
     table: Option<VolumeTable>,
+    targets: Option<TargetTable>,
+}
+
+/// With `training = "volumes"`: the tallies and running means of the TD
+/// targets per volume and sector (a Sarsa table the trace kernel adds to,
+/// over the same volumes), and the pass that draws training rows from them.
+struct TargetTable {
+    means: SarsaGuide,
+    gather: ComputePipeline,
+    gather_set: DescriptorSet,
 }
 
 impl NeuralGuide {
@@ -436,6 +465,29 @@ impl NeuralGuide {
                 &pending,
             )?),
         };
+        let targets = match (&table, settings.training) {
+            (Some(t), Training::Volumes) => {
+                let means = SarsaGuide::new(ctx, scene, &settings.table(), seed)?;
+                let gather = ComputePipeline::specialized(
+                    ctx,
+                    "mlp gather from volumes",
+                    spirv::MLP_GATHER_TABLE,
+                    size_of::<PassParams>() as u32,
+                    &network.shape.constants(),
+                )?;
+                // The means' Q first: the gather reads it at B_Q.
+                let mut bindings = means.bindings().to_vec();
+                bindings.extend(kernel_bindings(&network, &vertex_buffer, &pending));
+                bindings.push((shaders::B_NEURAL_STATES, &t.states));
+                let gather_set = DescriptorSet::new(ctx, &gather, &bindings)?;
+                Some(TargetTable {
+                    means,
+                    gather,
+                    gather_set,
+                })
+            }
+            _ => None,
+        };
         let guide = Self {
             settings: settings.clone(),
             network,
@@ -446,6 +498,7 @@ impl NeuralGuide {
             gather,
             gather_set,
             table,
+            targets,
         };
         guide.refresh(ctx)?;
         Ok(guide)
@@ -485,7 +538,7 @@ impl NeuralGuide {
         let infer_set = DescriptorSet::new(ctx, &infer, &bindings)?;
         Ok(VolumeTable {
             guide,
-            _states: states,
+            states,
             infer,
             infer_set,
         })
@@ -506,6 +559,12 @@ impl NeuralGuide {
         self.table.as_ref().map(|t| &t.guide)
     }
 
+    /// With `training = "volumes"`: the running means of the TD targets per
+    /// volume and sector that training draws its rows from.
+    pub fn target_means(&self) -> Option<&SarsaGuide> {
+        self.targets.as_ref().map(|t| &t.means)
+    }
+
     /// Radiance volumes the tables hold (inference at the volumes), else 0.
     pub fn volume_count(&self) -> u64 {
         self.table
@@ -513,9 +572,14 @@ impl NeuralGuide {
             .map_or(0, |t| t.guide.volumes.len() as u64)
     }
 
-    /// What the network has learned, to resume from (the tables follow from it).
+    /// What the network has learned, to resume from (the tables follow
+    /// from it), and the target means it trains on.
     pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
-        self.network.save()
+        let mut blobs = self.network.save()?;
+        if let Some(t) = &self.targets {
+            blobs.extend(t.means.save()?);
+        }
+        Ok(blobs)
     }
 
     /// Restores what [`NeuralGuide::save`] gave, and the tables from it.
@@ -525,6 +589,9 @@ impl NeuralGuide {
         blobs: &[(String, Vec<u8>)],
     ) -> Result<(), String> {
         self.network.restore(blobs)?;
+        if let Some(t) = &self.targets {
+            t.means.restore(ctx, blobs)?;
+        }
         self.refresh(ctx).map_err(|e| e.to_string())
     }
 
@@ -544,7 +611,17 @@ impl NeuralGuide {
 
     /// Buffers the trace kernel binds.
     pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
-        let mut b = kernel_bindings(&self.network, &self.vertex_buffer, &self.pending).to_vec();
+        // With training on the volumes, targets go to the means' tallies
+        // (bound first, so they win over the sampling tables' own).
+        let mut b: Vec<(u32, &Buffer)> = self
+            .targets
+            .as_ref()
+            .map_or(Vec::new(), |t| t.means.tally_bindings().to_vec());
+        b.extend(kernel_bindings(
+            &self.network,
+            &self.vertex_buffer,
+            &self.pending,
+        ));
         if let Some(t) = &self.table {
             b.extend(t.guide.bindings());
         }
@@ -567,6 +644,29 @@ impl NeuralGuide {
     /// Records the training on what the pass offered: the gather that packs
     /// the offered transitions into the batch, then the steps.
     pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
+        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
+            // Fold the pass's targets into the means, train on rows drawn
+            // from them, then refill the sampling tables from the network,
+            // leaving out the share NEE carries as Sarsa's do.
+            t.means.record_update(rec, params);
+            let mut p = *params;
+            p.volume_count = t.means.volumes.len() as u32;
+            for step in 0..self.settings.steps {
+                p.selector = step;
+                rec.dispatch(Pass {
+                    name: "mlp gather from volumes",
+                    pipeline: &t.gather,
+                    set: &t.gather_set,
+                    push: bytemuck::bytes_of(&p),
+                    groups: [self.network.capacity().div_ceil(shaders::MLP_LANES), 1, 1],
+                });
+                self.network.record_step(rec);
+            }
+            self.network.record_reset(rec);
+            table.guide.record_copy_nee_share(rec, &t.means);
+            table.record_refresh(rec, params);
+            return;
+        }
         rec.dispatch(Pass {
             name: "mlp gather",
             pipeline: &self.gather,
@@ -582,7 +682,9 @@ impl NeuralGuide {
 
     /// Device memory the network and its batch hold, and the tables.
     pub fn bytes(&self) -> u64 {
-        self.network.bytes() + self.table.as_ref().map_or(0, |t| t.guide.bytes())
+        self.network.bytes()
+            + self.table.as_ref().map_or(0, |t| t.guide.bytes())
+            + self.targets.as_ref().map_or(0, |t| t.means.bytes())
     }
 }
 

@@ -346,6 +346,23 @@ impl SarsaGuide {
         Ok(guide)
     }
 
+    /// The tallies a trace kernel adds targets to (with the bindings of
+    /// another guide's tables, for a learner whose targets land apart from
+    /// the tables it samples from).
+    pub fn tally_bindings(&self) -> [(u32, &Buffer); 3] {
+        [
+            (shaders::B_SUM, &self.sum),
+            (shaders::B_VISITS, &self.visits),
+            (shaders::B_DIRECT_SUM, &self.direct_sum),
+        ]
+    }
+
+    /// Records a copy of `from`'s share of Q that NEE carries into this
+    /// guide's, which its distributions leave out.
+    pub fn record_copy_nee_share(&self, rec: &mut Recorder<'_>, from: &SarsaGuide) {
+        rec.copy(&from.q_direct, &self.q_direct);
+    }
+
     /// Buffers every kernel that reads or updates the guide binds.
     pub fn bindings(&self) -> [(u32, &Buffer); 11] {
         [
