@@ -10,10 +10,14 @@
 
 layout(local_size_x = LINEAR_GROUP) in;
 
-layout(std430, set = 0, binding = B_MLP_INPUTS) readonly buffer Inputs { float inputs[]; };
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
-layout(std430, set = 0, binding = B_MLP_ACTS) readonly buffer Acts { float acts[]; };
-layout(std430, set = 0, binding = B_MLP_DELTAS) readonly buffer Deltas { float deltas[]; };
+// The batch's inputs, activations and deltas, read as texels of four
+// floats: lavapipe reads a storage buffer with a loop over lanes, a texel
+// buffer with one gather.
+layout(set = 0, binding = B_MLP_INPUTS) uniform usamplerBuffer input_texels;
+layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
+layout(set = 0, binding = B_MLP_DELTAS) uniform usamplerBuffer delta_texels;
+#define TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
 
 uint unit_index(uint s, uint l, uint o) {
     return (s * MLP_HIDDEN + l) * MLP_WIDTH + o;
@@ -37,15 +41,10 @@ void main() {
 
     float g = 0.0;
     for (uint s = 0u; s < rows; s++) {
-        float delta = deltas[unit_index(s, l, o)];
-        if (delta == 0.0) {
-            continue;
-        }
-        float a = 1.0;
-        if (!is_bias) {
-            a = l == 0u ? inputs[s * MLP_INPUTS + i] : acts[unit_index(s, l - 1u, i)];
-        }
-        g += delta * a;
+        float delta = TEXEL_FLOAT(delta_texels, unit_index(s, l, o));
+        float a = l == 0u ? TEXEL_FLOAT(input_texels, s * MLP_INPUTS + i)
+                          : TEXEL_FLOAT(act_texels, unit_index(s, l - 1u, i));
+        g += delta * (is_bias ? 1.0 : a);
     }
     adam_step(p, g / float(rows));
 }

@@ -1,8 +1,8 @@
 #version 460
 // The output layer's parameters, one workgroup per output (sector) k: only
-// the transitions through sector k have a gradient there, so the workgroup
-// first lists them (in row order), a chunk of the batch at a time, then each invocation
-// sums one weight's (or the bias's) gradient over the list; then Adam.
+// the transitions through sector k have a gradient there, and mlp_bucket.comp
+// listed them in row order; each invocation sums one weight's (or the
+// bias's) gradient over that list, in that order every run; then Adam.
 
 #define MLP_PARAMS_ONLY
 #include "shared.h"
@@ -12,12 +12,15 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
-layout(std430, set = 0, binding = B_MLP_TARGETS) readonly buffer Targets { MlpTarget targets[]; };
-layout(std430, set = 0, binding = B_MLP_ACTS) readonly buffer Acts { float acts[]; };
+layout(std430, set = 0, binding = B_MLP_BUCKETS) readonly buffer Buckets { uint buckets[]; };
+// Targets (one texel each: sector, target, loss, delta) and activations,
+// read as texels: one gather each instead of a loop over lanes.
+layout(set = 0, binding = B_MLP_TARGETS) uniform usamplerBuffer target_texels;
+layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
+#define TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
 
-#define CHUNK (16 * LINEAR_GROUP)
-shared uint listed;
-shared uint list[CHUNK];
+// llvmpipe ends a loop after 65 535 iterations: rows go in blocks.
+#define BLOCK 32768u
 
 void main() {
     uint k = gl_WorkGroupID.x;
@@ -32,34 +35,20 @@ void main() {
     for (uint j = 0u; j < owned; j++) {
         g[j] = 0.0;
     }
-    for (uint base = 0u; base < rows; base += CHUNK) {
-        // One invocation lists the chunk's rows through sector k in row
-        // order: sums over the list then add in the same order every run.
-        if (lane == 0u) {
-            uint n = 0u;
-            for (uint s = base; s < min(base + CHUNK, rows); ++s) {
-                if (targets[s].sector == k) {
-                    list[n] = s;
-                    n += 1u;
-                }
-            }
-            listed = n;
-        }
-        barrier();
-        for (uint n = 0u; n < listed; n++) {
-            uint s = list[n];
-            float delta = targets[s].delta;
+    uint list = MLP_OUTPUTS + 2u;
+    uint begin = buckets[k];
+    uint end = buckets[k + 1u];
+    for (uint b = begin; b < end; b += BLOCK) {
+        for (uint n = b; n < min(b + BLOCK, end); n++) {
+            uint s = buckets[list + n];
+            float delta = uintBitsToFloat(texelFetch(target_texels, int(s)).w);
             uint last = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_WIDTH;
             for (uint j = 0u; j < owned; j++) {
                 uint i = lane + j * LINEAR_GROUP;
-                if (i < MLP_WIDTH) {
-                    g[j] += delta * acts[last + i];
-                } else if (i == MLP_WIDTH) {
-                    g[j] += delta;
-                }
+                float a = TEXEL_FLOAT(act_texels, last + min(i, MLP_WIDTH - 1u));
+                g[j] += delta * (i < MLP_WIDTH ? a : (i == MLP_WIDTH ? 1.0 : 0.0));
             }
         }
-        barrier();
     }
     uint first = mlp_offset(MLP_HIDDEN);
     for (uint j = 0u; j < owned; j++) {

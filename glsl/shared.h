@@ -48,6 +48,8 @@
 #define B_NEURAL_PENDING 30
 // Neural-Q with inference at the volumes: each volume's point and normal.
 #define B_NEURAL_STATES 31
+// The training batch's rows grouped by sector (glsl/mlp_bucket.comp).
+#define B_MLP_BUCKETS 32
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

@@ -1,7 +1,7 @@
 //! The Neural-Q network on the GPU: its parameters and Adam moments, a batch
 //! of training transitions, and the passes that train on that batch
-//! (`mlp_train`, `mlp_adam` for the hidden layers, `mlp_adam_output`, then
-//! `mlp_batch` to empty it). The maths is `guide::mlp`'s.
+//! (`mlp_train`, `mlp_adam` for the hidden layers, `mlp_bucket` to group the
+//! rows by sector, `mlp_adam_output`, then `mlp_batch` to empty it). The maths is `guide::mlp`'s.
 
 use super::mlp::{Adam, MlpShape};
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
@@ -25,7 +25,11 @@ pub struct Network {
     batch_state: Buffer,
     acts: Buffer,
     deltas: Buffer,
+    /// The batch's rows grouped by sector (see glsl/mlp_bucket.comp).
+    buckets: Buffer,
     train: ComputePipeline,
+    bucket: ComputePipeline,
+    bucket_set: DescriptorSet,
     adam_pass: ComputePipeline,
     adam_output: ComputePipeline,
     batch_pass: ComputePipeline,
@@ -71,6 +75,11 @@ impl Network {
         let batch_state = Buffer::gpu_only_with(ctx, "mlp batch state", &[state])?;
         let acts = Buffer::gpu_only(ctx, "mlp batch activations", units * 4)?;
         let deltas = Buffer::gpu_only(ctx, "mlp batch deltas", units * 4)?;
+        let buckets = Buffer::gpu_only(
+            ctx,
+            "mlp batch rows by sector",
+            (shape.outputs as u64 + 2 + rows) * 4,
+        )?;
         let push = size_of::<MlpPush>() as u32;
         let constants = shape.constants();
         let train =
@@ -89,6 +98,13 @@ impl Network {
             push,
             &constants,
         )?;
+        let bucket = ComputePipeline::specialized(
+            ctx,
+            "mlp rows by sector",
+            spirv::MLP_BUCKET,
+            push,
+            &constants,
+        )?;
         let batch_pass = ComputePipeline::new(ctx, "mlp batch reset", spirv::MLP_BATCH, 0)?;
         let bindings = [
             (shaders::B_MLP_PARAMS, &params),
@@ -99,11 +115,13 @@ impl Network {
             (shaders::B_MLP_COUNT, &batch_state),
             (shaders::B_MLP_ACTS, &acts),
             (shaders::B_MLP_DELTAS, &deltas),
+            (shaders::B_MLP_BUCKETS, &buckets),
         ];
         let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
         let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
         let adam_output_set = DescriptorSet::new(ctx, &adam_output, &bindings)?;
         let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
+        let bucket_set = DescriptorSet::new(ctx, &bucket, &bindings)?;
         ctx.submit(None, |rec| {
             for b in [&moments, &grad, &inputs] {
                 rec.fill(b, 0);
@@ -122,7 +140,10 @@ impl Network {
             batch_state,
             acts,
             deltas,
+            buckets,
             train,
+            bucket,
+            bucket_set,
             adam_pass,
             adam_output,
             batch_pass,
@@ -134,11 +155,6 @@ impl Network {
     }
 
     /// Buffers a kernel that fills the batch or reads the network binds.
-    /// Rows the batch holds.
-    pub fn capacity(&self) -> u32 {
-        self.capacity
-    }
-
     pub fn bindings(&self) -> [(u32, &Buffer); 4] {
         [
             (shaders::B_MLP_PARAMS, &self.params),
@@ -181,6 +197,13 @@ impl Network {
                 set: &self.train_set,
                 push,
                 groups: groups(self.capacity),
+            });
+            rec.dispatch(Pass {
+                name: "mlp rows by sector",
+                pipeline: &self.bucket,
+                set: &self.bucket_set,
+                push,
+                groups: [1, 1, 1],
             });
             let hidden = self.shape.layers().last().unwrap().offset as u32;
             rec.dispatch(Pass {
@@ -355,6 +378,7 @@ impl Network {
             &self.batch_state,
             &self.acts,
             &self.deltas,
+            &self.buckets,
         ]
         .iter()
         .map(|b| b.size())

@@ -658,7 +658,7 @@ impl NeuralGuide {
                     pipeline: &t.gather,
                     set: &t.gather_set,
                     push: bytemuck::bytes_of(&p),
-                    groups: [self.network.capacity().div_ceil(shaders::MLP_LANES), 1, 1],
+                    groups: [self.network.capacity.div_ceil(shaders::MLP_LANES), 1, 1],
                 });
                 self.network.record_step(rec);
             }
