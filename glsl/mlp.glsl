@@ -46,6 +46,10 @@ vec4 mlp_w(uint i4) {
 }
 #endif
 
+// Float i of a batch buffer read as texels of four floats (the Adam steps
+// read the batch so: one gather instead of a loop over lanes).
+#define MLP_TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
+
 float mlp_param(uint i) {
     return mlp_w(i >> 2)[i & 3u];
 }

@@ -17,7 +17,6 @@ layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch 
 layout(set = 0, binding = B_MLP_INPUTS) uniform usamplerBuffer input_texels;
 layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
 layout(set = 0, binding = B_MLP_DELTAS) uniform usamplerBuffer delta_texels;
-#define TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
 
 uint unit_index(uint s, uint l, uint o) {
     return (s * MLP_HIDDEN + l) * MLP_WIDTH + o;
@@ -41,9 +40,9 @@ void main() {
 
     float g = 0.0;
     for (uint s = 0u; s < rows; s++) {
-        float delta = TEXEL_FLOAT(delta_texels, unit_index(s, l, o));
-        float a = l == 0u ? TEXEL_FLOAT(input_texels, s * MLP_INPUTS + i)
-                          : TEXEL_FLOAT(act_texels, unit_index(s, l - 1u, i));
+        float delta = MLP_TEXEL_FLOAT(delta_texels, unit_index(s, l, o));
+        float a = l == 0u ? MLP_TEXEL_FLOAT(input_texels, s * MLP_INPUTS + i)
+                          : MLP_TEXEL_FLOAT(act_texels, unit_index(s, l - 1u, i));
         g += delta * (is_bias ? 1.0 : a);
     }
     adam_step(p, g / float(rows));

@@ -17,7 +17,6 @@ layout(std430, set = 0, binding = B_MLP_BUCKETS) readonly buffer Buckets { uint 
 // read as texels: one gather each instead of a loop over lanes.
 layout(set = 0, binding = B_MLP_TARGETS) uniform usamplerBuffer target_texels;
 layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
-#define TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
 
 // llvmpipe ends a loop after 65 535 iterations: rows go in blocks.
 #define BLOCK 32768u
@@ -45,7 +44,7 @@ void main() {
             uint last = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_WIDTH;
             for (uint j = 0u; j < owned; j++) {
                 uint i = lane + j * LINEAR_GROUP;
-                float a = TEXEL_FLOAT(act_texels, last + min(i, MLP_WIDTH - 1u));
+                float a = MLP_TEXEL_FLOAT(act_texels, last + min(i, MLP_WIDTH - 1u));
                 g[j] += delta * (i < MLP_WIDTH ? a : (i == MLP_WIDTH ? 1.0 : 0.0));
             }
         }

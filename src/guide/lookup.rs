@@ -23,6 +23,7 @@ const MAX_CELLS_PER_EDGE: f32 = 64.0;
 /// range every Vulkan device offers.
 const MAX_CELLS: f64 = (8 << 20) as f64;
 
+#[derive(Clone)]
 pub struct VolumeLookup {
     /// Per triangle: its front side's first cell
     /// (the back side's follow) and `nu | nv << 16`, the cells along e1 and

@@ -467,15 +467,9 @@ impl NeuralGuide {
         };
         let targets = match (&table, settings.training) {
             (Some(t), Training::Volumes) => {
-                // Placed by the same settings and seed as the sampling
-                // tables: the same volumes in the same order, as the trace
-                // kernel tallies at the sampling tables' volume indices.
-                let means = SarsaGuide::new(ctx, scene, &settings.table(), seed)?;
-                debug_assert!(means
-                    .volumes
-                    .iter()
-                    .zip(&t.guide.volumes)
-                    .all(|(a, b)| a.position == b.position && a.normal == b.normal));
+                // The sampling tables' volumes: the trace kernel tallies at
+                // their volume indices.
+                let means = t.guide.twin(ctx)?;
                 let gather = ComputePipeline::specialized(
                     ctx,
                     "mlp gather from volumes",

@@ -252,6 +252,17 @@ impl SarsaGuide {
         Self::from_volumes(ctx, vols, lookup, settings)
     }
 
+    /// A fresh guide over the same volumes and lookup (no placement or
+    /// lookup build again), with its own Q and tallies.
+    pub fn twin(&self, ctx: &Arc<GpuContext>) -> gpu::Result<Self> {
+        Self::from_volumes(
+            ctx,
+            self.volumes.clone(),
+            self.lookup.clone(),
+            &self.settings,
+        )
+    }
+
     /// A guide over given volumes (already in k-d tree order) and their lookup.
     fn from_volumes(
         ctx: &Arc<GpuContext>,
