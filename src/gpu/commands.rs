@@ -203,7 +203,7 @@ impl GpuContext {
             )?;
         }
         if let Some(p) = profiler.as_deref_mut() {
-            p.reset(cmd);
+            p.reset();
         }
         let mut recorder = Recorder {
             ctx: self,

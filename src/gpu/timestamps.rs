@@ -4,8 +4,11 @@ use super::{GpuContext, Result};
 use ash::vk;
 use std::sync::Arc;
 
-/// Most passes one submit may time; later ones in the same submit go untimed.
-const MAX_TIMED_PASSES: u32 = 64;
+/// Most passes one submit may time; later ones in the same submit go
+/// untimed. A submit of 16 passes that train a network holds hundreds of
+/// dispatches (a cap of 64 once left most of their training untimed), and
+/// each query pair is reset where it is used, so a large pool costs nothing.
+const MAX_TIMED_PASSES: u32 = 16384;
 
 /// Totals for one pass name.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -63,15 +66,8 @@ impl Profiler {
         })
     }
 
-    pub(super) fn reset(&mut self, cmd: vk::CommandBuffer) {
+    pub(super) fn reset(&mut self) {
         self.pending.clear();
-        if let Some(pool) = self.pool {
-            unsafe {
-                self.ctx
-                    .device
-                    .cmd_reset_query_pool(cmd, pool, 0, 2 * MAX_TIMED_PASSES)
-            };
-        }
     }
 
     /// A dispatch doing the work of `passes` passes counts as that many, each
@@ -84,6 +80,9 @@ impl Profiler {
         }
         self.pending.push((name.to_string(), passes.max(1)));
         unsafe {
+            self.ctx
+                .device
+                .cmd_reset_query_pool(cmd, pool, 2 * index, 2);
             self.ctx.device.cmd_write_timestamp(
                 cmd,
                 vk::PipelineStageFlags::COMPUTE_SHADER,
