@@ -1,7 +1,8 @@
 #version 460
 // Training, per transition: the forward pass (keeping every hidden layer's
-// activations), the loss 0.5 (target - Q_k)^2 and the backward pass, which
-// keeps every hidden layer's deltas. mlp_adam.comp then sums the gradients.
+// activations), the relative loss 0.5 (target - Q_k)^2 / (Q_k^2 + epsilon)
+// (Q_k in the denominator held constant) and the backward pass, which keeps
+// every hidden layer's deltas. mlp_adam.comp then sums the gradients.
 
 #include "shared.h"
 #include "mlp.glsl"
@@ -39,8 +40,12 @@ void main() {
     float z = mlp_output(t.sector);
     float q = mlp_softplus(z);
     // Only output k enters the loss, so its delta is the only non-zero one.
-    float delta_out = (q - t.target) * mlp_sigmoid(z);
-    targets[s].loss = 0.5 * (t.target - q) * (t.target - q);
+    // Relative to Q, the loss weighs dim places, where guiding matters most,
+    // as much as bright ones (measured: relMSE 0.100 -> 0.058 on the room
+    // at 128x128 with training = "volumes").
+    float relative = 1.0 / (q * q + 1.0 / float(MLP_LOSS_EPSILON_INV));
+    float delta_out = (q - t.target) * mlp_sigmoid(z) * relative;
+    targets[s].loss = 0.5 * (t.target - q) * (t.target - q) * relative;
     targets[s].delta = delta_out;
 
     // Deltas of the last hidden layer go to the region its activations do

@@ -92,6 +92,9 @@
 #define ENCODING_FREQUENCIES 4
 // 6 + 6 * ENCODING_FREQUENCIES, padded with zeros to a multiple of 4.
 #define ENCODED_INPUTS 32
+// The network's loss is relative: 0.5 (target - Q)^2 / (Q^2 + epsilon), Q
+// held constant (as neural radiance caching's), epsilon = 1 / this.
+#define MLP_LOSS_EPSILON_INV 100
 
 // Bytes of the structs GLSL code needs the size of; build.rs checks each
 // against the struct's std430 layout, and every struct's fields against

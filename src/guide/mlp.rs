@@ -211,8 +211,9 @@ impl MlpShape {
         acts.last().unwrap().iter().map(|&z| softplus(z)).collect()
     }
 
-    /// Adds to `grad` the gradient of the loss ½(target − Q(x)_k)² and
-    /// returns that loss.
+    /// Adds to `grad` the gradient of the relative loss
+    /// ½(target − Q(x)_k)² / (Q(x)_k² + ε), the denominator held constant
+    /// (ε = 1 / MLP_LOSS_EPSILON_INV), and returns that loss.
     pub fn gradient(
         &self,
         params: &[f32],
@@ -227,7 +228,8 @@ impl MlpShape {
         let q = softplus(z);
         let out = *layers.last().unwrap();
         // dLoss/dz_k; the other outputs do not enter the loss.
-        let delta_out = (q - target) * sigmoid(z);
+        let relative = relative_weight(q);
+        let delta_out = (q - target) * sigmoid(z) * relative;
         let last_hidden = &acts[layers.len() - 2];
         for i in 0..out.fan_in {
             grad[out.weight(k, i)] += delta_out * last_hidden[i];
@@ -266,8 +268,13 @@ impl MlpShape {
                     .collect();
             }
         }
-        0.5 * (target - q) * (target - q)
+        0.5 * (target - q) * (target - q) * relative
     }
+}
+
+/// The relative loss's weight at Q = q: 1 / (q² + ε).
+pub fn relative_weight(q: f32) -> f32 {
+    1.0 / (q * q + 1.0 / crate::shaders::MLP_LOSS_EPSILON_INV as f32)
 }
 
 #[cfg(test)]
@@ -316,21 +323,27 @@ mod tests {
             ([-0.2, -0.8, -0.4, 0.6, 0.3], 0, 5.0),
         ];
         let mut grad = vec![0.0; params.len()];
+        // Each row's relative weight, held constant as the gradient holds it.
+        let mut weights = Vec::new();
         for (x, k, target) in &batch {
             let loss = SHAPE.gradient(&params, x, *k, *target, &mut grad);
             let q = SHAPE.forward(&params, x)[*k];
-            assert!((loss - 0.5 * (target - q).powi(2)).abs() < 1e-6);
+            weights.push(relative_weight(q) as f64);
+            assert!((loss - 0.5 * (target - q).powi(2) * relative_weight(q)).abs() < 1e-5);
         }
         let loss_at = |p: &[f32]| -> f64 {
             batch
                 .iter()
-                .map(|(x, k, target)| {
+                .zip(&weights)
+                .map(|((x, k, target), w)| {
                     let q = SHAPE.forward(p, x)[*k] as f64;
-                    0.5 * (*target as f64 - q).powi(2)
+                    0.5 * (*target as f64 - q).powi(2) * w
                 })
                 .sum()
         };
-        let h = 1e-3;
+        // Large enough that the f32 forward pass's rounding, which the relative
+        // weight (up to 1 / epsilon) magnifies, stays below the tolerance.
+        let h = 4e-3;
         let mut checked = 0;
         for i in 0..params.len() {
             let mut up = params.clone();
