@@ -51,6 +51,11 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ("sarsa_probe", "sarsa_probe_cas", &[]),
     ("guide_build", "guide_build_fixed", &["FIXED_ATOMICS"]),
     ("guide_build", "guide_build", &[]),
+    // Rows with one target (a transition) or one per sector (a volume).
+    ("mlp_train", "mlp_train", &[]),
+    ("mlp_train", "mlp_train_dense", &["MLP_DENSE"]),
+    ("mlp_adam_output", "mlp_adam_output", &[]),
+    ("mlp_adam_output", "mlp_adam_output_dense", &["MLP_DENSE"]),
 ];
 
 fn main() {

@@ -3,6 +3,8 @@
 // the transitions through sector k have a gradient there, and mlp_bucket.comp
 // listed them in row order; each invocation sums one weight's (or the
 // bias's) gradient over that list, in that order every run; then Adam.
+// With MLP_DENSE every row has a delta at every output: one invocation per
+// output parameter sums its gradient over all rows, with no lists.
 
 #define MLP_PARAMS_ONLY
 #include "shared.h"
@@ -12,15 +14,51 @@
 layout(local_size_x = LINEAR_GROUP) in;
 
 layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch batch; };
+#ifndef MLP_DENSE
 layout(std430, set = 0, binding = B_MLP_BUCKETS) readonly buffer Buckets { uint buckets[]; };
+#endif
 // Targets (one texel each: sector, target, loss, delta) and activations,
 // read as texels: one gather each instead of a loop over lanes.
 layout(set = 0, binding = B_MLP_TARGETS) uniform usamplerBuffer target_texels;
 layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
+#ifdef MLP_DENSE
+layout(set = 0, binding = B_MLP_DENSE) uniform usamplerBuffer dense_texels;
+#endif
 
 // llvmpipe ends a loop after 65 535 iterations: rows go in blocks.
 #define BLOCK 32768u
 
+#ifdef MLP_DENSE
+void main() {
+    // Parameter i of the output layer's: weight (k, j) for j < MLP_WIDTH,
+    // else output k's bias.
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= MLP_OUTPUTS * (MLP_WIDTH + 1u)) {
+        return;
+    }
+    uint k = i / (MLP_WIDTH + 1u);
+    uint j = i - k * (MLP_WIDTH + 1u);
+    uint rows = min(batch.count, push.capacity);
+    if (rows == 0u) {
+        return;
+    }
+    float g = 0.0;
+    for (uint b = 0u; b < rows; b += BLOCK) {
+        for (uint s = b; s < min(b + BLOCK, rows); s++) {
+            float delta = MLP_TEXEL_FLOAT(dense_texels, (push.capacity + s) * MLP_OUTPUTS + k);
+            uint last = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_WIDTH;
+            float a = MLP_TEXEL_FLOAT(act_texels, last + min(j, MLP_WIDTH - 1u));
+            g += delta * (j < MLP_WIDTH ? a : 1.0);
+        }
+    }
+    uint first = mlp_offset(MLP_HIDDEN);
+    if (j < MLP_WIDTH) {
+        adam_step(first + k * MLP_WIDTH + j, g / float(rows));
+    } else {
+        adam_step(first + MLP_OUTPUTS * MLP_WIDTH + k, g / float(rows));
+    }
+}
+#else
 void main() {
     uint k = gl_WorkGroupID.x;
     uint lane = gl_LocalInvocationIndex;
@@ -59,3 +97,4 @@ void main() {
         }
     }
 }
+#endif

@@ -3,6 +3,9 @@
 // activations), the relative loss 0.5 (target - Q_k)^2 / (Q_k^2 + epsilon)
 // (Q_k in the denominator held constant) and the backward pass, which keeps
 // every hidden layer's deltas. mlp_adam.comp then sums the gradients.
+// With MLP_DENSE a row has a target for every sector (a volume's row of
+// target means), and the loss sums over them: one forward and backward pass
+// teaches all the row's outputs.
 
 #include "shared.h"
 #include "mlp.glsl"
@@ -16,6 +19,14 @@ layout(std430, set = 0, binding = B_MLP_TARGETS) buffer Targets { MlpTarget targ
 // [transition][hidden layer][unit / 4]
 layout(std430, set = 0, binding = B_MLP_ACTS) buffer Acts { vec4 acts[]; };
 layout(std430, set = 0, binding = B_MLP_DELTAS) writeonly buffer Deltas { vec4 deltas[]; };
+#ifdef MLP_DENSE
+layout(std430, set = 0, binding = B_MLP_DENSE) buffer Dense { float dense[]; };
+#endif
+
+// The relative loss's weight at Q = q, held constant in the gradient.
+float relative_weight(float q) {
+    return 1.0 / (q * q + 1.0 / float(MLP_LOSS_EPSILON_INV));
+}
 
 uint unit4(uint s, uint l) {
     return (s * MLP_HIDDEN + l) * MLP_W4;
@@ -36,28 +47,54 @@ void main() {
             acts[unit4(s, l) + i] = MLP_V(h + i);
         }
     }
+    // Relative to Q, the loss weighs dim places, where guiding matters most,
+    // as much as bright ones (measured: relMSE 0.100 -> 0.058 on the room
+    // at 128x128 with training = "volumes").
+    // Deltas of the last hidden layer go to the region its activations do
+    // not occupy; each earlier layer's then to the other region in turn.
+    uint from = mlp_last_region();
+    uint to = from == 0u ? MLP_A4 : 0u;
+#ifdef MLP_DENSE
+    for (uint i = 0u; i < MLP_W4; i++) {
+        MLP_V(to + i) = vec4(0.0);
+    }
+    float loss = 0.0;
+    for (uint k = 0u; k < MLP_OUTPUTS; k++) {
+        float z = mlp_output(k);
+        float q = mlp_softplus(z);
+        float target = dense[s * MLP_OUTPUTS + k];
+        float relative = relative_weight(q);
+        float delta_out = (q - target) * mlp_sigmoid(z) * relative;
+        loss += 0.5 * (target - q) * (target - q) * relative;
+        dense[(push.capacity + s) * MLP_OUTPUTS + k] = delta_out;
+        uint out_row = mlp_offset(MLP_HIDDEN) / 4u + k * MLP_W4;
+        for (uint i = 0u; i < MLP_W4; i++) {
+            MLP_V(to + i) += mlp_w(out_row + i) * delta_out;
+        }
+    }
+    targets[s].loss = loss;
+    for (uint i = 0u; i < MLP_W4; i++) {
+        vec4 d = mix(vec4(0.0), MLP_V(to + i), greaterThan(MLP_V(from + i), vec4(0.0)));
+        MLP_V(to + i) = d;
+        deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
+    }
+#else
     MlpTarget t = targets[s];
     float z = mlp_output(t.sector);
     float q = mlp_softplus(z);
     // Only output k enters the loss, so its delta is the only non-zero one.
-    // Relative to Q, the loss weighs dim places, where guiding matters most,
-    // as much as bright ones (measured: relMSE 0.100 -> 0.058 on the room
-    // at 128x128 with training = "volumes").
-    float relative = 1.0 / (q * q + 1.0 / float(MLP_LOSS_EPSILON_INV));
+    float relative = relative_weight(q);
     float delta_out = (q - t.target) * mlp_sigmoid(z) * relative;
     targets[s].loss = 0.5 * (t.target - q) * (t.target - q) * relative;
     targets[s].delta = delta_out;
 
-    // Deltas of the last hidden layer go to the region its activations do
-    // not occupy; each earlier layer's then to the other region in turn.
     uint out_row = mlp_offset(MLP_HIDDEN) / 4u + t.sector * MLP_W4;
-    uint from = mlp_last_region();
-    uint to = from == 0u ? MLP_A4 : 0u;
     for (uint i = 0u; i < MLP_W4; i++) {
         vec4 d = mix(vec4(0.0), mlp_w(out_row + i) * delta_out, greaterThan(MLP_V(from + i), vec4(0.0)));
         MLP_V(to + i) = d;
         deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
     }
+#endif
     for (uint l = MLP_HIDDEN - 1u; l > 0u; l--) {
         // delta_{l-1}[j] = sum_o W_l[o][j] delta_l[o], where unit j was active.
         from = to;

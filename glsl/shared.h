@@ -50,6 +50,10 @@
 #define B_NEURAL_STATES 31
 // The training batch's rows grouped by sector (glsl/mlp_bucket.comp).
 #define B_MLP_BUCKETS 32
+// Rows with a target for every sector (training = "volumes"): per row and
+// sector the target, then (after `capacity` rows) per row and sector the
+// training pass's dLoss/dz.
+#define B_MLP_DENSE 33
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

@@ -65,7 +65,7 @@ fn gpu_inference_matches_cpu() {
     let ctx = common::gpu();
     let mut rng = Lcg(3);
     let p = params(&mut rng);
-    let net = Network::new(&ctx, SHAPE, Adam::default(), 16, &p).unwrap();
+    let net = Network::new(&ctx, SHAPE, Adam::default(), 16, &p, false).unwrap();
     let rows = 300;
     let x = inputs(&mut rng, rows);
     let gpu = net.infer(&ctx, &x).unwrap();
@@ -90,7 +90,7 @@ fn gpu_training_step_matches_cpu() {
         ..Adam::default()
     };
     let capacity = 2048;
-    let mut net = Network::new(&ctx, SHAPE, adam, capacity, &cpu_params).unwrap();
+    let mut net = Network::new(&ctx, SHAPE, adam, capacity, &cpu_params, false).unwrap();
     let n = cpu_params.len();
     let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
     // Two steps with different batch sizes: the second checks the moments too.
@@ -282,10 +282,11 @@ fn neural_training_on_volume_means_with_nee_converges_to_pt_on_the_indirectly_li
     );
 }
 
-/// Each row training draws from the volumes is a volume's encoded state, a
-/// sector and that cell's mean target.
+/// Each row training draws from the volumes is a volume's encoded state and
+/// that volume's row of mean targets, one per sector (negative means count
+/// as 0), and the step that follows leaves a gradient at every sector.
 #[test]
-fn training_rows_drawn_from_volumes_are_cells_of_the_target_means() {
+fn training_rows_drawn_from_volumes_hold_their_rows_of_target_means() {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let settings = NeuralSettings {
@@ -300,9 +301,9 @@ fn training_rows_drawn_from_volumes_are_cells_of_the_target_means() {
         .target_means()
         .expect("training on the volumes has means");
     let volumes = means.volumes.clone();
-    // A distinct mean per cell names the cell a row drew.
+    // A distinct mean per cell; some negative, which a target clamps to 0.
     let q: Vec<f32> = (0..volumes.len() * n)
-        .map(|c| ((c / n) * 1000 + c % n + 1) as f32)
+        .map(|c| ((c / n) * 1000 + c % n) as f32 - 5.0)
         .collect();
     means.upload_q(&ctx, &q).unwrap();
     let mut params = qtrace::shaders::PassParams::default();
@@ -312,16 +313,14 @@ fn training_rows_drawn_from_volumes_are_cells_of_the_target_means() {
     common::assert_no_validation_errors(&ctx);
     let inputs = guide.network.download_inputs().unwrap();
     let targets = guide.network.download_targets().unwrap();
+    let (dense, deltas) = guide.network.download_dense().unwrap();
     let width = guide.network.shape.inputs as usize;
+    // A row per volume at most: 50 rows, each a volume drawn at random.
+    let rows = volumes.len();
     let mut seen = std::collections::HashSet::new();
-    for (row, t) in targets.iter().take(300).enumerate() {
-        let v = (t.target as usize - 1) / 1000;
-        let k = (t.target as usize - 1) % 1000;
-        assert_eq!(
-            k, t.sector as usize,
-            "row {row}: target {} for sector {}",
-            t.target, t.sector
-        );
+    for (row, t) in targets.iter().take(rows).enumerate() {
+        // The row's volume is where a one-target row keeps its sector.
+        let v = t.sector as usize;
         let volume = &volumes[v];
         let expected = encode(scene.bounds(), volume.position.into(), volume.normal.into());
         assert_close(
@@ -330,14 +329,86 @@ fn training_rows_drawn_from_volumes_are_cells_of_the_target_means() {
             &expected,
             1e-5,
         );
-        seen.insert((v, k));
+        let means_row: Vec<f32> = q[v * n..(v + 1) * n].iter().map(|m| m.max(0.0)).collect();
+        assert_eq!(
+            &dense[row * n..(row + 1) * n],
+            &means_row[..],
+            "row {row}'s targets"
+        );
+        // The step that ran left a gradient at every sector.
+        assert!(deltas[row * n..(row + 1) * n].iter().all(|d| *d != 0.0));
+        seen.insert(v);
     }
-    // Drawn at random: many distinct cells.
+    // Past the volume count the batch holds no rows.
+    assert!(deltas[rows * n..(rows + 1) * n].iter().all(|d| *d == 0.0));
+    // Drawn at random: many distinct volumes.
     assert!(
-        seen.len() > 250,
-        "{} distinct cells in 300 rows",
+        seen.len() > 20,
+        "{} distinct volumes in {rows} rows",
         seen.len()
     );
+}
+
+/// A training step on rows with a target for every sector (training on the
+/// volumes' means) matches the CPU twin: the gradient of the rows' summed
+/// losses over all their sectors, then Adam.
+#[test]
+fn gpu_dense_training_step_matches_cpu() {
+    let ctx = common::gpu();
+    let mut rng = Lcg(7);
+    let mut cpu_params = params(&mut rng);
+    let adam = Adam {
+        learning_rate: 1e-2,
+        ..Adam::default()
+    };
+    let rows = 200;
+    let mut net = Network::new(&ctx, SHAPE, adam, 256, &cpu_params, true).unwrap();
+    let n = cpu_params.len();
+    let outputs = SHAPE.outputs as usize;
+    let x = inputs(&mut rng, rows);
+    let targets: Vec<f32> = (0..rows * outputs).map(|_| 3.0 * rng.next()).collect();
+    net.upload_dense_batch(&x, &targets).unwrap();
+    ctx.submit(None, |rec| net.record_training(rec, 1)).unwrap();
+    common::assert_no_validation_errors(&ctx);
+
+    let mut grad = vec![0.0; n];
+    let mut losses = Vec::new();
+    for (r, row) in x.chunks(SHAPE.inputs as usize).enumerate() {
+        let loss = (0..outputs)
+            .map(|k| SHAPE.gradient(&cpu_params, row, k, targets[r * outputs + k], &mut grad))
+            .sum::<f32>();
+        losses.push(loss);
+    }
+    grad.iter_mut().for_each(|g| *g /= rows as f32);
+    let written = net.download_targets().unwrap();
+    let gpu_losses: Vec<f32> = written[..rows].iter().map(|t| t.loss).collect();
+    assert_close("loss", &gpu_losses, &losses, 1e-4);
+
+    let gpu_grad = net.download_grad().unwrap();
+    let scale = grad.iter().fold(0.0f32, |s, g| s.max(g.abs()));
+    assert!(scale > 1e-3, "gradient vanishes: {scale}");
+    for (i, (g, c)) in gpu_grad.iter().zip(&grad).enumerate() {
+        assert!(
+            (g - c).abs() <= 1e-4 * scale,
+            "gradient[{i}]: GPU {g} vs CPU {c} (largest {scale})"
+        );
+    }
+    let nonzero = grad.iter().filter(|g| g.abs() > 1e-3 * scale).count();
+    assert!(nonzero > n / 2, "only {nonzero} of {n} parameters learn");
+
+    let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
+    adam.step(&mut cpu_params, &mut m, &mut v, &grad, 1);
+    let gpu_params = net.download_params().unwrap();
+    for (i, (g, c)) in gpu_params.iter().zip(&cpu_params).enumerate() {
+        // As in gpu_training_step_matches_cpu: a gradient that is rounding
+        // noise may move its parameter either way.
+        let tol = if grad[i].abs() > 1e-3 * scale {
+            1e-5
+        } else {
+            2.0 * adam.learning_rate
+        };
+        assert!((g - c).abs() <= tol, "parameter {i}: GPU {g} vs CPU {c}");
+    }
 }
 
 /// The tables hold the network's Q at every volume's point and normal, as

@@ -2,6 +2,9 @@
 //! of training transitions, and the passes that train on that batch
 //! (`mlp_train`, `mlp_adam` for the hidden layers, `mlp_bucket` to group the
 //! rows by sector, `mlp_adam_output`, then `mlp_batch` to empty it). The maths is `guide::mlp`'s.
+//! A dense network's rows have a target for every sector (a volume's row of
+//! target means) instead of one: its training and output passes are the
+//! `MLP_DENSE` variants, and it needs no grouping by sector.
 
 use super::mlp::{Adam, MlpShape};
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Recorder};
@@ -27,6 +30,9 @@ pub struct Network {
     deltas: Buffer,
     /// The batch's rows grouped by sector (see glsl/mlp_bucket.comp).
     buckets: Buffer,
+    /// Dense rows: per row and sector the target; then, after `capacity`
+    /// rows, per row and sector the last step's dLoss/dz.
+    dense: Option<Buffer>,
     train: ComputePipeline,
     bucket: ComputePipeline,
     bucket_set: DescriptorSet,
@@ -45,13 +51,15 @@ fn groups(items: u32) -> [u32; 3] {
 
 impl Network {
     /// A network with parameters `params` (see `MlpShape::init`) and a
-    /// training batch of `capacity` transitions.
+    /// training batch of `capacity` rows, each with one target or, `dense`,
+    /// one per sector.
     pub fn new(
         ctx: &Arc<GpuContext>,
         shape: MlpShape,
         adam: Adam,
         capacity: u32,
         params: &[f32],
+        dense: bool,
     ) -> gpu::Result<Self> {
         assert_eq!(params.len(), shape.param_count(), "parameters of {shape:?}");
         let p = params.len() as u64;
@@ -80,10 +88,20 @@ impl Network {
             "mlp batch rows by sector",
             (shape.outputs as u64 + 2 + rows) * 4,
         )?;
+        let dense = if dense {
+            let bytes = 2 * rows * shape.outputs as u64 * 4;
+            Some(Buffer::gpu_only(ctx, "mlp batch dense targets", bytes)?)
+        } else {
+            None
+        };
+        let (train_spirv, output_spirv) = match dense {
+            Some(_) => (spirv::MLP_TRAIN_DENSE, spirv::MLP_ADAM_OUTPUT_DENSE),
+            None => (spirv::MLP_TRAIN, spirv::MLP_ADAM_OUTPUT),
+        };
         let push = size_of::<MlpPush>() as u32;
         let constants = shape.constants();
         let train =
-            ComputePipeline::specialized(ctx, "mlp training", spirv::MLP_TRAIN, push, &constants)?;
+            ComputePipeline::specialized(ctx, "mlp training", train_spirv, push, &constants)?;
         let adam_pass = ComputePipeline::specialized(
             ctx,
             "mlp Adam step (hidden)",
@@ -94,7 +112,7 @@ impl Network {
         let adam_output = ComputePipeline::specialized(
             ctx,
             "mlp Adam step (output)",
-            spirv::MLP_ADAM_OUTPUT,
+            output_spirv,
             push,
             &constants,
         )?;
@@ -106,7 +124,7 @@ impl Network {
             &constants,
         )?;
         let batch_pass = ComputePipeline::new(ctx, "mlp batch reset", spirv::MLP_BATCH, 0)?;
-        let bindings = [
+        let mut bindings = vec![
             (shaders::B_MLP_PARAMS, &params),
             (shaders::B_MLP_MOMENTS, &moments),
             (shaders::B_MLP_GRAD, &grad),
@@ -117,13 +135,14 @@ impl Network {
             (shaders::B_MLP_DELTAS, &deltas),
             (shaders::B_MLP_BUCKETS, &buckets),
         ];
+        bindings.extend(dense.iter().map(|d| (shaders::B_MLP_DENSE, d)));
         let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
         let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
         let adam_output_set = DescriptorSet::new(ctx, &adam_output, &bindings)?;
         let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
         let bucket_set = DescriptorSet::new(ctx, &bucket, &bindings)?;
         ctx.submit(None, |rec| {
-            for b in [&moments, &grad, &inputs] {
+            for b in [&moments, &grad, &inputs].into_iter().chain(&dense) {
                 rec.fill(b, 0);
             }
         })?;
@@ -141,6 +160,7 @@ impl Network {
             acts,
             deltas,
             buckets,
+            dense,
             train,
             bucket,
             bucket_set,
@@ -155,13 +175,15 @@ impl Network {
     }
 
     /// Buffers a kernel that fills the batch or reads the network binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
-        [
+    pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
+        let mut b = vec![
             (shaders::B_MLP_PARAMS, &self.params),
             (shaders::B_MLP_INPUTS, &self.inputs),
             (shaders::B_MLP_TARGETS, &self.targets),
             (shaders::B_MLP_COUNT, &self.batch_state),
-        ]
+        ];
+        b.extend(self.dense.iter().map(|d| (shaders::B_MLP_DENSE, d)));
+        b
     }
 
     fn push(&self) -> MlpPush {
@@ -198,13 +220,15 @@ impl Network {
                 push,
                 groups: groups(self.capacity),
             });
-            rec.dispatch(Pass {
-                name: "mlp rows by sector",
-                pipeline: &self.bucket,
-                set: &self.bucket_set,
-                push,
-                groups: [1, 1, 1],
-            });
+            if self.dense.is_none() {
+                rec.dispatch(Pass {
+                    name: "mlp rows by sector",
+                    pipeline: &self.bucket,
+                    set: &self.bucket_set,
+                    push,
+                    groups: [1, 1, 1],
+                });
+            }
             let hidden = self.shape.layers().last().unwrap().offset as u32;
             rec.dispatch(Pass {
                 name: "mlp Adam step (hidden)",
@@ -213,12 +237,18 @@ impl Network {
                 push,
                 groups: groups(hidden),
             });
+            // One workgroup per output, or with dense rows one invocation
+            // per output parameter.
+            let output_groups = match self.dense {
+                Some(_) => groups(self.shape.outputs * (self.shape.width + 1)),
+                None => [self.shape.outputs, 1, 1],
+            };
             rec.dispatch(Pass {
                 name: "mlp Adam step (output)",
                 pipeline: &self.adam_output,
                 set: &self.adam_output_set,
                 push,
-                groups: [self.shape.outputs, 1, 1],
+                groups: output_groups,
             });
         }
     }
@@ -318,6 +348,27 @@ impl Network {
         self.targets.download()
     }
 
+    /// A dense network's rows: per row and sector, the targets the batch
+    /// holds, and the last step's dLoss/dz.
+    pub fn download_dense(&self) -> gpu::Result<(Vec<f32>, Vec<f32>)> {
+        let mut all: Vec<f32> = self.dense.as_ref().expect("a dense network").download()?;
+        let deltas = all.split_off(self.capacity as usize * self.shape.outputs as usize);
+        Ok((all, deltas))
+    }
+
+    /// Replaces a dense network's batch (tests): inputs row-major, a target
+    /// per row and sector.
+    pub fn upload_dense_batch(&self, inputs: &[f32], targets: &[f32]) -> gpu::Result<()> {
+        let rows = inputs.len() / self.shape.inputs as usize;
+        assert_eq!(targets.len(), rows * self.shape.outputs as usize);
+        let blank = vec![MlpTarget::default(); rows];
+        self.upload_batch(inputs, &blank)?;
+        self.dense
+            .as_ref()
+            .expect("a dense network")
+            .overwrite(targets)
+    }
+
     /// Q of every sector for each row of `inputs`, by the batched forward pass.
     pub fn infer(&self, ctx: &Arc<GpuContext>, inputs: &[f32]) -> gpu::Result<Vec<f32>> {
         let rows = (inputs.len() / self.shape.inputs as usize) as u32;
@@ -382,6 +433,7 @@ impl Network {
         ]
         .iter()
         .map(|b| b.size())
-        .sum()
+        .sum::<u64>()
+            + self.dense.as_ref().map_or(0, |d| d.size())
     }
 }

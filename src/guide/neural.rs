@@ -343,16 +343,11 @@ fn kernel_bindings<'a>(
     network: &'a Network,
     vertices: &'a Buffer,
     pending: &'a Buffer,
-) -> [(u32, &'a Buffer); 6] {
-    let [a, b, c, d] = network.bindings();
-    [
-        a,
-        b,
-        c,
-        d,
-        (shaders::B_NEURAL_VERTICES, vertices),
-        (shaders::B_NEURAL_PENDING, pending),
-    ]
+) -> Vec<(u32, &'a Buffer)> {
+    let mut b = network.bindings();
+    b.push((shaders::B_NEURAL_VERTICES, vertices));
+    b.push((shaders::B_NEURAL_PENDING, pending));
+    b
 }
 
 /// With inference at the volumes: the volumes and their tables, and the
@@ -424,7 +419,9 @@ impl NeuralGuide {
             learning_rate: settings.learning_rate,
             ..Adam::default()
         };
-        let network = Network::new(ctx, shape, adam, settings.batch(), &params)?;
+        // Rows of target means carry every sector's target.
+        let dense = settings.training == Training::Volumes;
+        let network = Network::new(ctx, shape, adam, settings.batch(), &params, dense)?;
         let (lo, hi) = scene.bounds();
         let vertices = match settings.encoding {
             Encoding::Frequency => Vec::new(),
