@@ -218,8 +218,8 @@ fn neural_converges_to_pt_on_the_indirectly_lit_room() {
     );
 }
 
-/// Inference at the volumes (the default) samples from tables instead of
-/// the network: the converged image is still pt's.
+/// Inference at the volumes samples from tables instead of the network, here
+/// with the network trained on transitions: the converged image is still pt's.
 #[test]
 fn neural_inferring_at_volumes_converges_to_pt_on_the_cornell_box() {
     unbiased(
@@ -228,6 +228,7 @@ fn neural_inferring_at_volumes_converges_to_pt_on_the_cornell_box() {
         1024,
         NeuralSettings {
             inference: Inference::Volumes,
+            training: Some(Training::Transitions),
             ..small()
         },
     );
@@ -243,6 +244,7 @@ fn neural_inferring_at_volumes_with_nee_converges_to_pt_on_the_indirectly_lit_ro
         256,
         NeuralSettings {
             inference: Inference::Volumes,
+            training: Some(Training::Transitions),
             target: Target::Max,
             common: Common {
                 distribution: Distribution::Q,
@@ -262,8 +264,8 @@ fn neural_training_on_volume_means_converges_to_pt_on_the_cornell_box() {
         false,
         1024,
         NeuralSettings {
-            training: Training::Volumes,
-            steps: 2,
+            training: Some(Training::Volumes),
+            steps: Some(2),
             ..small()
         },
     );
@@ -276,7 +278,7 @@ fn neural_training_on_volume_means_with_nee_converges_to_pt_on_the_indirectly_li
         true,
         256,
         NeuralSettings {
-            training: Training::Volumes,
+            training: Some(Training::Volumes),
             ..small()
         },
     );
@@ -290,7 +292,7 @@ fn training_rows_drawn_from_volumes_hold_their_rows_of_target_means() {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let settings = NeuralSettings {
-        training: Training::Volumes,
+        training: Some(Training::Volumes),
         volumes: Some(50),
         batch: Some(300),
         ..small()
@@ -495,8 +497,10 @@ fn check_offers(encoding: Encoding) {
         spp: Some(1),
         width: Some(32),
         height: Some(32),
+        // Paths offer transitions only when the network trains on them.
         guide: Some(GuideSettings::Neural(NeuralSettings {
             encoding,
+            training: Some(Training::Transitions),
             ..small()
         })),
         ..Default::default()

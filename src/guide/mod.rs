@@ -171,8 +171,13 @@ impl GuideSettings {
         // thinning it as Sarsa's kept the room's error at 256 spp (relMSE
         // 0.129 against 0.124 at 256x256) and cut it at equal time (0.37
         // against 0.55).
+        // Trained on the volumes' means, the network learns from the
+        // tallies of the passes that learn, and training is a small part of
+        // such a pass: every pass up to the 4th, then ever more rarely (see
+        // NeuralSettings::steps).
         let default_thin = match self {
             Self::Sarsa(_) => 16,
+            Self::Neural(n) if n.training() == neural::Training::Volumes => 4,
             Self::Neural(n) if n.inference == neural::Inference::Volumes => 16,
             Self::Neural(_) => 0,
         };
@@ -265,7 +270,7 @@ impl GuideSettings {
                 ],
             )?,
             // Training on the volumes adds targets as Sarsa's kernel does.
-            Self::Neural(n) if n.training == neural::Training::Volumes => {
+            Self::Neural(n) if n.training() == neural::Training::Volumes => {
                 let variants = if nee {
                     [
                         spirv::TRACE_SARSA_NEE_FIXED,
@@ -554,13 +559,13 @@ mod tests {
         let neural = GuideSettings::Neural(NeuralSettings {
             width: 8,
             layers: 3,
-            learning_rate: 1e-3,
+            learning_rate: Some(1e-3),
             batch: Some(100),
-            steps: 2,
+            steps: Some(2),
             target: neural::Target::Max,
             encoding: neural::Encoding::Vertices,
             inference: neural::Inference::Volumes,
-            training: neural::Training::Volumes,
+            training: Some(neural::Training::Volumes),
             volumes: Some(99),
             ..Default::default()
         });
