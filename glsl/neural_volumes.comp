@@ -2,7 +2,10 @@
 // Neural-Q with inference at the volumes: Q of every sector at each radiance
 // volume's point and normal, the network's output as the trace kernel would
 // infer it there, into the Q table guide_build.comp turns into the volumes'
-// sums and alias tables.
+// sums and alias tables. With NEE, a network trained on the volumes' means
+// learned Q less the share NEE carries (mlp_gather_table.comp): the table's
+// Q adds that share back, so its sums hold all of Q and its distribution
+// (Q less the share) is the network's own output.
 
 #include "shared.h"
 #include "rng.glsl"
@@ -18,6 +21,8 @@ layout(push_constant) uniform Push { PassParams params; };
 // Per volume: (position, 0), (normal, 0).
 layout(std430, set = 0, binding = B_NEURAL_STATES) readonly buffer States { vec4 states[]; };
 layout(std430, set = 0, binding = B_Q) writeonly buffer QValues { float q_values[]; };
+// The share NEE carries, copied from the target means (zero otherwise).
+layout(std430, set = 0, binding = B_Q_DIRECT) readonly buffer QDirect { float q_direct[]; };
 
 void main() {
     uint v = gl_GlobalInvocationID.x;
@@ -31,7 +36,9 @@ void main() {
         for (uint c = 0u; c < 4u; c++) {
             uint k = 4u * k4 + c;
             if (k < MLP_OUTPUTS) {
-                q_values[v * MLP_OUTPUTS + k] = mlp_softplus(z[c]);
+                uint cell = v * MLP_OUTPUTS + k;
+                bool nee = (params.flags & FLAG_NEE) != 0u;
+                q_values[cell] = mlp_softplus(z[c]) + (nee ? q_direct[cell] : 0.0);
             }
         }
     }
