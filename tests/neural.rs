@@ -465,6 +465,26 @@ fn volume_tables_hold_the_network_at_the_volumes() {
             );
         }
     }
+
+    // With NEE the network's output is Q less the share NEE carries: the
+    // tables hold the network's output plus that share (their sums need all
+    // of Q), and still sample in proportion to the network's output.
+    let direct: Vec<f32> = (0..q.len()).map(|i| (i % 7) as f32 * 0.25).collect();
+    table.upload_q_direct(&ctx, &direct).unwrap();
+    guide.refresh_for(&ctx, true).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let q_nee = table.download_q().unwrap();
+    let probabilities_nee = table.download_probabilities().unwrap();
+    let within = |a: &f32, b: &f32| (a - b).abs() <= 1e-5 * b.abs().max(1.0);
+    assert!(q_nee
+        .iter()
+        .zip(&q)
+        .zip(&direct)
+        .all(|((x, y), d)| within(x, &(y + d))));
+    assert!(probabilities_nee
+        .iter()
+        .zip(&probabilities)
+        .all(|(a, b)| (a - b).abs() <= 3.0 / 65535.0));
 }
 
 /// The white furnace (every pixel 1): the guided estimator matches it even

@@ -582,11 +582,20 @@ impl NeuralGuide {
 
     /// With inference at the volumes, refills their tables from the network now.
     pub fn refresh(&self, ctx: &Arc<GpuContext>) -> gpu::Result<()> {
+        self.refresh_for(ctx, false)
+    }
+
+    /// [`NeuralGuide::refresh`] as a pass with (`nee`) or without NEE
+    /// refreshes the tables: with NEE their Q adds the share NEE carries.
+    pub fn refresh_for(&self, ctx: &Arc<GpuContext>, nee: bool) -> gpu::Result<()> {
         let Some(table) = &self.table else {
             return Ok(());
         };
         let mut params = PassParams::default();
         self.set_params(&mut params, false);
+        if nee {
+            params.flags |= shaders::FLAG_NEE;
+        }
         ctx.submit(None, |rec| table.record_refresh(rec, &params))
     }
 

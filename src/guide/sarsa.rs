@@ -492,6 +492,14 @@ impl SarsaGuide {
         .map_err(|e| e.to_string())
     }
 
+    /// Overwrites the share of Q that NEE carries (tests and tools).
+    pub fn upload_q_direct(&self, ctx: &Arc<GpuContext>, q_direct: &[f32]) -> gpu::Result<()> {
+        let bytes = std::mem::size_of_val(q_direct) as u64;
+        let staging = Buffer::upload(ctx, "sarsa Q direct (staging)", bytes)?;
+        staging.write(q_direct);
+        ctx.submit(None, |rec| rec.copy(&staging, &self.q_direct))
+    }
+
     /// Overwrites Q (tests and tools), then rebuilds the distributions.
     pub fn upload_q(&self, ctx: &Arc<GpuContext>, q: &[f32]) -> gpu::Result<()> {
         let staging = Buffer::upload(ctx, "sarsa Q (staging)", std::mem::size_of_val(q) as u64)?;
