@@ -107,41 +107,77 @@ fn gpu_training_step_matches_cpu() {
             losses.push(SHAPE.gradient(&cpu_params, row, t.sector as usize, t.target, &mut grad));
         }
         grad.iter_mut().for_each(|g| *g /= rows as f32);
-        let written = net.download_targets().unwrap();
-        let gpu_losses: Vec<f32> = written[..rows].iter().map(|t| t.loss).collect();
-        assert_close(&format!("step {step} loss"), &gpu_losses, &losses, 1e-4);
-
-        let gpu_grad = net.download_grad().unwrap();
-        let scale = grad.iter().fold(0.0f32, |s, g| s.max(g.abs()));
-        assert!(scale > 1e-3, "gradient vanishes: {scale}");
-        for (i, (g, c)) in gpu_grad.iter().zip(&grad).enumerate() {
-            assert!(
-                (g - c).abs() <= 1e-4 * scale,
-                "step {step} gradient[{i}]: GPU {g} vs CPU {c} (largest {scale})"
-            );
-        }
-        let nonzero = grad.iter().filter(|g| g.abs() > 1e-3 * scale).count();
-        assert!(nonzero > n / 2, "only {nonzero} of {n} parameters learn");
-
-        adam.step(&mut cpu_params, &mut m, &mut v, &grad, step);
-        let gpu_params = net.download_params().unwrap();
-        for (i, (g, c)) in gpu_params.iter().zip(&cpu_params).enumerate() {
-            // Adam moves each parameter by about the learning rate whatever
-            // its gradient's size, so a gradient that is rounding noise on
-            // one side may move it the other way: allow that only there.
-            let tol = if grad[i].abs() > 1e-3 * scale {
-                1e-5
-            } else {
-                2.0 * adam.learning_rate
-            };
-            assert!(
-                (g - c).abs() <= tol,
-                "step {step} parameter {i}: GPU {g} vs CPU {c}"
-            );
-        }
+        let step_state = Moments {
+            m: &mut m,
+            v: &mut v,
+            step,
+        };
+        let gpu_params = assert_step_matches(
+            &net,
+            &format!("step {step}"),
+            &losses,
+            &grad,
+            &mut cpu_params,
+            step_state,
+        );
         // Keep the two sides on the same parameters.
         cpu_params = gpu_params;
     }
+}
+
+/// Adam's moments and step number on the CPU side.
+struct Moments<'a> {
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+    step: u32,
+}
+
+/// Checks the step the network just took against the CPU twin's: the
+/// rows' losses, the mean gradient, and Adam's update of `cpu_params`
+/// (which it applies); returns the GPU's parameters.
+fn assert_step_matches(
+    net: &Network,
+    what: &str,
+    losses: &[f32],
+    grad: &[f32],
+    cpu_params: &mut [f32],
+    moments: Moments<'_>,
+) -> Vec<f32> {
+    let n = grad.len();
+    let written = net.download_targets().unwrap();
+    let gpu_losses: Vec<f32> = written[..losses.len()].iter().map(|t| t.loss).collect();
+    assert_close(&format!("{what} loss"), &gpu_losses, losses, 1e-4);
+
+    let gpu_grad = net.download_grad().unwrap();
+    let scale = grad.iter().fold(0.0f32, |s, g| s.max(g.abs()));
+    assert!(scale > 1e-3, "gradient vanishes: {scale}");
+    for (i, (g, c)) in gpu_grad.iter().zip(grad).enumerate() {
+        assert!(
+            (g - c).abs() <= 1e-4 * scale,
+            "{what} gradient[{i}]: GPU {g} vs CPU {c} (largest {scale})"
+        );
+    }
+    let nonzero = grad.iter().filter(|g| g.abs() > 1e-3 * scale).count();
+    assert!(nonzero > n / 2, "only {nonzero} of {n} parameters learn");
+
+    net.adam
+        .step(cpu_params, moments.m, moments.v, grad, moments.step);
+    let gpu_params = net.download_params().unwrap();
+    for (i, (g, c)) in gpu_params.iter().zip(cpu_params.iter()).enumerate() {
+        // Adam moves each parameter by about the learning rate whatever
+        // its gradient's size, so a gradient that is rounding noise on
+        // one side may move it the other way: allow that only there.
+        let tol = if grad[i].abs() > 1e-3 * scale {
+            1e-5
+        } else {
+            2.0 * net.adam.learning_rate
+        };
+        assert!(
+            (g - c).abs() <= tol,
+            "{what} parameter {i}: GPU {g} vs CPU {c}"
+        );
+    }
+    gpu_params
 }
 
 /// Settings small enough for the suite: a narrow network, a small batch.
@@ -382,35 +418,13 @@ fn gpu_dense_training_step_matches_cpu() {
         losses.push(loss);
     }
     grad.iter_mut().for_each(|g| *g /= rows as f32);
-    let written = net.download_targets().unwrap();
-    let gpu_losses: Vec<f32> = written[..rows].iter().map(|t| t.loss).collect();
-    assert_close("loss", &gpu_losses, &losses, 1e-4);
-
-    let gpu_grad = net.download_grad().unwrap();
-    let scale = grad.iter().fold(0.0f32, |s, g| s.max(g.abs()));
-    assert!(scale > 1e-3, "gradient vanishes: {scale}");
-    for (i, (g, c)) in gpu_grad.iter().zip(&grad).enumerate() {
-        assert!(
-            (g - c).abs() <= 1e-4 * scale,
-            "gradient[{i}]: GPU {g} vs CPU {c} (largest {scale})"
-        );
-    }
-    let nonzero = grad.iter().filter(|g| g.abs() > 1e-3 * scale).count();
-    assert!(nonzero > n / 2, "only {nonzero} of {n} parameters learn");
-
     let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
-    adam.step(&mut cpu_params, &mut m, &mut v, &grad, 1);
-    let gpu_params = net.download_params().unwrap();
-    for (i, (g, c)) in gpu_params.iter().zip(&cpu_params).enumerate() {
-        // As in gpu_training_step_matches_cpu: a gradient that is rounding
-        // noise may move its parameter either way.
-        let tol = if grad[i].abs() > 1e-3 * scale {
-            1e-5
-        } else {
-            2.0 * adam.learning_rate
-        };
-        assert!((g - c).abs() <= tol, "parameter {i}: GPU {g} vs CPU {c}");
-    }
+    let step = Moments {
+        m: &mut m,
+        v: &mut v,
+        step: 1,
+    };
+    assert_step_matches(&net, "dense step", &losses, &grad, &mut cpu_params, step);
 }
 
 /// The tables hold the network's Q at every volume's point and normal, as
