@@ -473,15 +473,16 @@ impl Guide {
         }
     }
 
-    /// Restores what [`Guide::save`] gave.
+    /// Restores what [`Guide::save`] gave, for a render with or without NEE.
     pub fn restore(
         &mut self,
         ctx: &Arc<GpuContext>,
         blobs: &[(String, Vec<u8>)],
+        nee: bool,
     ) -> Result<(), String> {
         match self {
             Self::Sarsa(s) => s.restore(ctx, blobs),
-            Self::Neural(n) => n.restore(ctx, blobs),
+            Self::Neural(n) => n.restore(ctx, blobs, nee),
         }
     }
 

@@ -627,17 +627,21 @@ impl NeuralGuide {
         Ok(blobs)
     }
 
-    /// Restores what [`NeuralGuide::save`] gave, and the tables from it.
+    /// Restores what [`NeuralGuide::save`] gave, and the tables from it as
+    /// a pass with (`nee`) or without NEE leaves them.
     pub fn restore(
         &mut self,
         ctx: &Arc<GpuContext>,
         blobs: &[(String, Vec<u8>)],
+        nee: bool,
     ) -> Result<(), String> {
         self.network.restore(blobs)?;
-        if let Some(t) = &self.targets {
+        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
             t.means.restore(ctx, blobs)?;
+            ctx.submit(None, |rec| table.guide.record_copy_nee_share(rec, &t.means))
+                .map_err(|e| e.to_string())?;
         }
-        self.refresh(ctx).map_err(|e| e.to_string())
+        self.refresh_for(ctx, nee).map_err(|e| e.to_string())
     }
 
     /// The network's input for a point p with normal n (as the GPU encodes it).

@@ -159,7 +159,7 @@ impl Renderer {
             .ok_or_else(|| read_error(path, "its accumulation does not fit this image"))?;
         self.accum.overwrite(&accum.1)?;
         if let Some(g) = &mut self.guide {
-            g.restore(&self.ctx, &blobs)
+            g.restore(&self.ctx, &blobs, self.settings.nee)
                 .map_err(|e| read_error(path, e))?;
         }
         self.trace_dispatches = header.trace_dispatches;
