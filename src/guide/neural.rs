@@ -135,6 +135,17 @@ const _: () = assert!(
 /// 128×128 and 256 spp: 1024 instead of 4096 took 3.4 s instead of 4.6 s
 /// for relMSE 0.149 instead of 0.133.
 pub const PIXELS_PER_TRANSITION: u64 = 16;
+/// Training on the volumes' means, the default rows per step, and one step
+/// per this many pixels of the image (32 at 256×256), at least
+/// MIN_DEFAULT_STEPS. Small steps, many of them: on the indirectly lit room
+/// at 256×256, 256 spp (relMSE at equal samples / at `pt`'s time, `pt`
+/// 0.199), 1024 rows × 8 steps gave 0.035 / 0.089–0.105, 128 × 32 gave
+/// 0.025 / 0.057, 128 × 64 0.023 / 0.058, 64 × 64 0.025 / 0.066. At
+/// 128×128, where a pass costs a quarter, 32 steps cost more than they gain
+/// (room 0.227 at `pt`'s time against 0.095 with 8).
+pub const VOLUME_ROWS: u32 = 128;
+pub const PIXELS_PER_STEP: u64 = 2048;
+pub const MIN_DEFAULT_STEPS: u64 = 4;
 /// The default batch's bounds, and the batch of a guide made outside a render.
 pub const MIN_DEFAULT_BATCH: u32 = 256;
 pub const DEFAULT_BATCH: u32 = 4096;
@@ -165,13 +176,10 @@ impl NeuralSettings {
         })
     }
 
-    /// Training steps per pass that trains: as given, or the mode's default.
-    /// Measured on the indirectly lit room at 256×256, 256 spp, training on
-    /// the volumes' means every 4th pass and more rarely later: 4 steps
-    /// (learning rate 0.02) reached relMSE 0.067 at equal samples and 0.157
-    /// at `pt`'s time (`pt`: 0.199), 8 steps (0.04) 0.035 and 0.105, 16
-    /// steps 0.028 and 0.142. On transitions, one step (its training is
-    /// most of its pass).
+    /// Training steps per pass that trains: as given, or the mode's default
+    /// (on the volumes' means, one per PIXELS_PER_STEP pixels in a render,
+    /// 8 outside one). On transitions, one step (training is most of such
+    /// a pass).
     pub fn steps(&self) -> u32 {
         self.steps.unwrap_or(match self.training() {
             Training::Volumes => 8,
@@ -188,20 +196,32 @@ impl NeuralSettings {
         })
     }
 
-    /// The batch's capacity.
+    /// The batch's capacity: rows per training step.
     pub fn batch(&self) -> u32 {
-        self.batch.unwrap_or(DEFAULT_BATCH)
+        self.batch.unwrap_or(match self.training() {
+            Training::Volumes => VOLUME_ROWS,
+            Training::Transitions => DEFAULT_BATCH,
+        })
     }
 
-    /// These settings for a `width` × `height` image: the default batch, and
-    /// with inference at the volumes their default count, follow the image.
+    /// These settings for a `width` × `height` image: the default batch and
+    /// steps, and with inference at the volumes their default count, follow
+    /// the image.
     pub fn for_image(&self, width: u32, height: u32) -> Self {
         let mut s = self.clone();
+        let pixels = width as u64 * height as u64;
+        let volumes = s.training() == Training::Volumes;
         if s.batch.is_none() {
-            let pixels = width as u64 * height as u64;
-            let batch = (pixels / PIXELS_PER_TRANSITION)
-                .clamp(MIN_DEFAULT_BATCH as u64, DEFAULT_BATCH as u64);
+            let batch = if volumes {
+                VOLUME_ROWS as u64
+            } else {
+                (pixels / PIXELS_PER_TRANSITION)
+                    .clamp(MIN_DEFAULT_BATCH as u64, DEFAULT_BATCH as u64)
+            };
             s.batch = Some(batch as u32);
+        }
+        if s.steps.is_none() && volumes {
+            s.steps = Some((pixels / PIXELS_PER_STEP).clamp(MIN_DEFAULT_STEPS, 64) as u32);
         }
         if s.inference == Inference::Volumes {
             s.volumes = s.table().for_image(width, height).volumes;
@@ -780,15 +800,29 @@ mod tests {
 
     #[test]
     fn default_batch_and_volumes_follow_the_image() {
-        let s = NeuralSettings::default();
+        // Training on transitions: a batch per image size.
+        let s = NeuralSettings {
+            training: Some(Training::Transitions),
+            ..Default::default()
+        };
         let at = |w, h| {
             let t = s.for_image(w, h);
-            (t.batch, t.volumes)
+            (t.batch, t.volumes, t.steps)
         };
-        assert_eq!(at(256, 256), (Some(4096), Some(1024)));
-        assert_eq!(at(128, 128), (Some(1024), Some(256)));
-        assert_eq!(at(1024, 1024), (Some(DEFAULT_BATCH), Some(16384)));
+        assert_eq!(at(256, 256), (Some(4096), Some(1024), None));
+        assert_eq!(at(128, 128), (Some(1024), Some(256), None));
+        assert_eq!(at(1024, 1024), (Some(DEFAULT_BATCH), Some(16384), None));
         assert_eq!(at(8, 8).0, Some(MIN_DEFAULT_BATCH));
+        // Training on the volumes' means (the default): fixed rows, steps
+        // per image size.
+        let means = NeuralSettings::default().for_image(256, 256);
+        assert_eq!((means.batch, means.steps), (Some(VOLUME_ROWS), Some(32)));
+        assert_eq!(NeuralSettings::default().for_image(128, 128).steps, Some(8));
+        assert_eq!(NeuralSettings::default().for_image(8, 8).steps, Some(4));
+        assert_eq!(
+            NeuralSettings::default().for_image(4096, 4096).steps,
+            Some(64)
+        );
         // Given values stay; inference at every vertex places no volumes.
         let given = NeuralSettings {
             batch: Some(7),
