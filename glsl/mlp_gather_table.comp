@@ -2,14 +2,13 @@
 // Neural-Q trained on the volumes' target table (`training = "volumes"`):
 // fills the batch with rows of volumes drawn uniformly (as many rows as the
 // batch holds, but no more than there are volumes): the volume's encoded
-// state and, for
-// every sector, the running mean of the TD targets that landed in that
-// (volume, sector) cell (Sarsa's tallies, folded by the guide update), so a
-// target averages every transition that reached it instead of being one
-// path's, and one forward and backward pass teaches all of a volume's
-// sectors (mlp_train.comp with MLP_DENSE). One invocation per row;
-// `selector` is the training step within the pass, so each step draws
-// other rows.
+// state and, for every sector, the running mean of the TD targets that
+// landed in that (volume, sector) cell (Sarsa's tallies, folded by the
+// guide update). So a target averages every transition that reached it
+// instead of being one path's, and one forward and backward pass teaches
+// all of a volume's sectors (mlp_train.comp with MLP_DENSE). One
+// invocation per row; `selector` is the training step within the pass, so
+// each step draws other rows.
 
 #include "shared.h"
 #include "rng.glsl"
