@@ -31,13 +31,13 @@ void main() {
     }
     neural_encode(states[2u * v].xyz, states[2u * v + 1u].xyz);
     mlp_hidden_layers();
+    bool nee = (params.flags & FLAG_NEE) != 0u;
     for (uint k4 = 0u; 4u * k4 < MLP_OUTPUTS; k4++) {
         vec4 z = mlp_output4(k4);
         for (uint c = 0u; c < 4u; c++) {
             uint k = 4u * k4 + c;
             if (k < MLP_OUTPUTS) {
                 uint cell = v * MLP_OUTPUTS + k;
-                bool nee = (params.flags & FLAG_NEE) != 0u;
                 q_values[cell] = mlp_softplus(z[c]) + (nee ? q_direct[cell] : 0.0);
             }
         }

@@ -146,6 +146,8 @@ pub const PIXELS_PER_TRANSITION: u64 = 16;
 pub const VOLUME_ROWS: u32 = 128;
 pub const PIXELS_PER_STEP: u64 = 2048;
 pub const MIN_DEFAULT_STEPS: u64 = 4;
+/// Most training steps a pass may take.
+pub const MAX_STEPS: u32 = 64;
 /// The default batch's bounds, and the batch of a guide made outside a render.
 pub const MIN_DEFAULT_BATCH: u32 = 256;
 pub const DEFAULT_BATCH: u32 = 4096;
@@ -221,7 +223,8 @@ impl NeuralSettings {
             s.batch = Some(batch as u32);
         }
         if s.steps.is_none() && volumes {
-            s.steps = Some((pixels / PIXELS_PER_STEP).clamp(MIN_DEFAULT_STEPS, 64) as u32);
+            let steps = (pixels / PIXELS_PER_STEP).clamp(MIN_DEFAULT_STEPS, MAX_STEPS as u64);
+            s.steps = Some(steps as u32);
         }
         if s.inference == Inference::Volumes {
             s.volumes = s.table().for_image(width, height).volumes;
@@ -297,8 +300,11 @@ impl NeuralSettings {
         if let Some(b) = self.batch.filter(|b| !(1..=MAX_BATCH).contains(b)) {
             return Err(format!("batch = {b} must lie in 1..={MAX_BATCH}"));
         }
-        if !(1..=64).contains(&self.steps()) {
-            return Err(format!("steps = {} must lie in 1..=64", self.steps()));
+        if !(1..=MAX_STEPS).contains(&self.steps()) {
+            return Err(format!(
+                "steps = {} must lie in 1..={MAX_STEPS}",
+                self.steps()
+            ));
         }
         self.table().validate()?;
         if self.training() == Training::Volumes && self.inference != Inference::Volumes {
@@ -588,7 +594,7 @@ impl NeuralGuide {
             size_of::<PassParams>() as u32,
             &network.shape.constants(),
         )?;
-        let mut bindings = kernel_bindings(network, vertices, pending).to_vec();
+        let mut bindings = kernel_bindings(network, vertices, pending);
         bindings.extend(guide.bindings());
         bindings.push((shaders::B_NEURAL_STATES, &states));
         let infer_set = DescriptorSet::new(ctx, &infer, &bindings)?;
