@@ -34,6 +34,13 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
         "trace_sarsa_nee_cas",
         &["METHOD_SARSA", "WITH_NEE"],
     ),
+    // The kernels of Sarsa's passes that do not learn (no atomics).
+    ("trace", "trace_sarsa_frozen", &["METHOD_SARSA", "FROZEN"]),
+    (
+        "trace",
+        "trace_sarsa_nee_frozen",
+        &["METHOD_SARSA", "WITH_NEE", "FROZEN"],
+    ),
     ("trace", "trace_neural", &["METHOD_NEURAL"]),
     ("trace", "trace_neural_nee", &["METHOD_NEURAL", "WITH_NEE"]),
     (

@@ -75,7 +75,13 @@ float prev_q;
 // Whether prev_q is what the guide expects along the path's ray (else the
 // roulette follows the throughput alone).
 bool guided_roulette;
+// FROZEN builds the kernel of passes that learn nothing without the learning
+// code: on lavapipe, code no lane runs still costs time.
+#ifdef FROZEN
+const bool learn = false;
+#else
 bool learn;
+#endif
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
 float path_estimate;
@@ -304,7 +310,9 @@ void main() {
 #endif
     eps = params.cam_pos.w;
 #ifdef GUIDED
+#ifndef FROZEN
     learn = (params.flags & FLAG_LEARN) != 0u;
+#endif
 #endif
     // This dispatch traces samples pass_index .. pass_index + count - 1 of
     // each pixel. A lane whose path ends starts its next sample at once, so

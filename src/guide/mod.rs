@@ -250,6 +250,21 @@ impl GuideSettings {
         }
     }
 
+    /// SPIR-V of a trace kernel without the learning code, for the passes
+    /// that learn nothing, where the guide has one: Sarsa's tables (also
+    /// the network's when it trains on them).
+    pub fn frozen_trace_spirv(&self, nee: bool) -> Option<&'static [u8]> {
+        let tables = match self {
+            Self::Sarsa(_) => true,
+            Self::Neural(n) => n.training() == neural::Training::Volumes,
+        };
+        match (tables, nee) {
+            (false, _) => None,
+            (true, false) => Some(spirv::TRACE_SARSA_FROZEN),
+            (true, true) => Some(spirv::TRACE_SARSA_NEE_FROZEN),
+        }
+    }
+
     /// SPIR-V of the trace kernel of this guide on `device`.
     pub fn trace_spirv(&self, device: &DeviceInfo, nee: bool) -> gpu::Result<&'static [u8]> {
         Ok(match self {

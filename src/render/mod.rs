@@ -130,6 +130,8 @@ pub struct Renderer {
     trace: ComputePipeline,
     accumulate: ComputePipeline,
     trace_set: DescriptorSet,
+    /// The guide's trace kernel for passes that learn nothing, if it has one.
+    frozen: Option<(ComputePipeline, DescriptorSet)>,
     accumulate_set: DescriptorSet,
     accum: Buffer,
     stats: Buffer,
@@ -235,6 +237,16 @@ impl Renderer {
             push,
             &constants,
         )?;
+        let frozen = match settings
+            .guide
+            .as_ref()
+            .and_then(|g| g.frozen_trace_spirv(settings.nee))
+        {
+            Some(spirv) => Some(ComputePipeline::specialized(
+                ctx, "trace", spirv, push, &constants,
+            )?),
+            None => None,
+        };
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([
@@ -246,6 +258,13 @@ impl Renderer {
             bindings.extend(g.bindings());
         }
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
+        let frozen = match frozen {
+            Some(p) => {
+                let set = DescriptorSet::new(ctx, &p, &bindings)?;
+                Some((p, set))
+            }
+            None => None,
+        };
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
@@ -258,6 +277,7 @@ impl Renderer {
             trace,
             accumulate,
             trace_set,
+            frozen,
             accumulate_set,
             accum,
             stats,
@@ -280,7 +300,8 @@ impl Renderer {
         self.stats
             .write(&[PassStats::default(); shaders::MAX_BATCH as usize]);
         let g = groups(self.settings.width, self.settings.height);
-        let (trace, trace_set) = (&self.trace, &self.trace_set);
+        let learning = (&self.trace, &self.trace_set);
+        let frozen = self.frozen.as_ref().map(|(p, s)| (p, s));
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
         let mut guide = self.guide.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
@@ -338,11 +359,16 @@ impl Renderer {
                 if let Some(g) = guide.as_deref() {
                     g.set_params(&mut params, learn);
                 }
+                let (pipeline, set) = if learn {
+                    learning
+                } else {
+                    frozen.unwrap_or(learning)
+                };
                 rec.dispatch_covering(
                     Pass {
                         name: "trace",
-                        pipeline: trace,
-                        set: trace_set,
+                        pipeline,
+                        set,
                         push: bytemuck::bytes_of(&params),
                         groups: g,
                     },
