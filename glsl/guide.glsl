@@ -10,10 +10,11 @@
 //   guide_choose_sector(g, pick, u, sector, out p)  with pick, a sector
 //       drawn by u and its probability p; else p of `sector`
 //   guide_sector_q(g, k)     Q of sector k (0 where the guide has nothing)
-//   guide_learn(from, k, q, reflected, direct, ...)  a transition from vertex
-//       `from` through sector k (whose Q was q) reached a surface that
-//       reflects `reflected` back and gets `direct` by NEE (or a miss)
-//   guide_learn_emitter(from, k, q, le, mis_weight, ...)  ... or an emitter
+//   guide_learn(from, k, q, le, mis_weight, reflected, direct, ...)  a
+//       transition from vertex `from` through sector k (whose Q was q)
+//       reached an emitter sending le, whose scattering MIS weight is
+//       mis_weight, or (le 0) a surface that reflects `reflected` back and
+//       gets `direct` by NEE, or a miss (the environment as `reflected`)
 //   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
 //       pass that learns (a guide may keep something per path)
 // On it, this file builds the one-sample mixture of BSDF sampling and the

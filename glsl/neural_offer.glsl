@@ -28,11 +28,12 @@ void guide_begin_path() {
 }
 
 // Q learns all the light that reaches `from` through sector k beyond NEE at
-// `from`: what the vertex it reached reflects, NEE there included.
-void guide_learn(GuideVertex from, uint k, float q, float reflected, float direct,
-                 inout float td_sq_sum, inout uint td_count, inout uint rng) {
+// `from`: what the vertex it reached reflects, NEE there included; of an
+// emitter it reached, with NEE, only the MIS share scattering brings.
+void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight, float reflected,
+                 float direct, inout float td_sq_sum, inout uint td_count, inout uint rng) {
     if (guide_has_state(from)) {
-        float target = reflected + direct;
+        float target = le * mis_weight + reflected + direct;
         float td = target - q;
         td_sq_sum += td * td;
         td_count += 1u;
@@ -44,12 +45,6 @@ void guide_learn(GuideVertex from, uint k, float q, float reflected, float direc
             kept_target = target;
         }
     }
-}
-
-// With NEE, of an emitter it reached, only the MIS share scattering brings.
-void guide_learn_emitter(GuideVertex from, uint k, float q, float le, float mis_weight,
-                         inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    guide_learn(from, k, q, le * mis_weight, 0.0, td_sq_sum, td_count, rng);
 }
 
 // A learning pass's path at pixel `index` ended: it offers its kept

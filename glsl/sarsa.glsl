@@ -51,17 +51,13 @@ void guide_begin_path() {
 void guide_end_path(uint index, inout uint rng) {
 }
 
-// Sarsa's target leaves out what NEE brings at the vertex it reached:
-// NEE's share is learned apart (sarsa_record_direct) and taken out of the
-// sampling distribution instead.
-void guide_learn(GuideVertex from, uint k, float q, float reflected, float direct,
-                 inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    sarsa_learn(from, k, q, reflected, td_sq_sum, td_count);
-}
-
-void guide_learn_emitter(GuideVertex from, uint k, float q, float le, float mis_weight,
-                         inout float td_sq_sum, inout uint td_count, inout uint rng) {
-    sarsa_learn(from, k, q, le, td_sq_sum, td_count);
+// Sarsa's target leaves out what NEE brings at the vertex it reached, and
+// an emitter's target is all of its Le: NEE's share of that is learned
+// apart (sarsa_record_direct) and taken out of the sampling distribution
+// instead.
+void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight, float reflected,
+                 float direct, inout float td_sq_sum, inout uint td_count, inout uint rng) {
+    sarsa_learn(from, k, q, le + reflected, td_sq_sum, td_count);
 #ifdef WITH_NEE
     if (from.volume != NO_VOLUME && mis_weight < 1.0) {
         sarsa_record_direct(from.volume, k, le * (1.0 - mis_weight));

@@ -117,16 +117,38 @@ void begin_path(uint sample_index) {
     td_sq_sum = 0.0;
 }
 
+#ifdef GUIDED
+// The transition the current ray completes, kept by scatter() where the ray
+// landed for the one call of guide_learn in bounce(): lavapipe runs the code
+// of every call site, the guide's atomics included, at every vertex.
+GuideVertex land_from;
+uint land_sector;
+float land_q;
+float land_le;
+float land_mis_weight;
+float land_reflected;
+float land_direct;
+
+void land(float le, float mis_weight, float reflected, float direct) {
+    land_from = prev_vertex;
+    land_sector = prev_sector;
+    land_q = prev_q;
+    land_le = le;
+    land_mis_weight = mis_weight;
+    land_reflected = reflected;
+    land_direct = direct;
+}
+#endif
+
 // Traces the path's current ray and scatters once; false when the path ended.
-bool bounce() {
+bool scatter() {
     Hit hit = trace_ray(origin, dir, FAR);
     rays += 1u;
     if (hit.triangle == NO_HIT) {
         radiance += throughput * params.environment.rgb;
 #ifdef GUIDED
         if (learn) {
-            guide_learn(prev_vertex, prev_sector, prev_q, luminance(params.environment.rgb), 0.0,
-                        td_sq_sum, td_count, rng);
+            land(0.0, 1.0, luminance(params.environment.rgb), 0.0);
         }
 #endif
         return false;
@@ -149,8 +171,7 @@ bool bounce() {
         }
 #ifdef GUIDED
         if (learn) {
-            float le = cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0;
-            guide_learn_emitter(prev_vertex, prev_sector, prev_q, le, weight, td_sq_sum, td_count, rng);
+            land(cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
         }
 #endif
         return false;
@@ -182,7 +203,7 @@ bool bounce() {
     if (depth >= params.max_depth) {
 #ifdef GUIDED
         if (learn) {
-            guide_learn(prev_vertex, prev_sector, prev_q, reflected, 0.0, td_sq_sum, td_count, rng);
+            land(0.0, 1.0, reflected, 0.0);
         }
 #endif
         return false;
@@ -223,7 +244,7 @@ bool bounce() {
     }
 #ifdef GUIDED
     if (learn) {
-        guide_learn(prev_vertex, prev_sector, prev_q, reflected, direct_lum, td_sq_sum, td_count, rng);
+        land(0.0, 1.0, reflected, direct_lum);
     }
 #endif
     // The bounce: a delta lobe's one direction (no MIS for what it hits,
@@ -296,6 +317,18 @@ bool bounce() {
     }
     depth += 1u;
     return true;
+}
+
+// scatter(), then, in a pass that learns, learning from where its ray landed.
+bool bounce() {
+    bool more = scatter();
+#ifdef GUIDED
+    if (learn) {
+        guide_learn(land_from, land_sector, land_q, land_le, land_mis_weight, land_reflected,
+                    land_direct, td_sq_sum, td_count, rng);
+    }
+#endif
+    return more;
 }
 
 void main() {
