@@ -1,0 +1,79 @@
+#!/usr/bin/env python3
+"""Compares the speed of two qtrace renders run side by side, one core each.
+
+This machine's timings drift by 15-30% between runs minutes apart, so two
+binaries or settings timed one after the other are hard to tell apart. Here
+both renders run at the same time, each with one lavapipe thread
+(LP_NUM_THREADS=1) pinned to its own core, so whatever slows the machine
+slows both; the order of the cores alternates between rounds. An A/A run
+(the same command twice) spreads about ±5%.
+
+  scripts/paired_speed.py [--rounds N] [--spp S] \\
+      "LABEL|QTRACE_BINARY|RENDER ARGS…" "LABEL|QTRACE_BINARY|RENDER ARGS…"
+
+The render arguments start with the scene, e.g.
+  "pt|target/release/qtrace|scenes/cornell-box.toml --nee --width 128 --height 128"
+It prints, per round, each render's trace pass (GPU ms, from its stats) per
+pass and per path vertex, and the median ratio per path vertex of the second
+to the first. Needs `taskset` (util-linux) and two cores. Benchmarks only.
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def trace_cost(stats_path):
+    """Trace ms per pass and per path vertex, and samples/s, of one render."""
+    s = json.loads(Path(stats_path).read_text())
+    trace = next(p for p in s["gpu_passes"] if p["name"] == "trace")
+    per_pass = trace["total_ms"] / trace["count"]
+    return per_pass, per_pass / max(s["mean_path_length"], 1e-9), s["samples_per_second"]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=4)
+    ap.add_argument("--spp", type=int, default=128, help="samples per pixel of each render")
+    ap.add_argument("configs", nargs=2, metavar="LABEL|BINARY|ARGS")
+    args = ap.parse_args()
+    configs = []
+    for c in args.configs:
+        parts = c.split("|")
+        if len(parts) != 3 or not parts[2].split():
+            sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
+        configs.append((parts[0], parts[1], parts[2].split()))
+    env = dict(os.environ, LP_NUM_THREADS="1")
+    ratios = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds):
+            order = configs if r % 2 == 0 else configs[::-1]
+            running = []
+            for core, (label, binary, rest) in enumerate(order):
+                stats = Path(tmp) / f"{label}.json"
+                cmd = ["taskset", "-c", str(core), binary, "render", *rest,
+                       "--spp", str(args.spp), "-o", str(Path(tmp) / f"{label}.exr"),
+                       "--stats", str(stats)]
+                running.append((label, subprocess.Popen(
+                    cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)))
+            for label, proc in running:
+                _, err = proc.communicate()
+                if proc.returncode != 0:
+                    sys.exit(f"error: {label} failed: {err.strip().splitlines()[-1:]}")
+            (la, _, _), (lb, _, _) = configs
+            a = trace_cost(Path(tmp) / f"{la}.json")
+            b = trace_cost(Path(tmp) / f"{lb}.json")
+            ratios.append(b[1] / a[1])
+            print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex), "
+                  f"{lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex): {ratios[-1]:.3f}")
+    print(f"{lb} / {la}, trace time per path vertex: median {statistics.median(ratios):.3f} "
+          f"(range {min(ratios):.3f}-{max(ratios):.3f} over {len(ratios)} rounds)")
+
+
+if __name__ == "__main__":
+    main()
