@@ -5,16 +5,18 @@
 //   guide_at(triangle index, triangle, p, n, front side?)
 //   guide_covers(g)          whether it has a sector distribution at g
 //   guide_total(g)           the total weight w of that distribution
+//   guide_bsdf_share(g)      the share of BSDF sampling in the mixture there
 //   guide_irradiance(g)      (2 pi / n) sum_j Q_j cos(theta_j), for targets
 //   guide_sector_probability(g, k)
 //   guide_choose_sector(g, pick, u, sector, out p)  with pick, a sector
 //       drawn by u and its probability p; else p of `sector`
 //   guide_sector_q(g, k)     Q of sector k (0 where the guide has nothing)
-//   guide_learn(from, k, q, le, mis_weight, reflected, direct, ...)  a
-//       transition from vertex `from` through sector k (whose Q was q)
-//       reached an emitter sending le, whose scattering MIS weight is
-//       mis_weight, or (le 0) a surface that reflects `reflected` back and
-//       gets `direct` by NEE, or a miss (the environment as `reflected`)
+//   guide_learn(from, k, q, mix, le, mis_weight, reflected, direct, ...)  a
+//       transition from vertex `from` through sector k (whose Q was q;
+//       mix: its mixture_gradient) reached an emitter sending le, whose
+//       scattering MIS weight is mis_weight, or (le 0) a surface that
+//       reflects `reflected` back and gets `direct` by NEE, or a miss (the
+//       environment as `reflected`)
 //   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
 //       pass that learns (a guide may keep something per path)
 // On it, this file builds the one-sample mixture of BSDF sampling and the
@@ -33,14 +35,19 @@ float guide_q(GuideVertex g, uint k, float p) {
     return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
 }
 
-// The share of BSDF sampling in the mixture: guide_epsilon for a diffuse
-// lobe. A glossy lobe leaves the guide (1 - guide_epsilon) alpha of it: the
-// guide's sectors are uniform inside, so a lobe narrower than they are
-// gains little from them (the roughest GGX, alpha 1, is as broad as a
-// diffuse lobe). Delta lobes do not mix (bsdf_sample_delta).
-float mixture_bsdf_share(Bsdf bsdf) {
-    float eps = params.guide_epsilon;
-    return bsdf_is(bsdf, MATERIAL_CONDUCTOR) ? 1.0 - (1.0 - eps) * min(bsdf.alpha, 1.0) : eps;
+// How much of the guide's side of the mixture a lobe keeps: all for a
+// diffuse lobe, alpha of it for a glossy one: the guide's sectors are
+// uniform inside, so a lobe narrower than they are gains little from them
+// (the roughest GGX, alpha 1, is as broad as a diffuse lobe). Delta lobes
+// do not mix (bsdf_sample_delta).
+float mixture_guide_reach(Bsdf bsdf) {
+    return bsdf_is(bsdf, MATERIAL_CONDUCTOR) ? min(bsdf.alpha, 1.0) : 1.0;
+}
+
+// The share of BSDF sampling in the mixture at g: the guide's share there
+// (guide_epsilon, or learned), less for the guide where the lobe is narrow.
+float mixture_bsdf_share(GuideVertex g, Bsdf bsdf) {
+    return 1.0 - (1.0 - guide_bsdf_share(g)) * mixture_guide_reach(bsdf);
 }
 
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
@@ -49,7 +56,7 @@ float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector)
     if (!guide_covers(g)) {
         return bsdf_pdf(bsdf, wo, wi);
     }
-    float eps = mixture_bsdf_share(bsdf);
+    float eps = mixture_bsdf_share(g, bsdf);
     // A guided direction is uniform within its sector: density p n / (2 pi).
     float guided = wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
     return eps * bsdf_pdf(bsdf, wo, wi) + (1.0 - eps) * guided;
@@ -63,7 +70,7 @@ float mixture_pdf(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi) {
 // A direction from the mixture, the sector it lies in and that sector's
 // probability; u = three uniform numbers.
 vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, out float p_sector) {
-    float eps = mixture_bsdf_share(bsdf);
+    float eps = mixture_bsdf_share(g, bsdf);
     uint a = grid_a();
     uint b = grid_b();
     bool guided = guide_covers(g) && u.z >= eps;
@@ -86,6 +93,23 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
                                          (float(sector / a) + inner.y) / float(b)));
     }
     return wi;
+}
+
+// For a guide that learns its share of BSDF sampling (its logit theta): the
+// one-sample estimate, per unit of L^2 (L the radiance arriving along wi,
+// which the landing's target estimates), of the gradient of the second
+// moment of f cos L / p with respect to theta: d/dtheta E[(f cos L / p)^2]
+// = -E[(f cos L)^2 dp/dtheta / p^3]. wi was drawn from the mixture, whose
+// pdf there is `pdf` and whose f cos / pdf is `weight`.
+float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector, float pdf, vec3 weight) {
+    if (!guide_covers(g) || pdf <= 0.0) {
+        return 0.0;
+    }
+    float e = guide_bsdf_share(g);
+    float guided = wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
+    float dp = (bsdf_pdf(bsdf, wo, wi) - guided) * mixture_guide_reach(bsdf) * e * (1.0 - e);
+    float w = luminance(weight);
+    return -w * w * dp / pdf;
 }
 
 // Luminance the vertex g reflects toward wo of the light the guide expects

@@ -119,6 +119,10 @@ bool guide_covers(GuideVertex g) {
     return g.total > 0.0;
 }
 
+float guide_bsdf_share(GuideVertex g) {
+    return params.guide_epsilon;
+}
+
 float guide_total(GuideVertex g) {
     return g.total;
 }

@@ -30,8 +30,9 @@ void guide_begin_path() {
 // Q learns all the light that reaches `from` through sector k beyond NEE at
 // `from`: what the vertex it reached reflects, NEE there included; of an
 // emitter it reached, with NEE, only the MIS share scattering brings.
-void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight, float reflected,
-                 float direct, inout float td_sq_sum, inout uint td_count, inout uint rng) {
+void guide_learn(GuideVertex from, uint k, float q, float mix, float le, float mis_weight,
+                 float reflected, float direct, inout float td_sq_sum, inout uint td_count,
+                 inout uint rng) {
     if (guide_has_state(from)) {
         float target = le * mis_weight + reflected + direct;
         float td = target - q;

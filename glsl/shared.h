@@ -54,6 +54,12 @@
 // sector the target, then (after `capacity` rows) per row and sector the
 // training pass's dLoss/dz.
 #define B_MLP_DENSE 33
+// Sarsa's learned share of BSDF sampling per volume (FLAG_LEARN_MIX): the
+// pass's tallies of the gradient of the estimator's second moment with
+// respect to the share's logit (positive part, negative part), and the
+// logit's state (logit, Adam's two moments, steps).
+#define B_MIX_GRAD 34
+#define B_MIX_STATE 35
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -66,6 +72,12 @@
 #define FLAG_MAX_TARGET 16
 // Neural: encode the state by the scene's vertices relative to it (thesis).
 #define FLAG_VERTEX_ENCODING 32
+// Sarsa: learn each volume's share of BSDF sampling (else guide_epsilon).
+#define FLAG_LEARN_MIX 64
+// The share's logit: Adam's learning rate, and its bounds (a share in
+// [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
+#define MIX_LEARNING_RATE 0.1
+#define MIX_LOGIT_BOUND 3.0
 
 // Probe kernel modes (tests of the GLSL building blocks).
 #define PROBE_TRACE 0

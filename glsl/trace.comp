@@ -72,6 +72,8 @@ float eps;
 GuideVertex prev_vertex;
 uint prev_sector;
 float prev_q;
+// mixture_gradient of the sample that chose the path's ray (0 if none).
+float prev_mix;
 // Whether prev_q is what the guide expects along the path's ray (else the
 // roulette follows the throughput alone).
 bool guided_roulette;
@@ -110,6 +112,7 @@ void begin_path(uint sample_index) {
     prev_vertex = guide_none();
     prev_sector = 0u;
     prev_q = 0.0;
+    prev_mix = 0.0;
     guided_roulette = false;
     path_estimate = 0.0;
 #endif
@@ -124,6 +127,7 @@ void begin_path(uint sample_index) {
 GuideVertex land_from;
 uint land_sector;
 float land_q;
+float land_mix;
 float land_le;
 float land_mis_weight;
 float land_reflected;
@@ -133,6 +137,7 @@ void land(float le, float mis_weight, float reflected, float direct) {
     land_from = prev_vertex;
     land_sector = prev_sector;
     land_q = prev_q;
+    land_mix = prev_mix;
     land_le = le;
     land_mis_weight = mis_weight;
     land_reflected = reflected;
@@ -269,6 +274,7 @@ bool scatter() {
             prev_q /= max(luminance(weight), 1e-6);
         }
         prev_vertex = up ? here : guide_none();
+        prev_mix = 0.0;
 #endif
     } else {
 #ifdef GUIDED
@@ -289,6 +295,9 @@ bool scatter() {
             return false;
         }
         weight = bsdf_eval(bsdf, wo, local) / pdf;
+#ifdef GUIDED
+        prev_mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
+#endif
     }
     throughput *= weight;
     prev_bsdf_pdf = pdf;
@@ -324,8 +333,8 @@ bool bounce() {
     bool more = scatter();
 #ifdef GUIDED
     if (learn) {
-        guide_learn(land_from, land_sector, land_q, land_le, land_mis_weight, land_reflected,
-                    land_direct, td_sq_sum, td_count, rng);
+        guide_learn(land_from, land_sector, land_q, land_mix, land_le, land_mis_weight,
+                    land_reflected, land_direct, td_sq_sum, td_count, rng);
     }
 #endif
     return more;

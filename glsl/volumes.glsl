@@ -15,7 +15,8 @@
 layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 2 SectorEntry per texel
 // Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), or the max
 // target's max_j Q_j cos(theta_j); total weight of its sector
-// distribution), two volumes per texel; see guide_build.comp.
+// distribution; share of BSDF sampling in the mixture; 0), one texel each;
+// see guide_build.comp.
 layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
 layout(set = 0, binding = B_Q) uniform usamplerBuffer q_texels; // 4 Q per texel
 // The lookup tables of src/guide/lookup.rs: per triangle, its cells or its
@@ -86,13 +87,12 @@ uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
     return best;
 }
 
-// A volume's sums, zero for NO_VOLUME.
-vec2 volume_sums_of(uint v) {
+// A volume's sums and share of BSDF sampling, zero for NO_VOLUME.
+vec3 volume_sums_of(uint v) {
     if (v == NO_VOLUME) {
-        return vec2(0.0);
+        return vec3(0.0);
     }
-    uvec4 pair = texelFetch(volume_sum_texels, int(v >> 1u));
-    return uintBitsToFloat((v & 1u) == 0u ? pair.xy : pair.zw);
+    return uintBitsToFloat(texelFetch(volume_sum_texels, int(v)).xyz);
 }
 
 // The guide seam's reading side (guide.glsl).
@@ -103,7 +103,7 @@ vec2 volume_sums_of(uint v) {
 // they cost nothing there.
 struct GuideVertex {
     uint volume;
-    vec2 sums;
+    vec3 sums; // irradiance-like sum, total weight, share of BSDF sampling
     vec3 p;
     vec3 n;
 };
@@ -113,7 +113,7 @@ GuideVertex guide_vertex(uint volume) {
 }
 
 GuideVertex guide_none() {
-    return GuideVertex(NO_VOLUME, vec2(0.0), vec3(0.0), vec3(0.0));
+    return GuideVertex(NO_VOLUME, vec3(0.0), vec3(0.0), vec3(0.0));
 }
 
 GuideVertex guide_at(uint triangle, Triangle tri, vec3 p, vec3 n, bool front) {
@@ -131,6 +131,10 @@ float guide_total(GuideVertex g) {
 
 float guide_irradiance(GuideVertex g) {
     return g.sums.x;
+}
+
+float guide_bsdf_share(GuideVertex g) {
+    return g.sums.z;
 }
 
 float guide_sector_probability(GuideVertex g, uint k) {

@@ -499,3 +499,48 @@ fn sarsa_matches_the_white_furnace() {
     );
     common::assert_white_furnace(&out);
 }
+
+/// The shares of BSDF sampling the volumes hold after a small `sarsa`
+/// render of `scene` (64 spp at 32×32) with `learn` as `learn_epsilon`.
+fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
+    let ctx = common::gpu();
+    let scene = common::scene(scene);
+    let o = Overrides {
+        method: Some(Method::Sarsa),
+        spp: Some(64),
+        width: Some(32),
+        height: Some(32),
+        guide: Some(GuideSettings::Sarsa(SarsaSettings {
+            learn_epsilon: Some(learn),
+            ..Default::default()
+        })),
+        ..Default::default()
+    };
+    let settings = qtrace::RenderSettings::resolve(&scene, &o).unwrap();
+    let mut renderer = qtrace::render::Renderer::new(&ctx, &scene, settings).unwrap();
+    renderer.run(&mut |_| {}).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let guide = renderer.guide().and_then(|g| g.sarsa()).unwrap();
+    guide.download_bsdf_shares().unwrap()
+}
+
+/// In a white furnace every direction brings the same light, so any guide
+/// but BSDF sampling adds variance: the volumes learn to sample the BSDF
+/// more than the initial half. Without learning the share stays epsilon.
+#[test]
+fn volumes_learn_their_share_of_bsdf_sampling() {
+    let learned = bsdf_shares("furnace", true);
+    let mean = learned.iter().map(|&s| s as f64).sum::<f64>() / learned.len() as f64;
+    assert!(mean > 0.6, "mean share {mean} in the furnace");
+    // The logit stays within ±3: a share in [0.047, 0.953].
+    assert!(
+        learned.iter().all(|s| (0.047..=0.953).contains(s)),
+        "{learned:?}"
+    );
+    let fixed = bsdf_shares("furnace", false);
+    let epsilon = Common::default().epsilon;
+    assert!(
+        fixed.iter().all(|&s| s == epsilon),
+        "shares {fixed:?} against epsilon {epsilon}"
+    );
+}

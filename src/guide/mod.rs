@@ -204,6 +204,7 @@ impl GuideSettings {
                     volumes: Some(0),
                     density: Some(0.0),
                     memory_mib: Some(0.0),
+                    learn_epsilon: Some(true),
                     ..Default::default()
                 };
                 e(x, Self::Sarsa(all))
@@ -571,6 +572,7 @@ mod tests {
             density: None,
             memory_mib: Some(3.5),
             atomics: sarsa::Atomics::Cas,
+            learn_epsilon: Some(false),
         });
         let neural = GuideSettings::Neural(NeuralSettings {
             width: 8,

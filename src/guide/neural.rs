@@ -165,6 +165,9 @@ impl NeuralSettings {
         SarsaSettings {
             common: self.common.clone(),
             volumes: self.volumes,
+            // The network's tables keep `epsilon`: only Sarsa's kernel
+            // learns the share.
+            learn_epsilon: Some(false),
             ..Default::default()
         }
     }

@@ -48,6 +48,10 @@ pub struct SarsaSettings {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub memory_mib: Option<f64>,
     pub atomics: Atomics,
+    /// Whether each volume learns its share of BSDF sampling in the
+    /// mixture, starting from `epsilon` (None: yes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub learn_epsilon: Option<bool>,
 }
 
 /// Pixels per radiance volume when neither a count nor a density is given:
@@ -66,9 +70,10 @@ pub const MAX_VOLUMES: u32 = 1 << 22;
 
 /// Device bytes per volume for an n-sector grid: Q, the alias table, target
 /// sums (8 bytes), new and total visit counts, and the NEE share's sums (8
-/// bytes) and mean per sector, and two sums per volume.
+/// bytes) and mean per sector; per volume its sums and BSDF share (16),
+/// the share's gradient tallies (16) and state (16).
 fn table_bytes_per_volume(sectors: u32) -> u64 {
-    (8 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 8
+    (8 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 48
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
@@ -81,6 +86,11 @@ pub fn bytes_per_volume(sectors: u32) -> u64 {
 impl SarsaSettings {
     pub fn sectors(&self) -> u32 {
         self.common.sectors()
+    }
+
+    /// Whether volumes learn their share of BSDF sampling (the default).
+    pub fn learns_epsilon(&self) -> bool {
+        self.learn_epsilon.unwrap_or(true)
     }
 
     /// Checks the ranges of Sarsa's own keys (`Common::validate` checks
@@ -219,6 +229,8 @@ pub struct SarsaGuide {
     direct_sum: Buffer,
     q_direct: Buffer,
     volume_sums: Buffer,
+    mix_grad: Buffer,
+    mix_state: Buffer,
     lookup: VolumeLookup,
     lookup_triangles: Buffer,
     lookup_cells: Buffer,
@@ -286,7 +298,9 @@ impl SarsaGuide {
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
         let direct_sum = Buffer::gpu_only(ctx, "sarsa direct sums", cells * 8)?;
         let q_direct = Buffer::gpu_only(ctx, "sarsa Q carried by NEE", cells * 4)?;
-        let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 8)?;
+        let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 16)?;
+        let mix_grad = Buffer::gpu_only(ctx, "sarsa BSDF share gradients", vols.len() as u64 * 16)?;
+        let mix_state = Buffer::gpu_only(ctx, "sarsa BSDF shares", vols.len() as u64 * 16)?;
         // List items carry their volume's position, so the scan reads one
         // contiguous vec4 per candidate: (position, index bits).
         let items: Vec<[f32; 4]> = lookup
@@ -320,6 +334,8 @@ impl SarsaGuide {
             (shaders::B_VOLUME_SUMS, &volume_sums),
             (shaders::B_DIRECT_SUM, &direct_sum),
             (shaders::B_Q_DIRECT, &q_direct),
+            (shaders::B_MIX_GRAD, &mix_grad),
+            (shaders::B_MIX_STATE, &mix_state),
         ];
         let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
         let guide = Self {
@@ -333,6 +349,8 @@ impl SarsaGuide {
             direct_sum,
             q_direct,
             volume_sums,
+            mix_grad,
+            mix_state,
             lookup,
             lookup_triangles,
             lookup_cells,
@@ -349,6 +367,8 @@ impl SarsaGuide {
                 &guide.visits_total,
                 &guide.direct_sum,
                 &guide.q_direct,
+                &guide.mix_grad,
+                &guide.mix_state,
             ] {
                 rec.fill(b, 0);
             }
@@ -360,11 +380,12 @@ impl SarsaGuide {
     /// The tallies a trace kernel adds targets to (with the bindings of
     /// another guide's tables, for a learner whose targets land apart from
     /// the tables it samples from).
-    pub fn tally_bindings(&self) -> [(u32, &Buffer); 3] {
+    pub fn tally_bindings(&self) -> [(u32, &Buffer); 4] {
         [
             (shaders::B_SUM, &self.sum),
             (shaders::B_VISITS, &self.visits),
             (shaders::B_DIRECT_SUM, &self.direct_sum),
+            (shaders::B_MIX_GRAD, &self.mix_grad),
         ]
     }
 
@@ -375,7 +396,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 11] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 13] {
         [
             (shaders::B_Q, &self.q),
             (shaders::B_SECTORS, &self.sectors),
@@ -385,6 +406,8 @@ impl SarsaGuide {
             (shaders::B_VOLUME_SUMS, &self.volume_sums),
             (shaders::B_DIRECT_SUM, &self.direct_sum),
             (shaders::B_Q_DIRECT, &self.q_direct),
+            (shaders::B_MIX_GRAD, &self.mix_grad),
+            (shaders::B_MIX_STATE, &self.mix_state),
             (shaders::B_LOOKUP_TRIANGLES, &self.lookup_triangles),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
@@ -395,6 +418,10 @@ impl SarsaGuide {
     pub fn set_params(&self, p: &mut PassParams, learn: bool) {
         self.settings.common.set_params(p, learn);
         p.volume_count = self.volumes.len() as u32;
+        p.flags &= !shaders::FLAG_LEARN_MIX;
+        if self.settings.learns_epsilon() {
+            p.flags |= shaders::FLAG_LEARN_MIX;
+        }
     }
 
     /// Records the guide update: with FLAG_LEARN in `push`, the pass's
@@ -447,6 +474,12 @@ impl SarsaGuide {
         Ok(self.download_sectors()?.iter().map(|e| e.p(n)).collect())
     }
 
+    /// Each volume's share of BSDF sampling in the mixture.
+    pub fn download_bsdf_shares(&self) -> gpu::Result<Vec<f32>> {
+        let sums: Vec<[f32; 4]> = self.volume_sums.download()?;
+        Ok(sums.iter().take(self.volumes.len()).map(|s| s[2]).collect())
+    }
+
     /// Running means of the share of targets NEE carries, volume-major.
     pub fn download_q_direct(&self) -> gpu::Result<Vec<f32>> {
         let mut q: Vec<f32> = self.q_direct.download()?;
@@ -461,13 +494,15 @@ impl SarsaGuide {
         Ok(entries)
     }
 
-    /// What the guide has learned, to resume from: Q, the visit counts and
-    /// the share NEE carries (the tables are rebuilt from them).
+    /// What the guide has learned, to resume from: Q, the visit counts,
+    /// the share NEE carries and the volumes' BSDF shares (the tables are
+    /// rebuilt from them).
     pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
         Ok(vec![
             ("sarsa Q", self.q.download()?),
             ("sarsa visits", self.visits_total.download()?),
             ("sarsa Q carried by NEE", self.q_direct.download()?),
+            ("sarsa BSDF shares", self.mix_state.download()?),
         ])
     }
 
@@ -481,6 +516,7 @@ impl SarsaGuide {
             ("sarsa Q", &self.q),
             ("sarsa visits", &self.visits_total),
             ("sarsa Q carried by NEE", &self.q_direct),
+            ("sarsa BSDF shares", &self.mix_state),
         ] {
             super::restore_blob(buffer, name, blobs)?;
         }
