@@ -199,7 +199,14 @@ bool scatter() {
     GuideVertex here = delta && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn).
+#ifdef FROZEN
+    // Only the roulette's scale needs it here, at the first hit: the diffuse
+    // form serves every lobe (lavapipe would run a glossy lobe's estimate,
+    // a BSDF sample, at every vertex).
+    float reflected = depth == 0u ? bsdf_reflect(bsdf, wo, guide_irradiance(here)) : 0.0;
+#else
     float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo, rng) : 0.0;
+#endif
     if (depth == 0u) {
         path_estimate = reflected;
     }
