@@ -270,16 +270,21 @@ bool scatter() {
         // Guides learn along reflections, which stay in this vertex's
         // hemisphere, and do not sample here.
         bool up = local.z > 0.0;
+#ifdef FROZEN
+        // Not looked up (a pass that does not learn): the roulette keeps
+        // what the vertex before expected from this direction, per unit of
+        // the throughput it had then.
+        prev_q /= max(luminance(weight), 1e-6);
+#else
         if (guide_covers(here)) {
             prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
             prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
             guided_roulette = true;
         } else {
-            // Not looked up (a pass that does not learn): the roulette keeps
-            // what the vertex before expected from this direction, per unit
-            // of the throughput it had then.
+            // Not looked up (learn off) or no volume there: as in FROZEN.
             prev_q /= max(luminance(weight), 1e-6);
         }
+#endif
         prev_vertex = up ? here : guide_none();
         prev_mix = 0.0;
 #endif
