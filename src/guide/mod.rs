@@ -190,6 +190,7 @@ impl GuideSettings {
         // Every key, optional ones included, for the message on a typo.
         let common = Common {
             freeze_after: Some(0),
+            thin_after: Some(0),
             reset_after: Some(0),
             ..Default::default()
         };
@@ -214,6 +215,9 @@ impl GuideSettings {
                     common,
                     volumes: Some(0),
                     batch: Some(0),
+                    learning_rate: Some(0.0),
+                    steps: Some(0),
+                    training: Some(neural::Training::Volumes),
                     ..Default::default()
                 };
                 e(x, Self::Neural(all))
@@ -602,8 +606,28 @@ mod tests {
             e.contains("[sarsa]") && e.contains("epsilom") && e.contains("keys: "),
             "{e}"
         );
+        // The message lists every key, optional ones included.
+        for key in [
+            "thin_after",
+            "freeze_after",
+            "reset_after",
+            "learn_epsilon",
+            "memory_mib",
+        ] {
+            assert!(e.contains(key), "{key} missing from: {e}");
+        }
         let e = GuideSettings::from_table("neural", &table("width = \"wide\"")).unwrap_err();
         assert!(e.contains("[neural]"), "{e}");
+        for key in [
+            "thin_after",
+            "learning_rate",
+            "steps",
+            "training",
+            "batch",
+            "volumes",
+        ] {
+            assert!(e.contains(key), "{key} missing from: {e}");
+        }
         // Missing keys take the defaults, shared ones included.
         let g = GuideSettings::from_table("neural", &table("epsilon = 0.75")).unwrap();
         assert_eq!(g.common().epsilon, 0.75);
