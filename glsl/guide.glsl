@@ -50,6 +50,12 @@ float mixture_bsdf_share(GuideVertex g, Bsdf bsdf) {
     return 1.0 - (1.0 - guide_bsdf_share(g)) * mixture_guide_reach(bsdf);
 }
 
+// Solid-angle density of the guide's side at wi, in a sector of probability
+// p_sector: uniform within the sector, p n / (2 pi), on the upper side.
+float guide_density(vec3 wi, float p_sector) {
+    return wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
+}
+
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
 // probability p_sector; pure BSDF sampling where the guide has nothing.
 float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
@@ -57,9 +63,7 @@ float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector)
         return bsdf_pdf(bsdf, wo, wi);
     }
     float eps = mixture_bsdf_share(g, bsdf);
-    // A guided direction is uniform within its sector: density p n / (2 pi).
-    float guided = wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
-    return eps * bsdf_pdf(bsdf, wo, wi) + (1.0 - eps) * guided;
+    return eps * bsdf_pdf(bsdf, wo, wi) + (1.0 - eps) * guide_density(wi, p_sector);
 }
 
 float mixture_pdf(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi) {
@@ -106,8 +110,7 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
         return 0.0;
     }
     float e = guide_bsdf_share(g);
-    float guided = wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
-    float dp = (bsdf_pdf(bsdf, wo, wi) - guided) * mixture_guide_reach(bsdf) * e * (1.0 - e);
+    float dp = (bsdf_pdf(bsdf, wo, wi) - guide_density(wi, p_sector)) * mixture_guide_reach(bsdf) * e * (1.0 - e);
     float w = luminance(weight);
     return -w * w * dp / pdf;
 }

@@ -237,16 +237,6 @@ impl Renderer {
             push,
             &constants,
         )?;
-        let frozen = match settings
-            .guide
-            .as_ref()
-            .and_then(|g| g.frozen_trace_spirv(settings.nee))
-        {
-            Some(spirv) => Some(ComputePipeline::specialized(
-                ctx, "trace", spirv, push, &constants,
-            )?),
-            None => None,
-        };
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
         let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
         bindings.extend([
@@ -258,13 +248,16 @@ impl Renderer {
             bindings.extend(g.bindings());
         }
         let trace_set = DescriptorSet::new(ctx, &trace, &bindings)?;
-        let frozen = match frozen {
-            Some(p) => {
+        let frozen = settings
+            .guide
+            .as_ref()
+            .and_then(|g| g.frozen_trace_spirv(settings.nee))
+            .map(|spirv| -> gpu::Result<_> {
+                let p = ComputePipeline::specialized(ctx, "trace", spirv, push, &constants)?;
                 let set = DescriptorSet::new(ctx, &p, &bindings)?;
-                Some((p, set))
-            }
-            None => None,
-        };
+                Ok((p, set))
+            })
+            .transpose()?;
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
