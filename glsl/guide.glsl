@@ -11,12 +11,14 @@
 //   guide_choose_sector(g, pick, u, sector, out p)  with pick, a sector
 //       drawn by u and its probability p; else p of `sector`
 //   guide_sector_q(g, k)     Q of sector k (0 where the guide has nothing)
-//   guide_learn(from, k, q, mix, le, mis_weight, reflected, direct, ...)  a
-//       transition from vertex `from` through sector k (whose Q was q;
-//       mix: its mixture_gradient) reached an emitter sending le, whose
+//   guide_learn(from, k, q, le, mis_weight, reflected, direct, ...)  a
+//       transition from vertex `from` through sector k (whose Q was q)
+//       reached an emitter sending le, whose
 //       scattering MIS weight is mis_weight, or (le 0) a surface that
 //       reflects `reflected` back and gets `direct` by NEE, or a miss (the
 //       environment as `reflected`)
+//   guide_learn_share(from, gradient)  one sample's gradient for the share
+//       of BSDF sampling at `from` (mixture_gradient times L^2)
 //   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
 //       pass that learns (a guide may keep something per path)
 // On it, this file builds the one-sample mixture of BSDF sampling and the
@@ -101,7 +103,7 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
 
 // For a guide that learns its share of BSDF sampling (its logit theta): the
 // one-sample estimate, per unit of L^2 (L the radiance arriving along wi,
-// which the landing's target estimates), of the gradient of the second
+// which the path estimates), of the gradient of the second
 // moment of f cos L / p with respect to theta: d/dtheta E[(f cos L / p)^2]
 // = -E[(f cos L)^2 dp/dtheta / p^3]. wi was drawn from the mixture, whose
 // pdf there is `pdf` and whose f cos / pdf is `weight`.

@@ -30,7 +30,7 @@ void guide_begin_path() {
 // Q learns all the light that reaches `from` through sector k beyond NEE at
 // `from`: what the vertex it reached reflects, NEE there included; of an
 // emitter it reached, with NEE, only the MIS share scattering brings.
-void guide_learn(GuideVertex from, uint k, float q, float mix, float le, float mis_weight,
+void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight,
                  float reflected, float direct, inout float td_sq_sum, inout uint td_count,
                  inout uint rng) {
     if (guide_has_state(from)) {
@@ -46,6 +46,10 @@ void guide_learn(GuideVertex from, uint k, float q, float mix, float le, float m
             kept_target = target;
         }
     }
+}
+
+// Neural-Q keeps `epsilon`: its tables are the network's.
+void guide_learn_share(GuideVertex from, float gradient) {
 }
 
 // A learning pass's path at pixel `index` ended: it offers its kept

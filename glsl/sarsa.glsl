@@ -50,6 +50,16 @@ void sarsa_learn(GuideVertex from, uint k, float q, float target, inout float td
 void guide_begin_path() {
 }
 
+// Tallies one sample's gradient for the share of BSDF sampling at `from`,
+// bounded so that no single path sets a volume's step (it only steers the
+// share; the image stays unbiased).
+void guide_learn_share(GuideVertex from, float gradient) {
+    if ((params.flags & FLAG_LEARN_MIX) != 0u && from.volume != NO_VOLUME) {
+        float g = clamp(gradient, -1.0e6, 1.0e6);
+        ADD_TALLY(mix_grad[2u * from.volume + (g < 0.0 ? 1u : 0u)], abs(g));
+    }
+}
+
 // Sarsa learns as transitions land (sarsa_record); nothing is left at a path's end.
 void guide_end_path(uint index, inout uint rng) {
 }
@@ -58,20 +68,10 @@ void guide_end_path(uint index, inout uint rng) {
 // an emitter's target is all of its Le: NEE's share of that is learned
 // apart (sarsa_record_direct) and taken out of the sampling distribution
 // instead.
-// The share's gradient (mixture_gradient) needs the radiance L that the
-// sampled direction brought: what the path estimate gets from it, the
-// emitter's MIS share and NEE at the vertex reached included.
-void guide_learn(GuideVertex from, uint k, float q, float mix, float le, float mis_weight,
+void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight,
                  float reflected, float direct, inout float td_sq_sum, inout uint td_count,
                  inout uint rng) {
     sarsa_learn(from, k, q, le + reflected, td_sq_sum, td_count);
-    if ((params.flags & FLAG_LEARN_MIX) != 0u && from.volume != NO_VOLUME && mix != 0.0) {
-        // One sample's gradient is bounded so that no single path sets a
-        // volume's step (it only steers the share; the image stays unbiased).
-        float l = le * mis_weight + reflected + direct;
-        float g = clamp(mix * l * l, -1.0e6, 1.0e6);
-        ADD_TALLY(mix_grad[2u * from.volume + (g < 0.0 ? 1u : 0u)], abs(g));
-    }
 #ifdef WITH_NEE
     if (from.volume != NO_VOLUME && mis_weight < 1.0) {
         sarsa_record_direct(from.volume, k, le * (1.0 - mis_weight));

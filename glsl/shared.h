@@ -76,7 +76,7 @@
 #define FLAG_LEARN_MIX 64
 // The share's logit: Adam's learning rate, and its bounds (a share in
 // [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
-#define MIX_LEARNING_RATE 0.1
+#define MIX_LEARNING_RATE 0.3
 #define MIX_LOGIT_BOUND 3.0
 
 // Probe kernel modes (tests of the GLSL building blocks).

@@ -72,8 +72,6 @@ float eps;
 GuideVertex prev_vertex;
 uint prev_sector;
 float prev_q;
-// mixture_gradient of the sample that chose the path's ray (0 if none).
-float prev_mix;
 // Whether prev_q is what the guide expects along the path's ray (else the
 // roulette follows the throughput alone).
 bool guided_roulette;
@@ -87,6 +85,23 @@ bool learn;
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
 float path_estimate;
+// The share of BSDF sampling learns from the radiance L a sampled direction
+// brought, squared (mixture_gradient). The path's own estimate of it is
+// known once the path ends: what it gathered after the sample, per unit of
+// the throughput it then had. (Q, which bootstraps from a small start,
+// underestimates light that arrives after many bounces, and would steer
+// the share away from BSDF sampling just where the guide knows least.)
+// Kept for the first two sampled vertices of a path, held in registers.
+#ifndef FROZEN
+GuideVertex share_from0;
+float share_mix0; // mixture_gradient; 0: none kept
+float share_throughput0;
+float share_radiance0;
+GuideVertex share_from1;
+float share_mix1;
+float share_throughput1;
+float share_radiance1;
+#endif
 #endif
 uint td_count;
 float td_sq_sum;
@@ -112,9 +127,12 @@ void begin_path(uint sample_index) {
     prev_vertex = guide_none();
     prev_sector = 0u;
     prev_q = 0.0;
-    prev_mix = 0.0;
     guided_roulette = false;
     path_estimate = 0.0;
+#ifndef FROZEN
+    share_mix0 = 0.0;
+    share_mix1 = 0.0;
+#endif
 #endif
     td_count = 0u;
     td_sq_sum = 0.0;
@@ -127,17 +145,52 @@ void begin_path(uint sample_index) {
 GuideVertex land_from;
 uint land_sector;
 float land_q;
-float land_mix;
 float land_le;
 float land_mis_weight;
 float land_reflected;
 float land_direct;
 
+#ifndef FROZEN
+void keep_share_sample(GuideVertex g, float mix) {
+    bool first = share_mix0 == 0.0;
+    if (first || share_mix1 == 0.0) {
+        GuideVertex from = g;
+        float t = luminance(throughput);
+        float r = luminance(radiance);
+        if (first) {
+            share_from0 = from;
+            share_mix0 = mix;
+            share_throughput0 = t;
+            share_radiance0 = r;
+        } else {
+            share_from1 = from;
+            share_mix1 = mix;
+            share_throughput1 = t;
+            share_radiance1 = r;
+        }
+    }
+}
+
+float share_gradient(float mix, float t, float r) {
+    float l = t > 0.0 ? max(luminance(radiance) - r, 0.0) / t : 0.0;
+    return mix * l * l;
+}
+
+// At the path's end: each kept sample's gradient to the guide.
+void learn_share_samples() {
+    if (share_mix0 != 0.0) {
+        guide_learn_share(share_from0, share_gradient(share_mix0, share_throughput0, share_radiance0));
+    }
+    if (share_mix1 != 0.0) {
+        guide_learn_share(share_from1, share_gradient(share_mix1, share_throughput1, share_radiance1));
+    }
+}
+#endif
+
 void land(float le, float mis_weight, float reflected, float direct) {
     land_from = prev_vertex;
     land_sector = prev_sector;
     land_q = prev_q;
-    land_mix = prev_mix;
     land_le = le;
     land_mis_weight = mis_weight;
     land_reflected = reflected;
@@ -264,6 +317,9 @@ bool scatter() {
     vec3 local;
     vec3 weight;
     float pdf = 0.0;
+#if defined(GUIDED) && !defined(FROZEN)
+    float mix = 0.0;
+#endif
     if (delta) {
         local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
 #ifdef GUIDED
@@ -286,7 +342,6 @@ bool scatter() {
         }
 #endif
         prev_vertex = up ? here : guide_none();
-        prev_mix = 0.0;
 #endif
     } else {
 #ifdef GUIDED
@@ -307,8 +362,8 @@ bool scatter() {
             return false;
         }
         weight = bsdf_eval(bsdf, wo, local) / pdf;
-#ifdef GUIDED
-        prev_mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
+#if defined(GUIDED) && !defined(FROZEN)
+        mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
 #endif
     }
     throughput *= weight;
@@ -336,6 +391,11 @@ bool scatter() {
         }
         throughput /= q;
     }
+#if defined(GUIDED) && !defined(FROZEN)
+    if (mix != 0.0) {
+        keep_share_sample(here, mix);
+    }
+#endif
     depth += 1u;
     return true;
 }
@@ -345,7 +405,7 @@ bool bounce() {
     bool more = scatter();
 #ifdef GUIDED
     if (learn) {
-        guide_learn(land_from, land_sector, land_q, land_mix, land_le, land_mis_weight,
+        guide_learn(land_from, land_sector, land_q, land_le, land_mis_weight,
                     land_reflected, land_direct, td_sq_sum, td_count, rng);
     }
 #endif
@@ -381,6 +441,9 @@ void main() {
             samples[(params.selector + done) * pixels + index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
 #ifdef GUIDED
             if (learn) {
+#ifndef FROZEN
+                learn_share_samples();
+#endif
                 guide_end_path(index, rng);
             }
 #endif

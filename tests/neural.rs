@@ -611,7 +611,7 @@ fn check_sampler(distribution: Distribution) {
     let scene = common::scene("cornell-box");
     let settings = NeuralSettings {
         common: Common {
-            epsilon: 0.25,
+            epsilon: Some(0.25),
             distribution,
             ..Default::default()
         },
@@ -655,7 +655,7 @@ fn check_sampler(distribution: Distribution) {
     common::assert_mixture_sampler(
         &samples,
         &p,
-        settings.common.epsilon as f64,
+        settings.common.epsilon(false) as f64,
         settings.common.grid,
     );
 }

@@ -198,7 +198,7 @@ fn guided_sampler_matches_its_pdf() {
     let s = SarsaSettings {
         volumes: Some(4),
         common: Common {
-            epsilon: 0.25,
+            epsilon: Some(0.25),
             ..Default::default()
         },
         ..Default::default()
@@ -224,7 +224,7 @@ fn guided_sampler_matches_its_pdf() {
     let uniforms: Vec<Vec3> = (0..draws)
         .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
         .collect();
-    let eps = s.common.epsilon;
+    let eps = s.epsilon();
     // A diffuse vertex seen along its normal, and rough conductors seen at
     // 40°, whose mixture gives the guide (1 − ε) α.
     let wo = Vec3::new(0.643, 0.0, 0.766).normalize();
@@ -512,6 +512,10 @@ fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
         height: Some(32),
         guide: Some(GuideSettings::Sarsa(SarsaSettings {
             learn_epsilon: Some(learn),
+            common: Common {
+                epsilon: Some(0.5),
+                ..Default::default()
+            },
             ..Default::default()
         })),
         ..Default::default()
@@ -525,20 +529,36 @@ fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
 }
 
 /// In a white furnace every direction brings the same light, so any guide
-/// but BSDF sampling adds variance: the volumes learn to sample the BSDF
-/// more than the initial half. Without learning the share stays epsilon.
+/// but BSDF sampling adds variance: from a share of one half, the volumes
+/// learn to sample the BSDF far more. In the indirectly lit room the guide
+/// finds the light, and some volumes learn to trust it more than half.
+/// Without learning the share stays epsilon.
 #[test]
 fn volumes_learn_their_share_of_bsdf_sampling() {
-    let learned = bsdf_shares("furnace", true);
-    let mean = learned.iter().map(|&s| s as f64).sum::<f64>() / learned.len() as f64;
-    assert!(mean > 0.6, "mean share {mean} in the furnace");
+    let mean = |s: &[f32]| s.iter().map(|&s| s as f64).sum::<f64>() / s.len() as f64;
+    let furnace = bsdf_shares("furnace", true);
+    assert!(
+        mean(&furnace) > 0.85,
+        "mean share {} in the furnace",
+        mean(&furnace)
+    );
+    let room = bsdf_shares("indirect-room", true);
+    let trusting = room.iter().filter(|&&s| s < 0.4).count();
+    assert!(
+        trusting * 10 >= room.len(),
+        "{trusting} of {} volumes below 0.4 in the room: {room:?}",
+        room.len()
+    );
     // The logit stays within ±3: a share in [0.047, 0.953].
     assert!(
-        learned.iter().all(|s| (0.047..=0.953).contains(s)),
-        "{learned:?}"
+        furnace
+            .iter()
+            .chain(&room)
+            .all(|s| (0.047..=0.953).contains(s)),
+        "{furnace:?} {room:?}"
     );
     let fixed = bsdf_shares("furnace", false);
-    let epsilon = Common::default().epsilon;
+    let epsilon = 0.5;
     assert!(
         fixed.iter().all(|&s| s == epsilon),
         "shares {fixed:?} against epsilon {epsilon}"

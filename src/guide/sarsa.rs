@@ -88,6 +88,11 @@ impl SarsaSettings {
         self.common.sectors()
     }
 
+    /// The share of BSDF sampling, or where each volume's learned share starts.
+    pub fn epsilon(&self) -> f32 {
+        self.common.epsilon(self.learns_epsilon())
+    }
+
     /// Whether volumes learn their share of BSDF sampling (the default).
     pub fn learns_epsilon(&self) -> bool {
         self.learn_epsilon.unwrap_or(true)
@@ -417,6 +422,7 @@ impl SarsaGuide {
     /// Fills the guide's part of the push constants; `learn` turns updates on.
     pub fn set_params(&self, p: &mut PassParams, learn: bool) {
         self.settings.common.set_params(p, learn);
+        p.guide_epsilon = self.settings.epsilon();
         p.volume_count = self.volumes.len() as u32;
         p.flags &= !shaders::FLAG_LEARN_MIX;
         if self.settings.learns_epsilon() {
