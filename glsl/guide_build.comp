@@ -29,12 +29,11 @@ layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { TALLY direct
 layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
 
-// Folds cell i's tallies of the pass into its running means; returns the
-// pass's count of targets there.
-uint fold(uint i) {
+// Folds cell i's tallies of the pass into its running means.
+void fold(uint i) {
     uint count = visits[i];
     if (count == 0u) {
-        return 0u;
+        return;
     }
     uint seen = visits_total[i];
     q_values[i] = (q_values[i] * float(seen) + TALLY_VALUE(target_sum[i])) / float(seen + count);
@@ -43,7 +42,6 @@ uint fold(uint i) {
     target_sum[i] = TALLY_ZERO;
     visits_total[i] = seen + count;
     visits[i] = 0u;
-    return count;
 }
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec4 volume_sums[]; };
@@ -52,9 +50,9 @@ layout(std430, set = 0, binding = B_MIX_STATE) buffer MixState { vec4 mix_state[
 
 // Volume v's share of BSDF sampling in the mixture: guide_epsilon, or with
 // FLAG_LEARN_MIX the sigmoid of a logit that starts at guide_epsilon's and
-// takes an Adam step (state: logit, moments, steps) down the mean gradient
-// of the pass's `count` targets from v (sarsa.glsl) after a pass that learned.
-float bsdf_share(uint v, uint count) {
+// takes an Adam step (state: logit, moments, steps) down the gradient the
+// pass's paths tallied for v (sarsa.glsl) after a pass that learned.
+float bsdf_share(uint v) {
     if ((params.flags & FLAG_LEARN_MIX) == 0u) {
         return params.guide_epsilon;
     }
@@ -62,8 +60,10 @@ float bsdf_share(uint v, uint count) {
     if (s.w == 0.0) {
         s.x = log(params.guide_epsilon / (1.0 - params.guide_epsilon));
     }
-    if (count > 0u) {
-        float g = (TALLY_VALUE(mix_grad[2u * v]) - TALLY_VALUE(mix_grad[2u * v + 1u])) / float(count);
+    float pos = TALLY_VALUE(mix_grad[2u * v]);
+    float neg = TALLY_VALUE(mix_grad[2u * v + 1u]);
+    if (pos + neg > 0.0) {
+        float g = pos - neg;
         mix_grad[2u * v] = TALLY_ZERO;
         mix_grad[2u * v + 1u] = TALLY_ZERO;
         s.w += 1.0;
@@ -121,10 +121,9 @@ void main() {
     float weighted = 0.0;
     float best = 0.0;
     float total = 0.0;
-    uint count = 0u;
     for (uint k = 0u; k < n; ++k) {
         if (learned) {
-            count += fold(base + k);
+            fold(base + k);
         }
         float cos_k = sector_cos(k, a, b);
         float q = max(q_values[base + k], 0.0);
@@ -133,7 +132,7 @@ void main() {
         total += distribution_weight(base + k, q, cos_k);
     }
     bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
-    volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v, count), 0.0);
+    volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
     // Whole units: sector k gets the units between the floors of its
     // running sum's start and end (scaled to W), the last end being W, so
     // the weights add up to W exactly (the last sector takes what rounding
