@@ -4,7 +4,8 @@
 // listed them in row order; each invocation sums one weight's (or the
 // bias's) gradient over that list, in that order every run; then Adam.
 // With MLP_DENSE every row has a delta at every output: one invocation per
-// output parameter sums its gradient over all rows, with no lists.
+// four weights of an output (or its bias) sums their gradients over all
+// rows, with no lists.
 
 #define MLP_PARAMS_ONLY
 #include "shared.h"
@@ -30,32 +31,37 @@ layout(set = 0, binding = B_MLP_DENSE) uniform usamplerBuffer dense_texels;
 
 #ifdef MLP_DENSE
 void main() {
-    // Parameter i of the output layer's: weight (k, j) for j < MLP_WIDTH,
-    // else output k's bias.
+    // Invocation i: weights (k, 4q .. 4q + 3) for i < MLP_OUTPUTS * MLP_W4
+    // (a texel of activations serves four weights), else output k's bias.
     uint i = gl_GlobalInvocationID.x;
-    if (i >= MLP_OUTPUTS * (MLP_WIDTH + 1u)) {
+    uint weights = MLP_OUTPUTS * MLP_W4;
+    if (i >= weights + MLP_OUTPUTS) {
         return;
     }
-    uint k = i / (MLP_WIDTH + 1u);
-    uint j = i - k * (MLP_WIDTH + 1u);
+    bool is_bias = i >= weights;
+    uint k = is_bias ? i - weights : i / MLP_W4;
+    uint q = is_bias ? 0u : i - k * MLP_W4;
     uint rows = min(batch.count, push.capacity);
     if (rows == 0u) {
         return;
     }
-    float g = 0.0;
+    vec4 g = vec4(0.0);
     for (uint b = 0u; b < rows; b += BLOCK) {
         for (uint s = b; s < min(b + BLOCK, rows); s++) {
             float delta = MLP_TEXEL_FLOAT(dense_texels, (push.capacity + s) * MLP_OUTPUTS + k);
-            uint last = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_WIDTH;
-            float a = MLP_TEXEL_FLOAT(act_texels, last + min(j, MLP_WIDTH - 1u));
-            g += delta * (j < MLP_WIDTH ? a : 1.0);
+            uint last4 = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_W4;
+            vec4 a = uintBitsToFloat(texelFetch(act_texels, int(last4 + q)));
+            g += delta * (is_bias ? vec4(1.0) : a);
         }
     }
+    g /= float(rows);
     uint first = mlp_offset(MLP_HIDDEN);
-    if (j < MLP_WIDTH) {
-        adam_step(first + k * MLP_WIDTH + j, g / float(rows));
+    if (is_bias) {
+        adam_step(first + MLP_OUTPUTS * MLP_WIDTH + k, g.x);
     } else {
-        adam_step(first + MLP_OUTPUTS * MLP_WIDTH + k, g / float(rows));
+        for (uint c = 0u; c < 4u; c++) {
+            adam_step(first + k * MLP_WIDTH + 4u * q + c, g[c]);
+        }
     }
 }
 #else

@@ -1,4 +1,5 @@
 #version 460
+#extension GL_EXT_control_flow_attributes : require
 // Training, per transition: the forward pass (keeping every hidden layer's
 // activations), the relative loss 0.5 (target - Q_k)^2 / (Q_k^2 + epsilon)
 // (Q_k in the denominator held constant) and the backward pass, which keeps
@@ -50,34 +51,40 @@ void main() {
     // Relative to Q, the loss weighs dim places, where guiding matters most,
     // as much as bright ones (measured: relMSE 0.100 -> 0.058 on the room
     // at 128x128 with training = "volumes").
-    // Deltas of the last hidden layer go to the region its activations do
-    // not occupy; each earlier layer's then to the other region in turn.
-    uint from = mlp_last_region();
-    uint to = from == 0u ? MLP_A4 : 0u;
-#ifdef MLP_DENSE
-    for (uint i = 0u; i < MLP_W4; i++) {
-        MLP_V(to + i) = vec4(0.0);
+    // The last hidden layer's activations and deltas stay in registers
+    // (unrolled loops index the arrays with constants), as every output
+    // reads and adds to them: llvmpipe reads and writes workgroup memory one
+    // lane and word at a time.
+    vec4 h[MLP_W4];
+    vec4 d[MLP_W4];
+    vec4 w[MLP_W4];
+    uint last_region = mlp_last_region();
+    [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+        h[i] = MLP_V(last_region + i);
+        d[i] = vec4(0.0);
     }
+    uint last = mlp_offset(MLP_HIDDEN);
+#ifdef MLP_DENSE
+    // Every output adds to the deltas.
     float loss = 0.0;
     for (uint k = 0u; k < MLP_OUTPUTS; k++) {
-        float z = mlp_output(k);
+        uint out_row = last / 4u + k * MLP_W4;
+        float z = mlp_param(last + MLP_OUTPUTS * MLP_WIDTH + k);
+        [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+            w[i] = mlp_w(out_row + i);
+            z += dot(w[i], h[i]);
+        }
         float q = mlp_softplus(z);
         float target = dense[s * MLP_OUTPUTS + k];
         float relative = relative_weight(q);
         float delta_out = (q - target) * mlp_sigmoid(z) * relative;
         loss += 0.5 * (target - q) * (target - q) * relative;
         dense[(push.capacity + s) * MLP_OUTPUTS + k] = delta_out;
-        uint out_row = mlp_offset(MLP_HIDDEN) / 4u + k * MLP_W4;
-        for (uint i = 0u; i < MLP_W4; i++) {
-            MLP_V(to + i) += mlp_w(out_row + i) * delta_out;
+        [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+            d[i] += w[i] * delta_out;
         }
     }
     targets[s].loss = loss;
-    for (uint i = 0u; i < MLP_W4; i++) {
-        vec4 d = mix(vec4(0.0), MLP_V(to + i), greaterThan(MLP_V(from + i), vec4(0.0)));
-        MLP_V(to + i) = d;
-        deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
-    }
 #else
     MlpTarget t = targets[s];
     float z = mlp_output(t.sector);
@@ -87,18 +94,24 @@ void main() {
     float delta_out = (q - t.target) * mlp_sigmoid(z) * relative;
     targets[s].loss = 0.5 * (t.target - q) * (t.target - q) * relative;
     targets[s].delta = delta_out;
-
-    uint out_row = mlp_offset(MLP_HIDDEN) / 4u + t.sector * MLP_W4;
-    for (uint i = 0u; i < MLP_W4; i++) {
-        vec4 d = mix(vec4(0.0), mlp_w(out_row + i) * delta_out, greaterThan(MLP_V(from + i), vec4(0.0)));
-        MLP_V(to + i) = d;
-        deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d;
+    uint out_row = last / 4u + t.sector * MLP_W4;
+    [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+        d[i] = mlp_w(out_row + i) * delta_out;
     }
 #endif
+    [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+        d[i] = mix(vec4(0.0), d[i], greaterThan(h[i], vec4(0.0)));
+        deltas[unit4(s, MLP_HIDDEN - 1u) + i] = d[i];
+    }
+    // Earlier layers' deltas go through workgroup memory, in the region the
+    // last activations do not occupy, then each layer's to the other in turn.
+    uint from = last_region == 0u ? MLP_A4 : 0u;
+    [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
+        MLP_V(from + i) = d[i];
+    }
     for (uint l = MLP_HIDDEN - 1u; l > 0u; l--) {
         // delta_{l-1}[j] = sum_o W_l[o][j] delta_l[o], where unit j was active.
-        from = to;
-        to = from == 0u ? MLP_A4 : 0u;
+        uint to = from == 0u ? MLP_A4 : 0u;
         uint w4 = mlp_offset(l) / 4u;
         for (uint j = 0u; j < MLP_W4; j++) {
             MLP_V(to + j) = vec4(0.0);
@@ -112,9 +125,10 @@ void main() {
             }
         }
         for (uint j = 0u; j < MLP_W4; j++) {
-            vec4 d = mix(vec4(0.0), MLP_V(to + j), greaterThan(acts[unit4(s, l - 1u) + j], vec4(0.0)));
-            MLP_V(to + j) = d;
-            deltas[unit4(s, l - 1u) + j] = d;
+            vec4 dj = mix(vec4(0.0), MLP_V(to + j), greaterThan(acts[unit4(s, l - 1u) + j], vec4(0.0)));
+            MLP_V(to + j) = dj;
+            deltas[unit4(s, l - 1u) + j] = dj;
         }
+        from = to;
     }
 }

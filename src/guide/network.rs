@@ -229,18 +229,20 @@ impl Network {
                     groups: [1, 1, 1],
                 });
             }
-            let hidden = self.shape.layers().last().unwrap().offset as u32;
+            // An invocation per four weights of a unit and per bias.
+            let slots = |fan_in: usize, fan_out: usize| (fan_out * (fan_in / 4 + 1)) as u32;
+            let layers = self.shape.layers();
+            let (output, hidden) = layers.split_last().unwrap();
             rec.dispatch(Pass {
                 name: "mlp Adam step (hidden)",
                 pipeline: &self.adam_pass,
                 set: &self.adam_set,
                 push,
-                groups: groups(hidden),
+                groups: groups(hidden.iter().map(|l| slots(l.fan_in, l.fan_out)).sum()),
             });
-            // One workgroup per output, or with dense rows one invocation
-            // per output parameter.
+            // One workgroup per output, or with dense rows as the hidden ones.
             let output_groups = match self.dense {
-                Some(_) => groups(self.shape.outputs * (self.shape.width + 1)),
+                Some(_) => groups(slots(output.fan_in, output.fan_out)),
                 None => [self.shape.outputs, 1, 1],
             };
             rec.dispatch(Pass {
