@@ -620,6 +620,30 @@ mod tests {
     }
 
     #[test]
+    fn epsilon_defaults_to_a_fixed_share_or_a_learned_start() {
+        let unset = Common::default();
+        assert_eq!(unset.epsilon(false), EPSILON_FIXED);
+        assert_eq!(unset.epsilon(true), EPSILON_LEARNED_START);
+        let set = Common {
+            epsilon: Some(0.3),
+            ..Default::default()
+        };
+        assert_eq!((set.epsilon(false), set.epsilon(true)), (0.3, 0.3));
+        // Sarsa learns its share unless told not to; the network's tables keep it.
+        let sarsa = SarsaSettings::default();
+        assert_eq!(sarsa.epsilon(), EPSILON_LEARNED_START);
+        let fixed = SarsaSettings {
+            learn_epsilon: Some(false),
+            ..Default::default()
+        };
+        assert_eq!(fixed.epsilon(), EPSILON_FIXED);
+        assert_eq!(NeuralSettings::default().table().epsilon(), EPSILON_FIXED);
+        // Unset, it stays out of a saved table, so the default follows the mode.
+        let table = GuideSettings::Sarsa(sarsa).to_table();
+        assert!(!table.contains_key("epsilon"), "{table:?}");
+    }
+
+    #[test]
     fn tables_name_their_mistakes() {
         let table = |text: &str| toml::from_str::<toml::Table>(text).unwrap();
         let e = GuideSettings::from_table("sarsa", &table("epsilom = 0.2")).unwrap_err();
