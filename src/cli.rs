@@ -577,19 +577,27 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
         "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10}",
         "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s"
     );
+    let mut extrapolated = false;
     for s in &report.scenes {
         for r in &s.runs {
+            extrapolated |= r.equal_time_extrapolated;
             println!(
-                "{:<20} {:<12} {:>8.2} {:>12.5} {:>14.5} {:>10.3}",
+                "{:<20} {:<12} {:>8.2} {:>12.5} {:>13.5}{} {:>10.3}",
                 s.name,
                 r.config,
                 100.0 * r.zero_contribution_fraction,
                 r.checkpoints.last().map_or(f64::NAN, |c| c.error.rel_mse),
                 r.error_at_equal_time.rel_mse,
+                if r.equal_time_extrapolated { "*" } else { " " },
                 r.rays_per_second / 1e6
             );
         }
         println!("{}", reference_floor_line(s));
+    }
+    if extrapolated {
+        println!(
+            "* equal time came before that method's first checkpoint: its error there is extrapolated (relMSE as 1/time); a smaller --spp-list entry measures it"
+        );
     }
     println!("report: {}", plan.out.join("index.html").display());
     check_validation(&ctx)

@@ -121,6 +121,9 @@ pub struct RunReport {
     pub guide_bytes: u64,
     /// Error interpolated (log-log) at the scene's equal-time budget.
     pub error_at_equal_time: ErrorMetrics,
+    /// Whether that budget fell before the first checkpoint, so the error
+    /// is extrapolated from it (see `error_at_time`).
+    pub equal_time_extrapolated: bool,
     pub learned: Option<LearnedPictures>,
 }
 
@@ -237,9 +240,19 @@ fn worst_block(image: &Image, reference: &Image) -> [f64; 2] {
     best.1
 }
 
-/// Error at time `t` by log-log interpolation between checkpoints.
+/// Error at time `t` by log-log interpolation between checkpoints. Before
+/// the first one it is extrapolated as Monte Carlo error falls: MSE and
+/// relMSE as 1/time, MAPE as 1/sqrt(time) (`t_extrapolated` says so).
 pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
     let first = &rows[0];
+    if t_extrapolated(rows, t) {
+        let scale = first.seconds / t;
+        return ErrorMetrics {
+            mse: first.error.mse * scale,
+            rel_mse: first.error.rel_mse * scale,
+            mape: first.error.mape * scale.sqrt(),
+        };
+    }
     if t <= first.seconds || rows.len() == 1 {
         return first.error;
     }
@@ -262,6 +275,11 @@ pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
         }
     }
     rows[rows.len() - 1].error
+}
+
+/// Whether time `t` falls before the first checkpoint.
+pub fn t_extrapolated(rows: &[CheckpointRow], t: f64) -> bool {
+    t > 0.0 && t < rows[0].seconds
 }
 
 /// What the evaluation is doing, for a progress bar.
@@ -561,6 +579,7 @@ pub fn evaluate(
                     rel_mse: 0.0,
                     mape: 0.0,
                 },
+                equal_time_extrapolated: false,
                 learned,
             });
         }
@@ -631,6 +650,7 @@ pub fn evaluate(
             .fold(f64::INFINITY, f64::min);
         for r in &mut runs {
             r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
+            r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
         }
         let best = |key: &dyn Fn(&RunReport) -> f64| {
             runs.iter()
@@ -678,4 +698,39 @@ pub fn evaluate(
         configs: plan.configs.iter().map(|c| c.label()).collect(),
         scenes,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(spp: u32, seconds: f64, rel_mse: f64) -> CheckpointRow {
+        CheckpointRow {
+            spp,
+            seconds,
+            error: ErrorMetrics {
+                mse: rel_mse,
+                rel_mse,
+                mape: rel_mse.sqrt(),
+            },
+            zero_contribution_fraction: 0.0,
+            png: None,
+            exr: None,
+        }
+    }
+
+    #[test]
+    fn equal_time_errors_interpolate_and_extrapolate_before_the_first_checkpoint() {
+        let rows = [row(16, 1.0, 0.4), row(64, 4.0, 0.1)];
+        // Between checkpoints, log-log: halfway in log time, halfway in log error.
+        let mid = error_at_time(&rows, 2.0);
+        assert!((mid.rel_mse - 0.2).abs() < 1e-12, "{mid:?}");
+        assert!(!t_extrapolated(&rows, 2.0));
+        // Before the first, as 1/time (MAPE as 1/sqrt(time)), and said so.
+        let early = error_at_time(&rows, 0.5);
+        assert!((early.rel_mse - 0.8).abs() < 1e-12, "{early:?}");
+        assert!((early.mape - 0.4f64.sqrt() * 2f64.sqrt()).abs() < 1e-12);
+        assert!(t_extrapolated(&rows, 0.5));
+        assert!((error_at_time(&rows, 4.0).rel_mse - 0.1).abs() < 1e-12);
+    }
 }

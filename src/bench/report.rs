@@ -257,7 +257,8 @@ fn write_html(
     let _ = write!(
         h,
         "<h1>qtrace evaluation</h1><p>Device: {}. Methods: {}. Images at {} spp. Error is against the reference named per scene; \
-         equal time is the time the fastest method needed for its largest sample count, other methods' errors interpolated there (log–log). \
+         equal time is the time the fastest method needed for its largest sample count, other methods' errors interpolated there (log–log; \
+         * marks one extrapolated from a method's first checkpoint, relMSE as 1/time, where equal time came before it). \
          Numbers: <a href=\"summary.csv\">summary.csv</a>, <a href=\"checkpoints.csv\">checkpoints.csv</a>, \
          <a href=\"passes.csv\">passes.csv</a>, <a href=\"equal_time.csv\">equal_time.csv</a>, \
          <a href=\"gpu_passes.csv\">gpu_passes.csv</a>, <a href=\"results.json\">results.json</a>.</p>",
@@ -329,7 +330,7 @@ fn write_html(
                 r.samples_per_second,
                 win(r.config == s.summary.lowest_error_equal_spp, format!("{:.4}", last.map_or(f64::NAN, |c| c.error.rel_mse))),
                 last.map_or(f64::NAN, |c| c.error.mape),
-                win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}", r.error_at_equal_time.rel_mse)),
+                win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}{}", r.error_at_equal_time.rel_mse, if r.equal_time_extrapolated { "*" } else { "" })),
                 r.error_at_equal_time.mape,
                 r.guide_bytes as f64 / (1024.0 * 1024.0),
                 esc(&gpu.join(", "))
