@@ -57,7 +57,6 @@ void main() {
     // lane and word at a time.
     vec4 h[MLP_W4];
     vec4 d[MLP_W4];
-    vec4 w[MLP_W4];
     uint last_region = mlp_last_region();
     [[unroll]] for (uint i = 0u; i < MLP_W4; i++) {
         h[i] = MLP_V(last_region + i);
@@ -65,7 +64,8 @@ void main() {
     }
     uint last = mlp_offset(MLP_HIDDEN);
 #ifdef MLP_DENSE
-    // Every output adds to the deltas.
+    // Every output adds to the deltas; its weights are read once for both.
+    vec4 w[MLP_W4];
     float loss = 0.0;
     for (uint k = 0u; k < MLP_OUTPUTS; k++) {
         uint out_row = last / 4u + k * MLP_W4;

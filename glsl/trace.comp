@@ -152,22 +152,16 @@ float land_direct;
 
 #ifndef FROZEN
 void keep_share_sample(GuideVertex g, float mix) {
-    bool first = share_mix0 == 0.0;
-    if (first || share_mix1 == 0.0) {
-        GuideVertex from = g;
-        float t = luminance(throughput);
-        float r = luminance(radiance);
-        if (first) {
-            share_from0 = from;
-            share_mix0 = mix;
-            share_throughput0 = t;
-            share_radiance0 = r;
-        } else {
-            share_from1 = from;
-            share_mix1 = mix;
-            share_throughput1 = t;
-            share_radiance1 = r;
-        }
+    if (share_mix0 == 0.0) {
+        share_from0 = g;
+        share_mix0 = mix;
+        share_throughput0 = luminance(throughput);
+        share_radiance0 = luminance(radiance);
+    } else if (share_mix1 == 0.0) {
+        share_from1 = g;
+        share_mix1 = mix;
+        share_throughput1 = luminance(throughput);
+        share_radiance1 = luminance(radiance);
     }
 }
 
