@@ -60,6 +60,9 @@
 // logit's state (logit, Adam's two moments, steps).
 #define B_MIX_GRAD 34
 #define B_MIX_STATE 35
+// Neural-Q's tables at the volumes: the target means' Q and visits.
+#define B_MEAN_Q 36
+#define B_MEAN_VISITS 37
 
 // PassParams.flags bits.
 #define FLAG_NEE 1

@@ -542,6 +542,8 @@ fn bad_neural_options() {
         ("neural.encoding=fourier", "encoding"),
         ("neural.inference=everywhere", "inference"),
         ("neural.volumes=0", "volumes"),
+        ("neural.prior_visits=-1", "prior_visits"),
+        ("neural.prior_visits=nan", "prior_visits"),
         ("neural.widht=8", "unknown field"),
     ] {
         expect_error(

@@ -499,6 +499,26 @@ fn volume_tables_hold_the_network_at_the_volumes() {
         .iter()
         .zip(&probabilities)
         .all(|(a, b)| (a - b).abs() <= 3.0 / 65535.0));
+
+    // Where cells' running means of targets have counted visits, the tables
+    // blend them with the network: (N mean + m Q) / (N + m).
+    let means = guide
+        .target_means()
+        .expect("training on the volumes has means");
+    let mean: Vec<f32> = (0..q.len()).map(|i| 2.0 + (i % 5) as f32).collect();
+    let visits: Vec<u32> = (0..q.len() as u32).map(|i| i % 9).collect();
+    means.upload_q(&ctx, &mean).unwrap();
+    means.upload_visits(&ctx, &visits).unwrap();
+    guide.refresh(&ctx).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let blended = table.download_q().unwrap();
+    let m = settings.prior_visits;
+    assert_eq!(m, 4.0);
+    for (i, got) in blended.iter().enumerate() {
+        let n = visits[i] as f32;
+        let expected = (n * mean[i] + m * q[i]) / (n + m);
+        assert!(within(got, &expected), "cell {i}: {got} against {expected}");
+    }
 }
 
 /// The white furnace (every pixel 1): the guided estimator matches it even

@@ -101,6 +101,11 @@ pub struct NeuralSettings {
     /// on transitions (see [`NeuralSettings::training`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub training: Option<Training>,
+    /// With inference at the volumes and training on their means: the
+    /// tables hold (N mean + m Q̂) / (N + m), where a cell's running mean of
+    /// N targets outweighs the network's Q̂ once N passes m (`inf`: the
+    /// network alone). The network is the prior of cells paths seldom reach.
+    pub prior_visits: f32,
     /// Radiance volumes for `inference = "volumes"`; None: as Sarsa's
     /// default, one per `sarsa::PIXELS_PER_VOLUME` pixels of the image.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -124,6 +129,10 @@ impl Default for NeuralSettings {
             encoding: Encoding::Frequency,
             inference: Inference::Volumes,
             training: None,
+            // Measured on the indirectly lit room at 128x128, 256 spp
+            // (relMSE): the network alone 0.040, the means alone 0.026,
+            // m = 1: 0.023, 4: 0.023, 16: 0.024, 64: 0.028.
+            prior_visits: 4.0,
             volumes: None,
         }
     }
@@ -314,6 +323,12 @@ impl NeuralSettings {
             ));
         }
         self.table().validate()?;
+        if !(self.prior_visits >= 0.0) {
+            return Err(format!(
+                "prior_visits = {} must be at least 0 (inf: the network alone)",
+                self.prior_visits
+            ));
+        }
         if self.training() == Training::Volumes && self.inference != Inference::Volumes {
             return Err("training = \"volumes\" needs inference = \"volumes\"".into());
         }
@@ -428,6 +443,7 @@ struct VolumeTable {
     states: Buffer,
     infer: ComputePipeline,
     infer_set: DescriptorSet,
+    prior_visits: f32,
 }
 
 impl VolumeTable {
@@ -436,6 +452,7 @@ impl VolumeTable {
     fn record_refresh(&self, rec: &mut Recorder<'_>, params: &PassParams) {
         let mut params = *params;
         params.volume_count = self.guide.volumes.len() as u32;
+        params.selector = self.prior_visits.to_bits();
         rec.dispatch(Pass {
             name: "neural at volumes",
             pipeline: &self.infer,
@@ -520,7 +537,7 @@ impl NeuralGuide {
             &gather,
             &kernel_bindings(&network, &vertex_buffer, &pending),
         )?;
-        let table = match settings.inference {
+        let mut table = match settings.inference {
             Inference::Vertices => None,
             Inference::Volumes => Some(Self::build_table(
                 ctx,
@@ -557,6 +574,13 @@ impl NeuralGuide {
             }
             _ => None,
         };
+        if let (Some(t), Some(m)) = (&mut table, &targets) {
+            let mut bindings = kernel_bindings(&network, &vertex_buffer, &pending);
+            bindings.extend(t.guide.bindings());
+            bindings.extend(m.means.mean_bindings());
+            bindings.push((shaders::B_NEURAL_STATES, &t.states));
+            t.infer_set = DescriptorSet::new(ctx, &t.infer, &bindings)?;
+        }
         let guide = Self {
             settings: settings.clone(),
             network,
@@ -603,6 +627,7 @@ impl NeuralGuide {
         )?;
         let mut bindings = kernel_bindings(network, vertices, pending);
         bindings.extend(guide.bindings());
+        bindings.extend(guide.mean_bindings());
         bindings.push((shaders::B_NEURAL_STATES, &states));
         let infer_set = DescriptorSet::new(ctx, &infer, &bindings)?;
         Ok(VolumeTable {
@@ -610,6 +635,7 @@ impl NeuralGuide {
             states,
             infer,
             infer_set,
+            prior_visits: settings.prior_visits,
         })
     }
 

@@ -400,6 +400,14 @@ impl SarsaGuide {
         rec.copy(&from.q_direct, &self.q_direct);
     }
 
+    /// The running means and their counts, as a table built from them binds them.
+    pub fn mean_bindings(&self) -> [(u32, &Buffer); 2] {
+        [
+            (shaders::B_MEAN_Q, &self.q),
+            (shaders::B_MEAN_VISITS, &self.visits_total),
+        ]
+    }
+
     /// Buffers every kernel that reads or updates the guide binds.
     pub fn bindings(&self) -> [(u32, &Buffer); 13] {
         [
@@ -540,6 +548,14 @@ impl SarsaGuide {
         let staging = Buffer::upload(ctx, "sarsa Q direct (staging)", bytes)?;
         staging.write(q_direct);
         ctx.submit(None, |rec| rec.copy(&staging, &self.q_direct))
+    }
+
+    /// Overwrites the visits each cell's running mean has counted (tests and tools).
+    pub fn upload_visits(&self, ctx: &Arc<GpuContext>, visits: &[u32]) -> gpu::Result<()> {
+        let bytes = std::mem::size_of_val(visits) as u64;
+        let staging = Buffer::upload(ctx, "sarsa visits (staging)", bytes)?;
+        staging.write(visits);
+        ctx.submit(None, |rec| rec.copy(&staging, &self.visits_total))
     }
 
     /// Overwrites Q (tests and tools), then rebuilds the distributions.
