@@ -323,7 +323,7 @@ impl NeuralSettings {
             ));
         }
         self.table().validate()?;
-        if !(self.prior_visits >= 0.0) {
+        if self.prior_visits.is_nan() || self.prior_visits < 0.0 {
             return Err(format!(
                 "prior_visits = {} must be at least 0 (inf: the network alone)",
                 self.prior_visits
