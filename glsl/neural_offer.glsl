@@ -48,7 +48,8 @@ void guide_learn(GuideVertex from, uint k, float q, float le, float mis_weight,
     }
 }
 
-// Neural-Q keeps `epsilon`: its tables are the network's.
+// Training on transitions, Neural-Q keeps `epsilon` (on the volumes' means
+// it runs Sarsa's kernel, which learns the share).
 void guide_learn_share(GuideVertex from, float gradient) {
 }
 

@@ -14,8 +14,8 @@ slows both; the order of the cores alternates between rounds. An A/A run
 The render arguments start with the scene, e.g.
   "pt|target/release/qtrace|scenes/cornell-box.toml --nee --width 128 --height 128"
 It prints, per round, each render's trace pass (GPU ms, from its stats) per
-pass and per path vertex, and the median ratio per path vertex of the second
-to the first. Needs `taskset` (util-linux) and two cores. Benchmarks only.
+pass and per path vertex and all its dispatches per pass, and the median
+ratios of the second to the first. Needs `taskset` (util-linux) and two cores. Benchmarks only.
 """
 
 import argparse
@@ -29,11 +29,13 @@ from pathlib import Path
 
 
 def trace_cost(stats_path):
-    """Trace ms per pass and per path vertex, and samples/s, of one render."""
+    """Trace ms per pass and per path vertex, and every dispatch's ms per pass
+    (guide updates and training included), of one render."""
     s = json.loads(Path(stats_path).read_text())
     trace = next(p for p in s["gpu_passes"] if p["name"] == "trace")
     per_pass = trace["total_ms"] / trace["count"]
-    return per_pass, per_pass / max(s["mean_path_length"], 1e-9), s["samples_per_second"]
+    every = sum(p["total_ms"] for p in s["gpu_passes"]) / trace["count"]
+    return per_pass, per_pass / max(s["mean_path_length"], 1e-9), every
 
 
 def main():
@@ -49,7 +51,7 @@ def main():
             sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
         configs.append((parts[0], parts[1], parts[2].split()))
     env = dict(os.environ, LP_NUM_THREADS="1")
-    ratios = []
+    ratios, totals = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
             order = configs if r % 2 == 0 else configs[::-1]
@@ -69,10 +71,13 @@ def main():
             a = trace_cost(Path(tmp) / f"{la}.json")
             b = trace_cost(Path(tmp) / f"{lb}.json")
             ratios.append(b[1] / a[1])
-            print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex), "
-                  f"{lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex): {ratios[-1]:.3f}")
-    print(f"{lb} / {la}, trace time per path vertex: median {statistics.median(ratios):.3f} "
-          f"(range {min(ratios):.3f}-{max(ratios):.3f} over {len(ratios)} rounds)")
+            totals.append(b[2] / a[2])
+            print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex, {a[2]:.2f} all "
+                  f"passes), {lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex, {b[2]:.2f} all "
+                  f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}")
+    for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals)]:
+        print(f"{lb} / {la}, {what}: median {statistics.median(xs):.3f} "
+              f"(range {min(xs):.3f}-{max(xs):.3f} over {len(xs)} rounds)")
 
 
 if __name__ == "__main__":

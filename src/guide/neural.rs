@@ -106,6 +106,15 @@ pub struct NeuralSettings {
     /// N targets outweighs the network's Q̂ once N passes m (`inf`: the
     /// network alone). The network is the prior of cells paths seldom reach.
     pub prior_visits: f32,
+    /// With training on the volumes' means: of the passes that learn (whose
+    /// tallies feed the means), those that also train the network: every
+    /// one up to this pass, then ever more rarely (as `thin_after`).
+    /// Training takes `steps` dispatches a pass; the tallies cost far less.
+    pub train_thin_after: u32,
+    /// With training on the volumes' means: whether each volume learns its
+    /// share of BSDF sampling from the tallies, as Sarsa's do (None: yes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub learn_epsilon: Option<bool>,
     /// Radiance volumes for `inference = "volumes"`; None: as Sarsa's
     /// default, one per `sarsa::PIXELS_PER_VOLUME` pixels of the image.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -133,6 +142,8 @@ impl Default for NeuralSettings {
             // (relMSE): the network alone 0.040, the means alone 0.026,
             // m = 1: 0.023, 4: 0.023, 16: 0.024, 64: 0.028.
             prior_visits: 4.0,
+            train_thin_after: 4,
+            learn_epsilon: None,
             volumes: None,
         }
     }
@@ -178,11 +189,26 @@ impl NeuralSettings {
         SarsaSettings {
             common: self.common.clone(),
             volumes: self.volumes,
-            // The network's tables keep `epsilon`: only Sarsa's kernel
-            // learns the share.
-            learn_epsilon: Some(false),
+            learn_epsilon: Some(self.learns_epsilon()),
             ..Default::default()
         }
+    }
+
+    /// Whether the volumes learn their share of BSDF sampling: from the
+    /// tallies of the target means, so only when training on them.
+    pub fn learns_epsilon(&self) -> bool {
+        self.training() == Training::Volumes && self.learn_epsilon.unwrap_or(true)
+    }
+
+    /// Whether a pass that learns (`index`) also trains the network, where
+    /// it trains on the volumes' means (see `train_thin_after`).
+    pub fn trains_in_pass(&self, index: u32) -> bool {
+        let schedule = Common {
+            freeze_after: None,
+            thin_after: Some(self.train_thin_after),
+            ..self.common.clone()
+        };
+        schedule.learns_in_pass(index, self.train_thin_after)
     }
 
     /// How the network trains: as given, or on the volumes' means where
@@ -697,7 +723,7 @@ impl NeuralGuide {
         self.network.restore(blobs)?;
         if let (Some(t), Some(table)) = (&self.targets, &self.table) {
             t.means.restore(ctx, blobs)?;
-            ctx.submit(None, |rec| table.guide.record_copy_nee_share(rec, &t.means))
+            ctx.submit(None, |rec| table.guide.record_copy_learned(rec, &t.means))
                 .map_err(|e| e.to_string())?;
         }
         self.refresh_for(ctx, nee).map_err(|e| e.to_string())
@@ -740,6 +766,11 @@ impl NeuralGuide {
     pub fn set_params(&self, p: &mut PassParams, learn: bool) {
         let s = &self.settings;
         s.common.set_params(p, learn);
+        if s.learns_epsilon() {
+            // As Sarsa's: the means learn the share, the tables copy it.
+            p.guide_epsilon = s.common.epsilon(true);
+            p.flags |= shaders::FLAG_LEARN_MIX;
+        }
         if s.target == Target::Max {
             p.flags |= shaders::FLAG_MAX_TARGET;
         }
@@ -759,7 +790,12 @@ impl NeuralGuide {
             t.means.record_update(rec, params);
             let mut p = *params;
             p.volume_count = t.means.volumes.len() as u32;
-            for step in 0..self.settings.steps() {
+            let steps = if self.settings.trains_in_pass(params.pass_index) {
+                self.settings.steps()
+            } else {
+                0
+            };
+            for step in 0..steps {
                 p.selector = step;
                 rec.dispatch(Pass {
                     name: "mlp gather from volumes",
@@ -771,7 +807,7 @@ impl NeuralGuide {
                 self.network.record_step(rec);
             }
             self.network.record_reset(rec);
-            table.guide.record_copy_nee_share(rec, &t.means);
+            table.guide.record_copy_learned(rec, &t.means);
             table.record_refresh(rec, params);
             return;
         }
@@ -803,6 +839,21 @@ mod tests {
 
     fn cornell() -> Scene {
         Scene::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.toml")).unwrap()
+    }
+
+    #[test]
+    fn training_thins_out_apart_from_the_tallies() {
+        let settings = |train_thin_after| NeuralSettings {
+            train_thin_after,
+            ..Default::default()
+        };
+        let training =
+            |n: &NeuralSettings| (0..20).filter(|&i| n.trains_in_pass(i)).collect::<Vec<_>>();
+        assert_eq!(training(&settings(4)), [0, 1, 2, 3, 4, 6, 8, 12, 16]);
+        assert_eq!(training(&settings(0)), (0..20).collect::<Vec<_>>());
+        // The tallies keep their own schedule: 16 passes by default.
+        let guide = super::super::GuideSettings::Neural(settings(4));
+        assert!(guide.learns_in_pass(15) && !settings(4).trains_in_pass(15));
     }
 
     #[test]

@@ -394,10 +394,12 @@ impl SarsaGuide {
         ]
     }
 
-    /// Records a copy of `from`'s share of Q that NEE carries into this
-    /// guide's, which its distributions leave out.
-    pub fn record_copy_nee_share(&self, rec: &mut Recorder<'_>, from: &SarsaGuide) {
+    /// Records a copy of what `from` learned besides Q into this guide: the
+    /// share of Q that NEE carries, which its distributions leave out, and
+    /// each volume's share of BSDF sampling.
+    pub fn record_copy_learned(&self, rec: &mut Recorder<'_>, from: &SarsaGuide) {
         rec.copy(&from.q_direct, &self.q_direct);
+        rec.copy(&from.mix_state, &self.mix_state);
     }
 
     /// The running means and their counts, as a table built from them binds them.
