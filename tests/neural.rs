@@ -722,3 +722,48 @@ fn neural_is_reproducible_bit_for_bit() {
         }
     }
 }
+
+/// The shares of BSDF sampling in the tables `neural` samples from after a
+/// small render of `scene` (64 spp at 32×32) with `learn` as `learn_epsilon`.
+fn neural_bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
+    let ctx = common::gpu();
+    let scene = common::scene(scene);
+    let o = Overrides {
+        method: Some(Method::Neural),
+        spp: Some(64),
+        width: Some(32),
+        height: Some(32),
+        guide: Some(GuideSettings::Neural(NeuralSettings {
+            learn_epsilon: Some(learn),
+            common: Common {
+                epsilon: Some(0.5),
+                ..Default::default()
+            },
+            ..Default::default()
+        })),
+        ..Default::default()
+    };
+    let settings = RenderSettings::resolve(&scene, &o).unwrap();
+    let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
+    renderer.run(&mut |_| {}).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
+    guide.table().unwrap().download_bsdf_shares().unwrap()
+}
+
+/// Trained on the volumes' means, the passes that learn run Sarsa's kernel,
+/// and the tables paths sample from copy the shares the means learned: in
+/// the white furnace, far more BSDF sampling than the starting half.
+/// Without learning they stay epsilon.
+#[test]
+fn tables_learn_their_share_of_bsdf_sampling() {
+    let furnace = neural_bsdf_shares("furnace", true);
+    let mean = furnace.iter().map(|&s| s as f64).sum::<f64>() / furnace.len() as f64;
+    assert!(mean > 0.85, "mean share {mean} in the furnace: {furnace:?}");
+    assert!(
+        furnace.iter().all(|s| (0.047..=0.953).contains(s)),
+        "{furnace:?}"
+    );
+    let fixed = neural_bsdf_shares("furnace", false);
+    assert!(fixed.iter().all(|&s| s == 0.5), "{fixed:?}");
+}
