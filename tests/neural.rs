@@ -10,7 +10,7 @@ use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
 use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target, Training};
 use qtrace::guide::{Common, Distribution, GuideSettings, NeuralGuide, NeuralSettings};
-use qtrace::render::{probe, Method, Overrides, RenderSettings, Renderer};
+use qtrace::render::{probe, Method, Overrides};
 use qtrace::sampling;
 use qtrace::shaders::MlpTarget;
 
@@ -559,10 +559,7 @@ fn check_offers(encoding: Encoding) {
         })),
         ..Default::default()
     };
-    let settings = RenderSettings::resolve(&scene, &o).unwrap();
-    let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
-    renderer.run(&mut |_| {}).unwrap();
-    common::assert_no_validation_errors(&ctx);
+    let renderer = common::run_renderer(&ctx, &scene, o);
     let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
     let inputs = guide.network.download_inputs().unwrap();
     let (lo, hi) = scene.bounds();
@@ -726,27 +723,17 @@ fn neural_is_reproducible_bit_for_bit() {
 /// The shares of BSDF sampling in the tables `neural` samples from after a
 /// small render of `scene` (64 spp at 32×32) with `learn` as `learn_epsilon`.
 fn neural_bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
-    let ctx = common::gpu();
-    let scene = common::scene(scene);
-    let o = Overrides {
-        method: Some(Method::Neural),
-        spp: Some(64),
-        width: Some(32),
-        height: Some(32),
-        guide: Some(GuideSettings::Neural(NeuralSettings {
+    let renderer = common::run_guided(
+        scene,
+        GuideSettings::Neural(NeuralSettings {
             learn_epsilon: Some(learn),
             common: Common {
                 epsilon: Some(0.5),
                 ..Default::default()
             },
             ..Default::default()
-        })),
-        ..Default::default()
-    };
-    let settings = RenderSettings::resolve(&scene, &o).unwrap();
-    let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
-    renderer.run(&mut |_| {}).unwrap();
-    common::assert_no_validation_errors(&ctx);
+        }),
+    );
     let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
     guide.table().unwrap().download_bsdf_shares().unwrap()
 }

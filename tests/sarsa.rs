@@ -503,27 +503,17 @@ fn sarsa_matches_the_white_furnace() {
 /// The shares of BSDF sampling the volumes hold after a small `sarsa`
 /// render of `scene` (64 spp at 32×32) with `learn` as `learn_epsilon`.
 fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
-    let ctx = common::gpu();
-    let scene = common::scene(scene);
-    let o = Overrides {
-        method: Some(Method::Sarsa),
-        spp: Some(64),
-        width: Some(32),
-        height: Some(32),
-        guide: Some(GuideSettings::Sarsa(SarsaSettings {
+    let renderer = common::run_guided(
+        scene,
+        GuideSettings::Sarsa(SarsaSettings {
             learn_epsilon: Some(learn),
             common: Common {
                 epsilon: Some(0.5),
                 ..Default::default()
             },
             ..Default::default()
-        })),
-        ..Default::default()
-    };
-    let settings = qtrace::RenderSettings::resolve(&scene, &o).unwrap();
-    let mut renderer = qtrace::render::Renderer::new(&ctx, &scene, settings).unwrap();
-    renderer.run(&mut |_| {}).unwrap();
-    common::assert_no_validation_errors(&ctx);
+        }),
+    );
     let guide = renderer.guide().and_then(|g| g.sarsa()).unwrap();
     guide.download_bsdf_shares().unwrap()
 }

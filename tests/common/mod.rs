@@ -3,6 +3,7 @@
 
 use glam::{Vec2, Vec3};
 use qtrace::gpu::{ContextOptions, GpuContext};
+use qtrace::guide::GuideSettings;
 use qtrace::image::Image;
 use qtrace::render::{self, Overrides, RenderOutput, RenderSettings};
 use qtrace::sampling;
@@ -64,6 +65,34 @@ pub fn render_with(ctx: &Arc<GpuContext>, scene: &Scene, o: Overrides) -> Render
     let out = render::render(ctx, scene, settings, &mut |_| {}).expect("render");
     assert_no_validation_errors(ctx);
     out
+}
+
+/// A renderer that has run the whole render `o` asks for, to read what its
+/// guide learned.
+pub fn run_renderer(ctx: &Arc<GpuContext>, scene: &Scene, o: Overrides) -> render::Renderer {
+    let settings = RenderSettings::resolve(scene, &o).expect("valid settings");
+    let mut renderer = render::Renderer::new(ctx, scene, settings).expect("renderer");
+    renderer.run(&mut |_| {}).expect("render");
+    assert_no_validation_errors(ctx);
+    renderer
+}
+
+/// A small render of shipped scene `name` (64 spp at 32×32) guided by
+/// `guide`, run to its end.
+pub fn run_guided(name: &str, guide: GuideSettings) -> render::Renderer {
+    let method = match guide {
+        GuideSettings::Sarsa(_) => render::Method::Sarsa,
+        GuideSettings::Neural(_) => render::Method::Neural,
+    };
+    let o = Overrides {
+        method: Some(method),
+        spp: Some(64),
+        width: Some(32),
+        height: Some(32),
+        guide: Some(guide),
+        ..Default::default()
+    };
+    run_renderer(&gpu(), &scene(name), o)
 }
 
 /// Small deterministic generator so failures reproduce.
