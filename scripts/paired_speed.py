@@ -15,7 +15,8 @@ The render arguments start with the scene, e.g.
   "pt|target/release/qtrace|scenes/cornell-box.toml --nee --width 128 --height 128"
 It prints, per round, each render's trace pass (GPU ms, from its stats) per
 pass and per path vertex and all its dispatches per pass, and the median
-ratios of the second to the first. Needs `taskset` (util-linux) and two cores. Benchmarks only.
+ratios of the second to the first. Needs `taskset` (util-linux) and two
+cores. Benchmarks only.
 """
 
 import argparse
