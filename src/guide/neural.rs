@@ -160,15 +160,18 @@ const _: () = assert!(
 /// for relMSE 0.149 instead of 0.133.
 pub const PIXELS_PER_TRANSITION: u64 = 16;
 /// Training on the volumes' means, the default rows per step, and one step
-/// per this many pixels of the image (32 at 256×256), at least
+/// per this many pixels of the image (16 at 256×256), at least
 /// MIN_DEFAULT_STEPS. Small steps, many of them: on the indirectly lit room
 /// at 256×256, 256 spp (relMSE at equal samples / at `pt`'s time, `pt`
 /// 0.199), 1024 rows × 8 steps gave 0.035 / 0.089–0.105, 128 × 32 gave
 /// 0.025 / 0.057, 128 × 64 0.023 / 0.058, 64 × 64 0.025 / 0.066. At
 /// 128×128, where a pass costs a quarter, 32 steps cost more than they gain
-/// (room 0.227 at `pt`'s time against 0.095 with 8).
+/// (room 0.227 at `pt`'s time against 0.095 with 8). Since the tables blend
+/// the means with the network, half as many steps do as well: room at
+/// 256×256 0.0140 with 16 against 0.0142 with 32; at 128×128 with 4
+/// instead of 8, 0.96–1.03× on four scenes.
 pub const VOLUME_ROWS: u32 = 128;
-pub const PIXELS_PER_STEP: u64 = 2048;
+pub const PIXELS_PER_STEP: u64 = 4096;
 pub const MIN_DEFAULT_STEPS: u64 = 4;
 /// Most training steps a pass may take.
 pub const MAX_STEPS: u32 = 64;
@@ -906,8 +909,12 @@ mod tests {
         // Training on the volumes' means (the default): fixed rows, steps
         // per image size.
         let means = NeuralSettings::default().for_image(256, 256);
-        assert_eq!((means.batch, means.steps), (Some(VOLUME_ROWS), Some(32)));
-        assert_eq!(NeuralSettings::default().for_image(128, 128).steps, Some(8));
+        assert_eq!((means.batch, means.steps), (Some(VOLUME_ROWS), Some(16)));
+        assert_eq!(
+            NeuralSettings::default().for_image(512, 512).steps,
+            Some(64)
+        );
+        assert_eq!(NeuralSettings::default().for_image(128, 128).steps, Some(4));
         assert_eq!(NeuralSettings::default().for_image(8, 8).steps, Some(4));
         assert_eq!(
             NeuralSettings::default().for_image(4096, 4096).steps,
