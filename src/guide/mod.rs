@@ -130,14 +130,7 @@ impl Common {
         if self.freeze_after.is_some_and(|k| index >= k) {
             return false;
         }
-        let k = self.thin_after.unwrap_or(default_thin);
-        if k == 0 || index < k {
-            return true;
-        }
-        // In [k 2^j, k 2^(j+1)), every 2^(j+1)-th pass from its start.
-        let j = (index / k).ilog2();
-        let start = u64::from(k) << j;
-        (u64::from(index) - start) % (2u64 << j) == 0
+        thinned(index, self.thin_after.unwrap_or(default_thin))
     }
 
     /// The push constants every guided kernel reads: the grid, epsilon, and
@@ -154,6 +147,18 @@ impl Common {
             p.flags |= shaders::FLAG_COS_DISTRIBUTION;
         }
     }
+}
+
+/// Whether pass `index` falls in a schedule that takes every pass up to
+/// `k`, then every 2nd pass up to 2k, every 4th up to 4k, … (k = 0: all).
+pub fn thinned(index: u32, k: u32) -> bool {
+    if k == 0 || index < k {
+        return true;
+    }
+    // In [k 2^j, k 2^(j+1)), every 2^(j+1)-th pass from its start.
+    let j = (index / k).ilog2();
+    let start = u64::from(k) << j;
+    (u64::from(index) - start) % (2u64 << j) == 0
 }
 
 /// Which guide a render uses, and its settings.
@@ -201,7 +206,6 @@ impl GuideSettings {
         // by 5-40% for 1.12-1.17x the GPU time per pass.
         let default_thin = match self {
             Self::Sarsa(_) => 16,
-            Self::Neural(n) if n.training() == neural::Training::Volumes => 16,
             Self::Neural(n) if n.inference == neural::Inference::Volumes => 16,
             Self::Neural(_) => 0,
         };

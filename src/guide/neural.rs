@@ -206,12 +206,7 @@ impl NeuralSettings {
     /// Whether a pass that learns (`index`) also trains the network, where
     /// it trains on the volumes' means (see `train_thin_after`).
     pub fn trains_in_pass(&self, index: u32) -> bool {
-        let schedule = Common {
-            freeze_after: None,
-            thin_after: Some(self.train_thin_after),
-            ..self.common.clone()
-        };
-        schedule.learns_in_pass(index, self.train_thin_after)
+        super::thinned(index, self.train_thin_after)
     }
 
     /// How the network trains: as given, or on the volumes' means where
