@@ -15,7 +15,8 @@ The render arguments start with the scene, e.g.
   "pt|target/release/qtrace|scenes/cornell-box.toml --nee --width 128 --height 128"
 It prints, per round, each render's trace pass (GPU ms, from its stats) per
 pass and per path vertex and all its dispatches per pass, and the median
-ratios of the second to the first. Needs `taskset` (util-linux) and two
+ratios of the second to the first (all dispatches also per path vertex,
+the cost a guide's per-vertex target is stated in). Needs `taskset` (util-linux) and two
 cores. Benchmarks only.
 """
 
@@ -36,7 +37,8 @@ def trace_cost(stats_path):
     trace = next(p for p in s["gpu_passes"] if p["name"] == "trace")
     per_pass = trace["total_ms"] / trace["count"]
     every = sum(p["total_ms"] for p in s["gpu_passes"]) / trace["count"]
-    return per_pass, per_pass / max(s["mean_path_length"], 1e-9), every
+    length = max(s["mean_path_length"], 1e-9)
+    return per_pass, per_pass / length, every, length
 
 
 def main():
@@ -52,7 +54,7 @@ def main():
             sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
         configs.append((parts[0], parts[1], parts[2].split()))
     env = dict(os.environ, LP_NUM_THREADS="1")
-    ratios, totals = [], []
+    ratios, totals, total_vertex = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
             order = configs if r % 2 == 0 else configs[::-1]
@@ -73,10 +75,12 @@ def main():
             b = trace_cost(Path(tmp) / f"{lb}.json")
             ratios.append(b[1] / a[1])
             totals.append(b[2] / a[2])
+            total_vertex.append(b[2] / b[3] / (a[2] / a[3]))
             print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex, {a[2]:.2f} all "
                   f"passes), {lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex, {b[2]:.2f} all "
                   f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}")
-    for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals)]:
+    for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals),
+                     ("GPU time of all passes per path vertex", total_vertex)]:
         print(f"{lb} / {la}, {what}: median {statistics.median(xs):.3f} "
               f"(range {min(xs):.3f}-{max(xs):.3f} over {len(xs)} rounds)")
 
