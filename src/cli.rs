@@ -236,6 +236,11 @@ pub fn render(
         100.0 * s.zero_contribution_fraction,
         s.mean_path_length
     );
+    if let Some(after) = s.guide_stood_back_after {
+        eprintln!(
+            "the guide stood back after {after} passes: every volume learned to sample the BSDF, so the rest was plain path tracing (stand_back = false keeps it)"
+        );
+    }
     if s.invalid_paths > 0 {
         eprintln!(
             "warning: {} paths gave NaN or infinite radiance and were left out",

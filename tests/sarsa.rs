@@ -554,3 +554,58 @@ fn volumes_learn_their_share_of_bsdf_sampling() {
         "shares {fixed:?} against epsilon {epsilon}"
     );
 }
+
+/// The pass after which a guided render of `scene` (64×64, 64 spp) stood
+/// back, and the image's mean.
+fn stood_back(scene: &str, guide: GuideSettings) -> (Option<u32>, f64) {
+    let method = match guide {
+        GuideSettings::Sarsa(_) => Method::Sarsa,
+        GuideSettings::Neural(_) => Method::Neural,
+    };
+    let out = common::render_with(
+        &common::gpu(),
+        &common::scene(scene),
+        Overrides {
+            method: Some(method),
+            spp: Some(64),
+            width: Some(64),
+            height: Some(64),
+            guide: Some(guide),
+            ..Default::default()
+        },
+    );
+    (out.stats.guide_stood_back_after, out.image.mean())
+}
+
+/// In the white furnace every volume learns to sample the BSDF all it may,
+/// so the guides stand back after a check (16 or 32 passes) and the rest
+/// is plain path tracing; the image stays the analytic 1. Where the guide
+/// helps (the indirectly lit room) it stays, and `stand_back = false`
+/// keeps it everywhere.
+#[test]
+fn guides_stand_back_where_they_cannot_help() {
+    let sarsa = |stand_back| {
+        GuideSettings::Sarsa(SarsaSettings {
+            common: Common {
+                stand_back,
+                ..Default::default()
+            },
+            ..Default::default()
+        })
+    };
+    let (after, mean) = stood_back("furnace", sarsa(None));
+    assert!(
+        matches!(after, Some(16 | 32)),
+        "sarsa stood back after {after:?}"
+    );
+    assert!((mean - 1.0).abs() < 0.01, "furnace mean {mean}");
+    let neural = GuideSettings::Neural(qtrace::guide::NeuralSettings::default());
+    let (after, mean) = stood_back("furnace", neural);
+    assert!(
+        matches!(after, Some(16 | 32)),
+        "neural stood back after {after:?}"
+    );
+    assert!((mean - 1.0).abs() < 0.01, "furnace mean {mean}");
+    assert_eq!(stood_back("furnace", sarsa(Some(false))).0, None);
+    assert_eq!(stood_back("indirect-room", sarsa(None)).0, None);
+}

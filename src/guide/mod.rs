@@ -75,6 +75,12 @@ pub struct Common {
     pub reset_after: Option<u32>,
     /// Q of every sector before any update.
     pub initial_q: f32,
+    /// Where each volume learns its share of BSDF sampling: once nearly
+    /// every volume has learned to sample the BSDF all it may (see
+    /// [`stands_back`]), the guide can only add cost, and the passes left run
+    /// plain path tracing (None: true).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stand_back: Option<bool>,
 }
 
 impl Default for Common {
@@ -88,6 +94,7 @@ impl Default for Common {
             thin_after: None,
             reset_after: None,
             initial_q: 1e-2,
+            stand_back: None,
         }
     }
 }
@@ -147,6 +154,36 @@ impl Common {
             p.flags |= shaders::FLAG_COS_DISTRIBUTION;
         }
     }
+}
+
+/// A share of BSDF sampling at its cap: the learned share is the sigmoid of
+/// a logit bounded by MIX_LOGIT_BOUND (3), so at most 0.9526.
+pub const CAPPED_SHARE: f32 = 0.95;
+
+/// The passes after which a guide that may stand back checks whether it
+/// should: 16, then every power of two (results stay one per seed whatever
+/// the batches).
+pub fn stand_back_check(done: u32) -> bool {
+    done >= 16 && done.is_power_of_two()
+}
+
+/// Whether the learned shares of BSDF sampling (`start`: where they began)
+/// say that the guide cannot help: at least half of the volumes have
+/// learned (moved from the start), and 99% of those sit at the cap. In a
+/// white furnace every volume gets there within 16 passes; on every other
+/// shipped scene at most 56% of the volumes come near it (0.9). A guided
+/// pass costs about twice a plain one, so the passes left run plain path
+/// tracing: each pass stays unbiased, and so does the image.
+pub fn stands_back(shares: &[f32], start: f32) -> bool {
+    let learned: Vec<f32> = shares
+        .iter()
+        .copied()
+        .filter(|&s| (s - start).abs() > 1e-4)
+        .collect();
+    let capped = learned.iter().filter(|&&s| s >= CAPPED_SHARE).count();
+    2 * learned.len() >= shares.len()
+        && !learned.is_empty()
+        && capped as f64 >= 0.99 * learned.len() as f64
 }
 
 /// Whether pass `index` falls in a schedule that takes every pass up to
@@ -212,6 +249,16 @@ impl GuideSettings {
         self.common().learns_in_pass(index, default_thin)
     }
 
+    /// Whether the guide checks its learned shares to stand back (see
+    /// `Common::stand_back`): where each volume learns its share.
+    pub fn may_stand_back(&self) -> bool {
+        let learned = match self {
+            Self::Sarsa(s) => s.learns_epsilon(),
+            Self::Neural(n) => n.learns_epsilon(),
+        };
+        learned && self.common().stand_back.unwrap_or(true)
+    }
+
     /// The guide `name`'s settings from its table (keys missing: defaults).
     pub fn from_table(name: &str, table: &toml::Table) -> Result<Self, String> {
         let value = toml::Value::Table(table.clone());
@@ -220,6 +267,7 @@ impl GuideSettings {
             freeze_after: Some(0),
             thin_after: Some(0),
             reset_after: Some(0),
+            stand_back: Some(true),
             ..Default::default()
         };
         let e = |e: toml::de::Error, all: Self| {
@@ -480,6 +528,15 @@ impl Guide {
         }
     }
 
+    /// Each volume's learned share of BSDF sampling, where it learns one.
+    pub fn bsdf_shares(&self) -> gpu::Result<Option<Vec<f32>>> {
+        let table = match self {
+            Self::Sarsa(s) => Some(s.as_ref()),
+            Self::Neural(n) => n.table(),
+        };
+        table.map(|t| t.download_bsdf_shares()).transpose()
+    }
+
     /// Buffers its trace kernel binds.
     pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
         match self {
@@ -562,6 +619,33 @@ mod tests {
     use super::*;
 
     #[test]
+    fn guides_stand_back_when_nearly_every_learned_share_is_capped() {
+        // The cap: the sigmoid of the logit's bound, 3.
+        assert!(1.0 / (1.0 + (-3.0f32).exp()) > CAPPED_SHARE);
+        let start = 0.9;
+        let mut shares = vec![0.9526; 200];
+        assert!(stands_back(&shares, start));
+        // Volumes that never learned (still at the start) do not count ...
+        shares.extend([start; 100]);
+        assert!(stands_back(&shares, start));
+        // ... unless they are most of them.
+        shares.extend([start; 200]);
+        assert!(!stands_back(&shares, start));
+        // One learned volume in fifty that trusts the guide keeps it.
+        let mut some = vec![0.9526; 196];
+        some.extend([0.4; 4]);
+        assert!(!stands_back(&some, start));
+        assert!(!stands_back(&[], start));
+        assert!(!stands_back(&[start; 10], start));
+    }
+
+    #[test]
+    fn stand_back_checks_fall_on_fixed_passes() {
+        let checks: Vec<u32> = (0..300).filter(|&d| stand_back_check(d)).collect();
+        assert_eq!(checks, [16, 32, 64, 128, 256]);
+    }
+
+    #[test]
     fn learning_thins_out_after_thin_after_passes() {
         let common = |thin_after, freeze_after| Common {
             thin_after: Some(thin_after),
@@ -599,6 +683,7 @@ mod tests {
                 thin_after: Some(5),
                 reset_after: Some(2),
                 initial_q: 0.5,
+                stand_back: Some(false),
             },
             volumes: Some(77),
             density: None,

@@ -132,6 +132,13 @@ pub struct Renderer {
     trace_set: DescriptorSet,
     /// The guide's trace kernel for passes that learn nothing, if it has one.
     frozen: Option<(ComputePipeline, DescriptorSet)>,
+    /// Plain path tracing's kernel, once a guide has stood back (see
+    /// `Common::stand_back`).
+    plain: Option<(ComputePipeline, DescriptorSet)>,
+    /// The pass from which the guide stands back, if it does.
+    stood_back: Option<u32>,
+    /// The trace kernels' specialisation constants.
+    constants: Vec<u32>,
     accumulate_set: DescriptorSet,
     accum: Buffer,
     stats: Buffer,
@@ -151,8 +158,16 @@ pub struct Renderer {
 fn trace_variant(ctx: &GpuContext, settings: &RenderSettings) -> gpu::Result<&'static [u8]> {
     match &settings.guide {
         Some(g) => g.trace_spirv(ctx.info(), settings.nee),
-        None if settings.nee => Ok(spirv::TRACE_PT_NEE),
-        None => Ok(spirv::TRACE_PT),
+        None => Ok(plain_variant(settings)),
+    }
+}
+
+/// SPIR-V of plain path tracing's kernel.
+fn plain_variant(settings: &RenderSettings) -> &'static [u8] {
+    if settings.nee {
+        spirv::TRACE_PT_NEE
+    } else {
+        spirv::TRACE_PT
     }
 }
 
@@ -271,6 +286,9 @@ impl Renderer {
             accumulate,
             trace_set,
             frozen,
+            plain: None,
+            stood_back: None,
+            constants,
             accumulate_set,
             accum,
             stats,
@@ -293,6 +311,11 @@ impl Renderer {
         self.stats
             .write(&[PassStats::default(); shaders::MAX_BATCH as usize]);
         let g = groups(self.settings.width, self.settings.height);
+        let plain = self.stood_back.is_some_and(|from| first >= from);
+        if plain && self.plain.is_none() {
+            self.plain = Some(self.plain_pipeline()?);
+        }
+        let plain = self.plain.as_ref().filter(|_| plain).map(|(p, s)| (p, s));
         let learning = (&self.trace, &self.trace_set);
         let frozen = self.frozen.as_ref().map(|(p, s)| (p, s));
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
@@ -326,14 +349,15 @@ impl Renderer {
             };
             let end = first + count;
             let mut index = first;
+            let learns = |i: u32| plain.is_none() && settings.learns_in_pass(i);
             while index < end {
-                let learn = settings.learns_in_pass(index);
+                let learn = learns(index);
                 // A dispatch never spans a reset or a pass that learns.
                 let mut samples = 1;
                 while !learn
                     && samples < most
                     && index + samples < end
-                    && !settings.learns_in_pass(index + samples)
+                    && !learns(index + samples)
                     && settings.reset_after() != Some(index + samples)
                 {
                     samples += 1;
@@ -355,7 +379,7 @@ impl Renderer {
                 let (pipeline, set) = if learn {
                     learning
                 } else {
-                    frozen.unwrap_or(learning)
+                    plain.or(frozen).unwrap_or(learning)
                 };
                 rec.dispatch_covering(
                     Pass {
@@ -381,6 +405,51 @@ impl Renderer {
         Ok((first..first + count)
             .map(|i| slots[(i % shaders::MAX_BATCH) as usize])
             .collect())
+    }
+
+    /// Plain path tracing's kernel and its descriptor set, for passes after
+    /// the guide stood back.
+    fn plain_pipeline(&self) -> gpu::Result<(ComputePipeline, DescriptorSet)> {
+        let push = size_of::<PassParams>() as u32;
+        let pipeline = ComputePipeline::specialized(
+            &self.ctx,
+            "trace",
+            plain_variant(&self.settings),
+            push,
+            &self.constants,
+        )?;
+        let mut bindings: Vec<(u32, &Buffer)> = self._scene.bindings().to_vec();
+        bindings.extend([
+            (shaders::B_SAMPLES, &self._samples),
+            (shaders::B_ACCUM, &self.accum),
+            (shaders::B_STATS, &self.stats),
+        ]);
+        let set = DescriptorSet::new(&self.ctx, &pipeline, &bindings)?;
+        Ok((pipeline, set))
+    }
+
+    /// After pass `done` (a check, see `crate::guide::stand_back_check`): whether
+    /// the guide stands back from the next pass on, by its learned shares.
+    fn check_stand_back(&mut self, done: u32) -> Result<(), RenderError> {
+        let Some(g) = self.settings.guide.as_ref() else {
+            return Ok(());
+        };
+        if self.stood_back.is_some() || !g.may_stand_back() || !crate::guide::stand_back_check(done)
+        {
+            return Ok(());
+        }
+        let start = g.common().epsilon(true);
+        let shares = self
+            .guide
+            .as_ref()
+            .map(|g| g.bsdf_shares())
+            .transpose()?
+            .flatten();
+        if shares.is_some_and(|s| crate::guide::stands_back(&s, start)) {
+            log::info!("the guide stands back after {done} passes: every volume learned to sample the BSDF");
+            self.stood_back = Some(done);
+        }
+        Ok(())
     }
 
     /// Renders until the budget is spent, reporting progress after each pass.
@@ -448,6 +517,7 @@ impl Renderer {
             Budget::Seconds(t) => (None, Some(t)),
         };
         let mut tally = self.resumed.take().unwrap_or_default();
+        self.stood_back = tally.stood_back;
         let mut last_checkpoint = 0.0f64;
         // Seconds per pass, measured, to size batches under a time budget.
         let mut pass_seconds = 0.0f64;
@@ -466,6 +536,14 @@ impl Renderer {
             if let Some(&next) = control.at_passes.iter().filter(|&&c| c > done).min() {
                 count = count.min(next - done);
             }
+            // The guide checks whether to stand back after fixed passes.
+            if self.stood_back.is_none() {
+                if let Some(next) =
+                    (done + 1..done + count).find(|&i| crate::guide::stand_back_check(i))
+                {
+                    count = next - done;
+                }
+            }
             if pass_seconds > 0.0 {
                 let mut seconds = 0.25f64;
                 if let Budget::Seconds(t) = self.settings.budget {
@@ -481,6 +559,8 @@ impl Renderer {
             for s in &batch {
                 tally.add(s, self.guide.is_some());
             }
+            self.check_stand_back(tally.done)?;
+            tally.stood_back = self.stood_back;
             let mut elapsed = start.elapsed().as_secs_f64() - paused;
             let timed = control
                 .every_seconds
@@ -563,6 +643,7 @@ impl Renderer {
             guide_volumes: self.guide.as_ref().map_or(0, |g| g.volume_count()),
             passes: tally.records.clone(),
             trace_dispatches: self.trace_dispatches,
+            guide_stood_back_after: tally.stood_back,
         }
     }
 }
@@ -579,6 +660,9 @@ pub(crate) struct Tally {
     length: u64,
     invalid: u64,
     records: Vec<PassRecord>,
+    /// The pass from which the guide stood back, if it did.
+    #[serde(default)]
+    stood_back: Option<u32>,
 }
 
 impl Tally {

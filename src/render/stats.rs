@@ -58,6 +58,10 @@ pub struct RenderStats {
     /// Trace dispatches: fewer than `spp` where passes that learn nothing
     /// shared them.
     pub trace_dispatches: u32,
+    /// The passes after which the guide stood back, if it did: every later
+    /// pass was plain path tracing (see `Common::stand_back`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide_stood_back_after: Option<u32>,
 }
 
 impl RenderStats {
