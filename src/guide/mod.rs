@@ -161,19 +161,19 @@ impl Common {
 pub const CAPPED_SHARE: f32 = 0.95;
 
 /// The passes after which a guide that may stand back checks whether it
-/// should: 16, then every power of two (results stay one per seed whatever
+/// should: 8, then every power of two (results stay one per seed whatever
 /// the batches).
 pub fn stand_back_check(done: u32) -> bool {
-    done >= 16 && done.is_power_of_two()
+    done >= 8 && done.is_power_of_two()
 }
 
 /// Whether the learned shares of BSDF sampling (`start`: where they began)
 /// say that the guide cannot help: at least half of the volumes have
-/// learned (moved from the start), and 99% of those sit at the cap. In a
-/// white furnace every volume gets there within 16 passes; on every other
-/// shipped scene at most 56% of the volumes come near it (0.9). A guided
-/// pass costs about twice a plain one, so the passes left run plain path
-/// tracing: each pass stays unbiased, and so does the image.
+/// learned (moved from the start), and 95% of those sit at the cap. In a
+/// white furnace 98% of the volumes get there within 8 passes (all within
+/// 16); on every other shipped scene at most 30% do. A guided pass costs
+/// about twice a plain one, so the passes left run plain path tracing:
+/// each pass stays unbiased, and so does the image.
 pub fn stands_back(shares: &[f32], start: f32) -> bool {
     let learned: Vec<f32> = shares
         .iter()
@@ -183,7 +183,7 @@ pub fn stands_back(shares: &[f32], start: f32) -> bool {
     let capped = learned.iter().filter(|&&s| s >= CAPPED_SHARE).count();
     2 * learned.len() >= shares.len()
         && !learned.is_empty()
-        && capped as f64 >= 0.99 * learned.len() as f64
+        && capped as f64 >= 0.95 * learned.len() as f64
 }
 
 /// Whether pass `index` falls in a schedule that takes every pass up to
@@ -631,10 +631,12 @@ mod tests {
         // ... unless they are most of them.
         shares.extend([start; 200]);
         assert!(!stands_back(&shares, start));
-        // One learned volume in fifty that trusts the guide keeps it.
-        let mut some = vec![0.9526; 196];
-        some.extend([0.4; 4]);
+        // One learned volume in twenty that trusts the guide keeps it.
+        let mut some = vec![0.9526; 189];
+        some.extend([0.4; 11]);
         assert!(!stands_back(&some, start));
+        some.truncate(195);
+        assert!(stands_back(&some, start));
         assert!(!stands_back(&[], start));
         assert!(!stands_back(&[start; 10], start));
     }
@@ -642,7 +644,7 @@ mod tests {
     #[test]
     fn stand_back_checks_fall_on_fixed_passes() {
         let checks: Vec<u32> = (0..300).filter(|&d| stand_back_check(d)).collect();
-        assert_eq!(checks, [16, 32, 64, 128, 256]);
+        assert_eq!(checks, [8, 16, 32, 64, 128, 256]);
     }
 
     #[test]
