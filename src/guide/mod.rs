@@ -170,8 +170,8 @@ pub fn stand_back_check(done: u32) -> bool {
 /// Whether the learned shares of BSDF sampling (`start`: where they began)
 /// say that the guide cannot help: at least half of the volumes have
 /// learned (moved from the start), and 95% of those sit at the cap. In a
-/// white furnace 98% of the volumes get there within 8 passes (all within
-/// 16); on every other shipped scene at most 30% do. A guided pass costs
+/// white furnace 98% of the volumes get there within 8 passes; on every
+/// other shipped scene at most 30% do. A guided pass costs
 /// about twice a plain one, so the passes left run plain path tracing:
 /// each pass stays unbiased, and so does the image.
 pub fn stands_back(shares: &[f32], start: f32) -> bool {
