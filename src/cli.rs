@@ -597,6 +597,14 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
                 r.rays_per_second / 1e6
             );
         }
+        for r in s.runs.iter() {
+            if let Some(after) = r.guide_stood_back_after {
+                println!(
+                    "{}: {}'s guide stood back after {after} passes (plain path tracing from there)",
+                    s.name, r.config
+                );
+            }
+        }
         println!("{}", reference_floor_line(s));
     }
     if extrapolated {

@@ -119,6 +119,9 @@ pub struct RunReport {
     pub zero_contribution_fraction: f64,
     pub mean_path_length: f64,
     pub guide_bytes: u64,
+    /// The passes after which the guide stood back, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide_stood_back_after: Option<u32>,
     /// Error interpolated (log-log) at the scene's equal-time budget.
     pub error_at_equal_time: ErrorMetrics,
     /// Whether that budget fell before the first checkpoint, so the error
@@ -574,6 +577,7 @@ pub fn evaluate(
                 zero_contribution_fraction: s.zero_contribution_fraction,
                 mean_path_length: s.mean_path_length,
                 guide_bytes: s.guide_bytes,
+                guide_stood_back_after: s.guide_stood_back_after,
                 error_at_equal_time: ErrorMetrics {
                     mse: 0.0,
                     rel_mse: 0.0,
