@@ -609,3 +609,43 @@ fn guides_stand_back_where_they_cannot_help() {
     assert_eq!(stood_back("furnace", sarsa(Some(false))).0, None);
     assert_eq!(stood_back("indirect-room", sarsa(None)).0, None);
 }
+
+/// A render that stood back and was stopped goes on standing back when
+/// resumed, and ends with the very image of one that ran through.
+#[test]
+fn standing_back_survives_a_resume() {
+    use qtrace::render::{Control, RenderSettings, Renderer};
+    let ctx = common::gpu();
+    let scene = common::scene("furnace");
+    let o = |spp| Overrides {
+        method: Some(Method::Sarsa),
+        spp: Some(spp),
+        width: Some(64),
+        height: Some(64),
+        ..Default::default()
+    };
+    let state = common::scratch("stand-back-resume").join("state");
+    let control = Control {
+        state: Some(&state),
+        ..Default::default()
+    };
+    let run = |spp, resume: bool| {
+        let settings = RenderSettings::resolve(&scene, &o(spp)).unwrap();
+        let mut renderer = Renderer::new(&ctx, &scene, settings).unwrap();
+        if resume {
+            renderer.resume(&state).unwrap();
+        }
+        renderer
+            .run_controlled(&mut |_| {}, &control, &mut |_| {})
+            .unwrap()
+    };
+    let first = run(24, false);
+    let after = first.stats.guide_stood_back_after;
+    assert!(matches!(after, Some(8 | 16)), "stood back after {after:?}");
+    let resumed = run(48, true);
+    assert_eq!(resumed.stats.guide_stood_back_after, after);
+    let through = common::render_with(&ctx, &scene, o(48));
+    assert_eq!(through.stats.guide_stood_back_after, after);
+    assert_eq!(resumed.image, through.image);
+    common::assert_no_validation_errors(&ctx);
+}
