@@ -320,10 +320,18 @@ fn write_html(
                 .iter()
                 .map(|t| format!("{} {:.2}", t.name, t.median_ms))
                 .collect();
+            // A guide that stood back rendered the rest as plain path tracing.
+            let method = match r.guide_stood_back_after {
+                Some(n) => format!(
+                    "{} <small>(stood back after {n} passes)</small>",
+                    esc(&r.config)
+                ),
+                None => esc(&r.config),
+            };
             let _ = write!(
                 h,
                 "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{:.1} MiB</td><td>{}</td></tr>",
-                esc(&r.config),
+                method,
                 win(r.config == s.summary.fewest_zero_contribution, format!("{:.1}%", 100.0 * r.zero_contribution_fraction)),
                 r.mean_path_length,
                 r.rays_per_second / 1e6,
