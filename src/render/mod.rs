@@ -183,6 +183,23 @@ fn samples_per_dispatch(settings: &RenderSettings, pixels: u64, device: &gpu::De
         .min(by_steps as u64) as u32
 }
 
+/// What every trace kernel binds besides a guide's buffers: the scene, the
+/// path samples, the accumulation and the pass stats.
+fn own_bindings<'a>(
+    scene: &'a GpuScene,
+    samples: &'a Buffer,
+    accum: &'a Buffer,
+    stats: &'a Buffer,
+) -> Vec<(u32, &'a Buffer)> {
+    let mut bindings = scene.bindings().to_vec();
+    bindings.extend([
+        (shaders::B_SAMPLES, samples),
+        (shaders::B_ACCUM, accum),
+        (shaders::B_STATS, stats),
+    ]);
+    bindings
+}
+
 fn groups(width: u32, height: u32) -> [u32; 3] {
     [
         width.div_ceil(shaders::TILE_X),
@@ -253,12 +270,7 @@ impl Renderer {
             &constants,
         )?;
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
-        let mut bindings: Vec<(u32, &Buffer)> = gpu_scene.bindings().to_vec();
-        bindings.extend([
-            (shaders::B_SAMPLES, &samples),
-            (shaders::B_ACCUM, &accum),
-            (shaders::B_STATS, &stats),
-        ]);
+        let mut bindings = own_bindings(&gpu_scene, &samples, &accum, &stats);
         if let Some(g) = &guide {
             bindings.extend(g.bindings());
         }
@@ -418,24 +430,34 @@ impl Renderer {
             push,
             &self.constants,
         )?;
-        let mut bindings: Vec<(u32, &Buffer)> = self._scene.bindings().to_vec();
-        bindings.extend([
-            (shaders::B_SAMPLES, &self._samples),
-            (shaders::B_ACCUM, &self.accum),
-            (shaders::B_STATS, &self.stats),
-        ]);
+        let bindings = own_bindings(&self._scene, &self._samples, &self.accum, &self.stats);
         let set = DescriptorSet::new(&self.ctx, &pipeline, &bindings)?;
         Ok((pipeline, set))
+    }
+
+    /// Whether the guide has yet to stand back and may (see
+    /// `GuideSettings::may_stand_back`).
+    fn may_stand_back(&self) -> bool {
+        self.stood_back.is_none()
+            && self
+                .settings
+                .guide
+                .as_ref()
+                .is_some_and(|g| g.may_stand_back())
     }
 
     /// After pass `done` (a check, see `crate::guide::stand_back_check`): whether
     /// the guide stands back from the next pass on, by its learned shares.
     fn check_stand_back(&mut self, done: u32) -> Result<(), RenderError> {
-        let Some(g) = self.settings.guide.as_ref() else {
+        let Some(g) = self
+            .settings
+            .guide
+            .as_ref()
+            .filter(|_| self.may_stand_back())
+        else {
             return Ok(());
         };
-        if self.stood_back.is_some() || !g.may_stand_back() || !crate::guide::stand_back_check(done)
-        {
+        if !crate::guide::stand_back_check(done) {
             return Ok(());
         }
         let start = g.common().epsilon(true);
@@ -537,7 +559,7 @@ impl Renderer {
                 count = count.min(next - done);
             }
             // The guide checks whether to stand back after fixed passes.
-            if self.stood_back.is_none() {
+            if self.may_stand_back() {
                 if let Some(next) =
                     (done + 1..done + count).find(|&i| crate::guide::stand_back_check(i))
                 {
