@@ -14,16 +14,19 @@ layout(push_constant) uniform Push { PassParams params; };
 layout(set = 0, binding = B_SAMPLES) uniform usamplerBuffer sample_texels;
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
 // PassStats as words: paths, zero_paths, length_sum, rays, nan_paths,
-// td_count, td_sq_bits, pad.
+// td_count, td_sq_bits, dev_bits.
 layout(std430, set = 0, binding = B_STATS) buffer Stats { uint stats_words[]; };
+layout(std430, set = 0, binding = B_RACE_REF) readonly buffer RaceRef { Accum race_ref[]; };
 
 #define COUNTERS 6
+// Float totals after the counters: td_sq, dev.
+#define FLOATS 2
 // Subgroups hold at least 4 invocations.
 #define MAX_SUBGROUPS (TILE_X * TILE_Y / 4)
 // Each subgroup's totals per sample of the dispatch, summed once at the end:
 // no barrier or shared atomic per sample.
 shared uint s_counts[MAX_BATCH][MAX_SUBGROUPS][COUNTERS];
-shared float s_td[MAX_BATCH][MAX_SUBGROUPS];
+shared float s_f[MAX_BATCH][MAX_SUBGROUPS][FLOATS];
 
 void main() {
     uvec2 pixel = gl_GlobalInvocationID.xy;
@@ -34,12 +37,19 @@ void main() {
     uint count = clamp(params.item_count, 1u, MAX_BATCH);
     // The pixel's sums stay in registers over the dispatch's samples.
     Accum a = Accum(vec4(0.0), vec4(0.0));
+    // Deviations are measured against the pixel's mean so far, or in a race
+    // against its mean when the race began, so that no lap's reference
+    // holds another lap's sample.
+    vec4 ref = vec4(0.0);
+    bool race = (params.flags & FLAG_RACE) != 0u;
     if (inside) {
         a = accum[index];
+        ref = race ? race_ref[index].sum : a.sum;
     }
     for (uint s = 0u; s < count; ++s) {
         uint c[COUNTERS] = uint[COUNTERS](0u, 0u, 0u, 0u, 0u, 0u);
         float td = 0.0;
+        float dev = 0.0;
         if (inside) {
             uvec4 t0 = texelFetch(sample_texels, int(2u * (s * pixels + index)));
             uvec4 t1 = texelFetch(sample_texels, int(2u * (s * pixels + index) + 1u));
@@ -48,7 +58,24 @@ void main() {
                 // Counted and left out rather than poisoning the pixel.
                 c[4] = 1u;
             } else {
+                // Squared deviation from the pixel's mean so far, relative as
+                // relMSE weighs it: the race between guided and plain passes
+                // compares these (see Renderer::race).
+                if (ref.w > 0.0) {
+                    vec3 mean = ref.rgb / ref.w;
+                    vec3 d = radiance - mean;
+                    vec3 dd = d * d;
+                    // In a race, less the reference mean's own variance
+                    // (the sample variance over its count), which would
+                    // otherwise add alike to every lap and hide their ratio.
+                    if (race && ref.w > 1.0) {
+                        vec3 sq = race_ref[index].sum_sq.rgb;
+                        dd -= max(sq - ref.w * mean * mean, 0.0) / (ref.w * (ref.w - 1.0));
+                    }
+                    dev = dot(dd / (mean * mean + 0.01), vec3(1.0 / 3.0));
+                }
                 a.sum += vec4(radiance, 1.0);
+                ref = race ? ref : a.sum;
                 a.sum_sq += vec4(radiance * radiance, 0.0);
                 c[1] = (radiance.r + radiance.g + radiance.b) / 3.0 < 1e-4 ? 1u : 0u;
             }
@@ -62,11 +89,13 @@ void main() {
             c[k] = subgroupAdd(c[k]);
         }
         td = subgroupAdd(td);
+        dev = subgroupAdd(dev);
         if (subgroupElect()) {
             for (uint k = 0u; k < COUNTERS; ++k) {
                 s_counts[s][gl_SubgroupID][k] = c[k];
             }
-            s_td[s][gl_SubgroupID] = td;
+            s_f[s][gl_SubgroupID][0] = td;
+            s_f[s][gl_SubgroupID][1] = dev;
         }
     }
     if (inside) {
@@ -76,9 +105,9 @@ void main() {
 
     // One invocation per (sample, counter): sums the subgroups, then one
     // global atomic per workgroup.
-    for (uint task = gl_LocalInvocationIndex; task < count * (COUNTERS + 1u); task += TILE_X * TILE_Y) {
-        uint s = task / (COUNTERS + 1u);
-        uint k = task % (COUNTERS + 1u);
+    for (uint task = gl_LocalInvocationIndex; task < count * (COUNTERS + FLOATS); task += TILE_X * TILE_Y) {
+        uint s = task / (COUNTERS + FLOATS);
+        uint k = task % (COUNTERS + FLOATS);
         uint word = ((params.pass_index + s) % MAX_BATCH) * (SIZEOF_PASS_STATS / 4u) + k;
         if (k < COUNTERS) {
             uint sum = 0u;
@@ -89,7 +118,7 @@ void main() {
         } else {
             float sum = 0.0;
             for (uint g = 0u; g < gl_NumSubgroups; ++g) {
-                sum += s_td[s][g];
+                sum += s_f[s][g][k - COUNTERS];
             }
             if (sum != 0.0) {
                 CAS_ADD_FLOAT(stats_words[word], sum);

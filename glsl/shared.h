@@ -63,6 +63,8 @@
 // Neural-Q's tables at the volumes: the target means' Q and visits.
 #define B_MEAN_Q 36
 #define B_MEAN_VISITS 37
+// The race (src/render/race.rs): each pixel's sums when it began.
+#define B_RACE_REF 38
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -77,6 +79,8 @@
 #define FLAG_VERTEX_ENCODING 32
 // Sarsa: learn each volume's share of BSDF sampling (else guide_epsilon).
 #define FLAG_LEARN_MIX 64
+// Accumulate: a race's pass, its deviation measured against B_RACE_REF.
+#define FLAG_RACE 128
 // The share's logit: Adam's learning rate, and its bounds (a share in
 // [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
 #define MIX_LEARNING_RATE 0.3
@@ -200,7 +204,7 @@ struct PassStats {
     uint nan_paths;
     uint td_count;     // guide updates this pass
     uint td_sq_bits;   // float bits: their summed squared TD error (the pass's loss)
-    uint pad;
+    uint dev_bits;     // float bits: summed relative squared deviation from pixel means
 };
 
 // Push constants shared by every pass of a render.

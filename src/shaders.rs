@@ -95,7 +95,16 @@ pub struct PassStats {
     pub td_count: u32,
     /// Bits of an f32 (the shader adds to it by compare-and-swap).
     pub td_sq_bits: u32,
-    pub pad: u32,
+    /// Bits of an f32: each sample's squared deviation from its pixel's
+    /// mean before it, relative as relMSE weighs it, summed.
+    pub dev_bits: u32,
+}
+
+impl PassStats {
+    /// Mean relative squared deviation of the pass's samples (see `dev_bits`).
+    pub fn deviation(&self) -> f64 {
+        f32::from_bits(self.dev_bits) as f64 / self.paths.max(1) as f64
+    }
 }
 
 #[repr(C)]

@@ -249,14 +249,18 @@ impl GuideSettings {
         self.common().learns_in_pass(index, default_thin)
     }
 
-    /// Whether the guide checks its learned shares to stand back (see
-    /// `Common::stand_back`): where each volume learns its share.
+    /// Whether the guide may stand back (see `Common::stand_back`).
     pub fn may_stand_back(&self) -> bool {
-        let learned = match self {
+        self.common().stand_back.unwrap_or(true)
+    }
+
+    /// Whether each volume learns its share of BSDF sampling, which
+    /// [`stands_back`] reads.
+    pub fn learns_shares(&self) -> bool {
+        match self {
             Self::Sarsa(s) => s.learns_epsilon(),
             Self::Neural(n) => n.learns_epsilon(),
-        };
-        learned && self.common().stand_back.unwrap_or(true)
+        }
     }
 
     /// The guide `name`'s settings from its table (keys missing: defaults).

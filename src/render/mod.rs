@@ -2,10 +2,12 @@
 //! reads back the image and the statistics.
 
 pub mod probe;
+pub mod race;
 pub mod settings;
 pub mod state;
 pub mod stats;
 
+pub use race::RaceRecord;
 pub use settings::{Budget, Method, Overrides, RenderSettings, Sampling, SettingsError};
 pub use stats::{PassRecord, RenderStats};
 
@@ -137,10 +139,16 @@ pub struct Renderer {
     plain: Option<(ComputePipeline, DescriptorSet)>,
     /// The pass from which the guide stands back, if it does.
     stood_back: Option<u32>,
+    /// The race in progress, if one is (see [`race`]).
+    race: Option<race::Race>,
+    /// The guide's ordinary passes since the last stand-back check.
+    window: race::Window,
     /// The trace kernels' specialisation constants.
     constants: Vec<u32>,
     accumulate_set: DescriptorSet,
     accum: Buffer,
+    /// The accumulation when the race in progress began.
+    race_ref: Buffer,
     stats: Buffer,
     _samples: Buffer,
     /// Most sample passes one trace dispatch may take (see `passes`).
@@ -285,6 +293,14 @@ impl Renderer {
                 Ok((p, set))
             })
             .transpose()?;
+        // A race's reference sums: a copy of the accumulation when it began.
+        let may_race = settings.guide.as_ref().is_some_and(|g| g.may_stand_back());
+        let race_ref = Buffer::gpu_only(
+            ctx,
+            "race reference",
+            if may_race { accum.size() } else { 16 },
+        )?;
+        bindings.push((shaders::B_RACE_REF, &race_ref));
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
@@ -300,9 +316,12 @@ impl Renderer {
             frozen,
             plain: None,
             stood_back: None,
+            race: None,
+            window: race::Window::default(),
             constants,
             accumulate_set,
             accum,
+            race_ref,
             stats,
             _samples: samples,
             samples_per_dispatch,
@@ -317,13 +336,20 @@ impl Renderer {
     /// Runs sample passes `first .. first + count` (count <= MAX_BATCH) in one
     /// submit and returns each pass's totals. Passes in which no guide learns
     /// share trace dispatches (see [`samples_per_dispatch`]); a learning pass
-    /// has its own, since the next one samples from what it learned.
-    fn passes(&mut self, first: u32, count: u32) -> Result<Vec<PassStats>, RenderError> {
+    /// has its own, since the next one samples from what it learned. A race's
+    /// lap (`lap`) runs its entrant's kernel and learns nothing.
+    fn passes(
+        &mut self,
+        first: u32,
+        count: u32,
+        lap: Option<race::Lap>,
+    ) -> Result<Vec<PassStats>, RenderError> {
         debug_assert!((1..=shaders::MAX_BATCH).contains(&count));
         self.stats
             .write(&[PassStats::default(); shaders::MAX_BATCH as usize]);
         let g = groups(self.settings.width, self.settings.height);
-        let plain = self.stood_back.is_some_and(|from| first >= from);
+        let plain = lap.is_some_and(|l| l.entrant == race::Entrant::Plain)
+            || self.stood_back.is_some_and(|from| first >= from);
         if plain && self.plain.is_none() {
             self.plain = Some(self.plain_pipeline()?);
         }
@@ -346,6 +372,9 @@ impl Renderer {
                     return;
                 }
                 let mut params = base;
+                if lap.is_some() {
+                    params.flags |= shaders::FLAG_RACE;
+                }
                 params.pass_index = pending_first;
                 params.item_count = pending;
                 rec.dispatch_covering(
@@ -361,7 +390,7 @@ impl Renderer {
             };
             let end = first + count;
             let mut index = first;
-            let learns = |i: u32| plain.is_none() && settings.learns_in_pass(i);
+            let learns = |i: u32| lap.is_none() && plain.is_none() && settings.learns_in_pass(i);
             while index < end {
                 let learn = learns(index);
                 // A dispatch never spans a reset or a pass that learns.
@@ -382,7 +411,8 @@ impl Renderer {
                     rec.fill(accum, 0);
                 }
                 let mut params = base;
-                params.pass_index = index;
+                // The trace kernel draws its random numbers by pass_index.
+                params.pass_index = index - u32::from(lap.is_some_and(|l| l.repeat));
                 params.item_count = samples;
                 params.selector = pending;
                 if let Some(g) = guide.as_deref() {
@@ -446,9 +476,12 @@ impl Renderer {
                 .is_some_and(|g| g.may_stand_back())
     }
 
-    /// After pass `done` (a check, see `crate::guide::stand_back_check`): whether
-    /// the guide stands back from the next pass on, by its learned shares.
-    fn check_stand_back(&mut self, done: u32) -> Result<(), RenderError> {
+    /// After an ordinary batch ending at pass `tally.done`: at a check (see
+    /// `crate::guide::stand_back_check`) the guide stands back if its
+    /// learned shares say it cannot help, and otherwise starts a race (see
+    /// [`race`]) where passes are left to run after it.
+    fn check_stand_back(&mut self, tally: &Tally) -> Result<(), RenderError> {
+        let done = tally.done;
         let Some(g) = self
             .settings
             .guide
@@ -460,18 +493,58 @@ impl Renderer {
         if !crate::guide::stand_back_check(done) {
             return Ok(());
         }
-        let start = g.common().epsilon(true);
-        let shares = self
-            .guide
-            .as_ref()
-            .map(|g| g.bsdf_shares())
-            .transpose()?
-            .flatten();
-        if shares.is_some_and(|s| crate::guide::stands_back(&s, start)) {
-            log::info!("the guide stands back after {done} passes: every volume learned to sample the BSDF");
-            self.stood_back = Some(done);
+        let window = std::mem::take(&mut self.window);
+        if g.learns_shares() {
+            let start = g.common().epsilon(true);
+            let shares = self
+                .guide
+                .as_ref()
+                .map(|g| g.bsdf_shares())
+                .transpose()?
+                .flatten();
+            if shares.is_some_and(|s| crate::guide::stands_back(&s, start)) {
+                log::info!("the guide stands back after {done} passes: every volume learned to sample the BSDF");
+                self.stood_back = Some(done);
+                return Ok(());
+            }
+        }
+        let laps = race::LAPS.len() as u32;
+        let room = match self.settings.budget {
+            Budget::Samples(n) => n.saturating_sub(done) >= 2 * laps,
+            Budget::Seconds(_) => true,
+        };
+        if room {
+            let (accum, race_ref) = (&self.accum, &self.race_ref);
+            self.ctx.submit(None, |rec| rec.copy(accum, race_ref))?;
+            self.race = Some(race::Race::new(done, window));
         }
         Ok(())
+    }
+
+    /// Records a race's lap (one pass, `seconds` long); after its last, the
+    /// verdict over the passes up to `end` (the render's last, as far as
+    /// known), and the guide stands back if plain path tracing won.
+    fn lap_done(&mut self, tally: &mut Tally, seconds: f64, stats: &PassStats, end: u32) {
+        let Some(r) = self.race.as_mut() else {
+            return;
+        };
+        r.record(seconds, stats.deviation());
+        if r.next().is_some() {
+            return;
+        }
+        let r = self.race.take().expect("a race in progress");
+        // The guide's cost to come: what it has learned is paid for.
+        let done = tally.done;
+        let until = end.max(done + 1);
+        let learning = (done..until)
+            .filter(|&i| self.settings.learns_in_pass(i))
+            .count();
+        let verdict = r.verdict(learning as f64 / (until - done) as f64);
+        log::info!("race after {} passes: {verdict:?}", verdict.after);
+        if verdict.stands_back {
+            self.stood_back = Some(done);
+        }
+        tally.races.push(verdict);
     }
 
     /// Renders until the budget is spent, reporting progress after each pass.
@@ -575,13 +648,38 @@ impl Renderer {
             } else {
                 count = 1; // the first pass measures the cost of one
             }
+            // A race runs its laps a pass at a time.
+            let lap = self.race.as_ref().and_then(|r| r.next());
+            if lap.is_some() {
+                count = 1;
+            }
             let batch_start = Instant::now();
-            let batch = self.passes(done, count)?;
-            pass_seconds = batch_start.elapsed().as_secs_f64() / count as f64;
+            let batch = self.passes(done, count, lap)?;
+            let seconds = batch_start.elapsed().as_secs_f64();
+            pass_seconds = seconds / count as f64;
             for s in &batch {
                 tally.add(s, self.guide.is_some());
             }
-            self.check_stand_back(tally.done)?;
+            if lap.is_some() {
+                // The passes left: the budget's, or as many as its time holds.
+                let end = match self.settings.budget {
+                    Budget::Samples(n) => n,
+                    Budget::Seconds(t) => {
+                        let left = t - (start.elapsed().as_secs_f64() - paused);
+                        done + (left / pass_seconds).clamp(0.0, settings::MAX_SPP as f64) as u32
+                    }
+                };
+                self.lap_done(&mut tally, seconds, &batch[0], end);
+            } else {
+                // The first pass may hold the driver's start-up costs.
+                if done > 0 {
+                    let learning = (done..done + count)
+                        .filter(|&i| self.settings.learns_in_pass(i))
+                        .count();
+                    self.window.add(seconds, count, learning as u32);
+                }
+                self.check_stand_back(&tally)?;
+            }
             tally.stood_back = self.stood_back;
             let mut elapsed = start.elapsed().as_secs_f64() - paused;
             let timed = control
@@ -666,6 +764,7 @@ impl Renderer {
             passes: tally.records.clone(),
             trace_dispatches: self.trace_dispatches,
             guide_stood_back_after: tally.stood_back,
+            guide_races: tally.races.clone(),
         }
     }
 }
@@ -685,6 +784,9 @@ pub(crate) struct Tally {
     /// The pass from which the guide stood back, if it did.
     #[serde(default)]
     stood_back: Option<u32>,
+    /// The races run so far (see [`race`]).
+    #[serde(default)]
+    races: Vec<RaceRecord>,
 }
 
 impl Tally {
@@ -701,6 +803,7 @@ impl Tally {
             zero_contribution_fraction: s.zero_paths as f64 / n,
             mean_path_length: s.length_sum as f64 / n,
             rays: s.rays as u64,
+            deviation: s.deviation(),
             loss: guided.then(|| f32::from_bits(s.td_sq_bits) as f64 / s.td_count.max(1) as f64),
         });
     }

@@ -11,6 +11,11 @@ pub struct PassRecord {
     pub zero_contribution_fraction: f64,
     pub mean_path_length: f64,
     pub rays: u64,
+    /// Mean over the pass's samples of the squared deviation from their
+    /// pixel's mean before the pass, relative as relMSE weighs it (0 for
+    /// the first pass): the pass's noise, as a race compares it.
+    #[serde(default)]
+    pub deviation: f64,
     /// Learned methods: mean squared temporal-difference error of this pass's updates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loss: Option<f64>,
@@ -62,6 +67,11 @@ pub struct RenderStats {
     /// pass was plain path tracing (see `Common::stand_back`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub guide_stood_back_after: Option<u32>,
+    /// The races between the guide and plain path tracing, one per check
+    /// the guide did not stand back at by its shares (see
+    /// `crate::render::race`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub guide_races: Vec<super::RaceRecord>,
 }
 
 impl RenderStats {

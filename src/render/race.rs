@@ -1,0 +1,214 @@
+//! The race: whether a guide's passes pay for their time against plain path
+//! tracing's, measured on the render itself.
+//!
+//! At each stand-back check (see `crate::guide::stand_back_check`) a guide
+//! that has not stood back runs four passes that learn nothing, plain and
+//! guided in turn (so that whatever slows the machine slows both). Each
+//! pass's noise is its samples' squared deviation from their pixels' means
+//! so far, relative as relMSE weighs it (the accumulate kernel totals it);
+//! its cost is that noise times the pass's time. Every pass is unbiased and
+//! counts in the image, so the race only decides which kernel the passes
+//! after it run.
+//!
+//! Most of a pass's noise can be common to both kernels: a camera ray that
+//! lands on a light's edge, a light sample. So the laps run in pairs on the
+//! same random numbers (the second of a pair draws those of the first; each
+//! sample stays unbiased, the two are merely correlated), and the pairs
+//! alternate which kernel goes first, since the second is measured against
+//! a mean that holds the first's sample.
+
+use serde::{Deserialize, Serialize};
+
+/// The kernel a race pass runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Entrant {
+    Plain,
+    Guide,
+}
+
+/// The race's passes, in order: two pairs.
+pub const LAPS: [Entrant; 4] = [
+    Entrant::Plain,
+    Entrant::Guide,
+    Entrant::Guide,
+    Entrant::Plain,
+];
+
+/// One pass of a race.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Lap {
+    pub entrant: Entrant,
+    /// Draws the random numbers of the pass before it (the second of a pair).
+    pub repeat: bool,
+}
+
+/// The guide stands back only where plain path tracing's cost is lower by
+/// this factor: the guide keeps learning after the race, and one pass's
+/// noise is itself noisy.
+pub const MARGIN: f64 = 1.25;
+
+/// What a race measured and what it decided (kept in the render's stats).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RaceRecord {
+    /// The check after which it ran.
+    pub after: u32,
+    /// Mean relative squared deviation of a plain sample, and of a guided one.
+    pub plain_deviation: f64,
+    pub guide_deviation: f64,
+    /// Seconds per pass: plain; the guide's passes that learn nothing; and
+    /// the guide's passes to come, learning as often as its schedule says.
+    pub plain_seconds: f64,
+    pub guide_seconds: f64,
+    pub guide_future_seconds: f64,
+    /// Plain deviation × seconds over the guide's, the guide's to come.
+    pub plain_over_guide: f64,
+    pub stands_back: bool,
+}
+
+/// Passes of the guide's ordinary kind since the last check: their time and
+/// how many of them learned.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Window {
+    pub seconds: f64,
+    pub passes: u32,
+    pub learning: u32,
+}
+
+impl Window {
+    pub fn add(&mut self, seconds: f64, passes: u32, learning: u32) {
+        self.seconds += seconds;
+        self.passes += passes;
+        self.learning += learning;
+    }
+}
+
+/// A race in progress.
+#[derive(Clone, Debug)]
+pub struct Race {
+    /// The check after which it runs.
+    pub after: u32,
+    window: Window,
+    /// (seconds, mean deviation) of each lap run so far.
+    laps: Vec<(f64, f64)>,
+}
+
+impl Race {
+    pub fn new(after: u32, window: Window) -> Self {
+        Self {
+            after,
+            window,
+            laps: Vec::with_capacity(LAPS.len()),
+        }
+    }
+
+    /// The next lap, None once every lap has run.
+    pub fn next(&self) -> Option<Lap> {
+        let i = self.laps.len();
+        LAPS.get(i).map(|&entrant| Lap {
+            entrant,
+            repeat: i % 2 == 1,
+        })
+    }
+
+    pub fn record(&mut self, seconds: f64, deviation: f64) {
+        self.laps.push((seconds, deviation));
+    }
+
+    /// The verdict, once every lap has run; `future_learning` is the share of
+    /// the passes up to the next check in which the guide learns.
+    pub fn verdict(&self, future_learning: f64) -> RaceRecord {
+        let of = |who: Entrant| {
+            let laps = LAPS.iter().zip(&self.laps).filter(move |(&e, _)| e == who);
+            let seconds = laps.clone().map(|(_, l)| l.0).fold(f64::INFINITY, f64::min);
+            let n = laps.clone().count().max(1) as f64;
+            (seconds, laps.map(|(_, l)| l.1).sum::<f64>() / n)
+        };
+        let (plain_seconds, plain_deviation) = of(Entrant::Plain);
+        let (guide_seconds, guide_deviation) = of(Entrant::Guide);
+        let guide_future_seconds = future_seconds(guide_seconds, &self.window, future_learning);
+        let plain_over_guide =
+            plain_deviation * plain_seconds / (guide_deviation * guide_future_seconds).max(1e-30);
+        RaceRecord {
+            after: self.after,
+            plain_deviation,
+            guide_deviation,
+            plain_seconds,
+            guide_seconds,
+            guide_future_seconds,
+            plain_over_guide,
+            stands_back: plain_over_guide * MARGIN < 1.0,
+        }
+    }
+}
+
+/// Seconds per guided pass to come: a pass that learns nothing
+/// (`frozen`), plus what learning added per pass in `window`, scaled from
+/// the share of its passes that learned to `future_learning`.
+fn future_seconds(frozen: f64, window: &Window, future_learning: f64) -> f64 {
+    if window.passes == 0 || window.learning == 0 {
+        return frozen;
+    }
+    let per_pass = window.seconds / window.passes as f64;
+    let learned = window.learning as f64 / window.passes as f64;
+    frozen + (per_pass - frozen).max(0.0) * future_learning / learned
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn race(laps: [(f64, f64); 4], window: Window) -> Race {
+        let mut r = Race::new(8, window);
+        for (i, (s, d)) in laps.into_iter().enumerate() {
+            let lap = r.next().expect("four laps");
+            assert_eq!(lap.repeat, i % 2 == 1);
+            r.record(s, d);
+        }
+        assert_eq!(r.next(), None);
+        r
+    }
+
+    #[test]
+    fn a_guide_that_halves_the_noise_at_twice_the_time_stays() {
+        // Plain: 1 ms, deviation 1; guide: 2 ms, deviation 0.5 -> even.
+        let r = race(
+            [(1e-3, 1.0), (2e-3, 0.5), (1e-3, 1.0), (2e-3, 0.5)],
+            Window::default(),
+        );
+        let v = r.verdict(0.0);
+        assert!((v.plain_over_guide - 1.0).abs() < 1e-9);
+        assert!(!v.stands_back);
+    }
+
+    #[test]
+    fn a_guide_that_costs_time_and_cuts_no_noise_stands_back() {
+        let r = race(
+            [(1e-3, 1.0), (1.5e-3, 1.0), (1.4e-3, 1.0), (1.2e-3, 1.0)],
+            Window::default(),
+        );
+        let v = r.verdict(0.0);
+        // The faster lap of each: 1 ms against 1.4 ms.
+        assert_eq!(v.plain_seconds, 1e-3);
+        assert_eq!(v.guide_seconds, 1.4e-3);
+        assert!((v.plain_over_guide - 1.0 / 1.4).abs() < 1e-9);
+        assert!(v.stands_back);
+    }
+
+    #[test]
+    fn learning_to_come_adds_to_the_guides_time() {
+        // Before the race every pass learned at 3 ms; a pass that learns
+        // nothing takes 2 ms; half the passes to come learn: 2.5 ms.
+        let w = Window {
+            seconds: 24e-3,
+            passes: 8,
+            learning: 8,
+        };
+        assert!((future_seconds(2e-3, &w, 0.5) - 2.5e-3).abs() < 1e-12);
+        assert!((future_seconds(2e-3, &w, 0.0) - 2e-3).abs() < 1e-12);
+        // A window that learned nothing tells nothing of learning's cost.
+        assert_eq!(future_seconds(2e-3, &Window::default(), 1.0), 2e-3);
+        let r = race([(1e-3, 1.0), (2e-3, 0.6), (1e-3, 1.0), (2e-3, 0.6)], w);
+        assert!(!r.verdict(0.0).stands_back);
+        assert!((r.verdict(1.0).guide_future_seconds - 3e-3).abs() < 1e-12);
+    }
+}
