@@ -8,6 +8,9 @@
 #include "atomics.glsl"
 
 layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
+// A race's passes (src/render/race.rs) measure their deviation against
+// B_RACE_REF; a constant, so that other passes do not pay for its reads.
+layout(constant_id = 0) const bool RACE = false;
 
 layout(push_constant) uniform Push { PassParams params; };
 // Read as texels (2 per PathSample): one vector gather each on lavapipe.
@@ -41,7 +44,7 @@ void main() {
     // against its mean when the race began, so that no lap's reference
     // holds another lap's sample.
     vec4 ref = vec4(0.0);
-    bool race = (params.flags & FLAG_RACE) != 0u;
+    const bool race = RACE;
     if (inside) {
         a = accum[index];
         ref = race ? race_ref[index].sum : a.sum;

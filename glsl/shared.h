@@ -79,8 +79,6 @@
 #define FLAG_VERTEX_ENCODING 32
 // Sarsa: learn each volume's share of BSDF sampling (else guide_epsilon).
 #define FLAG_LEARN_MIX 64
-// Accumulate: a race's pass, its deviation measured against B_RACE_REF.
-#define FLAG_RACE 128
 // The share's logit: Adam's learning rate, and its bounds (a share in
 // [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
 #define MIX_LEARNING_RATE 0.3

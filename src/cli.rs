@@ -236,9 +236,9 @@ pub fn render(
         100.0 * s.zero_contribution_fraction,
         s.mean_path_length
     );
-    if let Some(after) = s.guide_stood_back_after {
+    if let (Some(after), Some(because)) = (s.guide_stood_back_after, s.stood_back_because()) {
         eprintln!(
-            "the guide stood back after {after} passes: every volume learned to sample the BSDF, so the rest was plain path tracing (stand_back = false keeps it)"
+            "the guide stood back after {after} passes: {because}, so the rest was plain path tracing (stand_back = false keeps it)"
         );
     }
     if s.invalid_paths > 0 {
@@ -598,9 +598,11 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
             );
         }
         for r in s.runs.iter() {
-            if let Some(after) = r.guide_stood_back_after {
+            if let (Some(after), Some(because)) =
+                (r.guide_stood_back_after, &r.guide_stood_back_because)
+            {
                 println!(
-                    "{}: {}'s guide stood back after {after} passes (plain path tracing from there)",
+                    "{}: {}'s guide stood back after {after} passes (plain path tracing from there): {because}",
                     s.name, r.config
                 );
             }

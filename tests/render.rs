@@ -78,7 +78,8 @@ fn same_seed_gives_the_same_image_and_other_seeds_do_not() {
 
 /// With fixed-point tallies (the default where the device has 64-bit
 /// atomics) Sarsa's image is the same bit for bit under one seed, with and
-/// without NEE; float atomics add in another order each run.
+/// without NEE; float atomics add in another order each run. (Races, which
+/// read the clock, begin after 16 passes: see `qtrace::render::race`.)
 #[test]
 fn sarsa_is_reproducible_bit_for_bit_with_fixed_point_tallies() {
     use qtrace::guide::{sarsa::Atomics, GuideSettings, SarsaSettings};

@@ -122,6 +122,9 @@ pub struct RunReport {
     /// The passes after which the guide stood back, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub guide_stood_back_after: Option<u32>,
+    /// Why (see `RenderStats::stood_back_because`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide_stood_back_because: Option<String>,
     /// Error interpolated (log-log) at the scene's equal-time budget.
     pub error_at_equal_time: ErrorMetrics,
     /// Whether that budget fell before the first checkpoint, so the error
@@ -566,6 +569,7 @@ pub fn evaluate(
             };
             images.push(kept);
             let s = out.stats;
+            let because = s.stood_back_because();
             runs.push(RunReport {
                 config: label,
                 checkpoints: rows,
@@ -578,6 +582,7 @@ pub fn evaluate(
                 mean_path_length: s.mean_path_length,
                 guide_bytes: s.guide_bytes,
                 guide_stood_back_after: s.guide_stood_back_after,
+                guide_stood_back_because: because,
                 error_at_equal_time: ErrorMetrics {
                     mse: 0.0,
                     rel_mse: 0.0,

@@ -323,8 +323,9 @@ fn write_html(
             // A guide that stood back rendered the rest as plain path tracing.
             let method = match r.guide_stood_back_after {
                 Some(n) => format!(
-                    "{} <small>(stood back after {n} passes)</small>",
-                    esc(&r.config)
+                    "{} <small>(stood back after {n} passes: {})</small>",
+                    esc(&r.config),
+                    esc(r.guide_stood_back_because.as_deref().unwrap_or("")),
                 ),
                 None => esc(&r.config),
             };

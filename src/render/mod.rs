@@ -146,6 +146,8 @@ pub struct Renderer {
     /// The trace kernels' specialisation constants.
     constants: Vec<u32>,
     accumulate_set: DescriptorSet,
+    /// The accumulate kernel of a race's passes, where the guide may race.
+    race_accumulate: Option<(ComputePipeline, DescriptorSet)>,
     accum: Buffer,
     /// The accumulation when the race in progress began.
     race_ref: Buffer,
@@ -302,6 +304,14 @@ impl Renderer {
         )?;
         bindings.push((shaders::B_RACE_REF, &race_ref));
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
+        let race_accumulate = may_race
+            .then(|| -> gpu::Result<_> {
+                let p =
+                    ComputePipeline::specialized(ctx, "accumulate", spirv::ACCUMULATE, push, &[1])?;
+                let set = DescriptorSet::new(ctx, &p, &bindings)?;
+                Ok((p, set))
+            })
+            .transpose()?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
         Ok(Self {
@@ -320,6 +330,7 @@ impl Renderer {
             window: race::Window::default(),
             constants,
             accumulate_set,
+            race_accumulate,
             accum,
             race_ref,
             stats,
@@ -357,6 +368,7 @@ impl Renderer {
         let learning = (&self.trace, &self.trace_set);
         let frozen = self.frozen.as_ref().map(|(p, s)| (p, s));
         let (accumulate, accumulate_set) = (&self.accumulate, &self.accumulate_set);
+        let race_accumulate = self.race_accumulate.as_ref();
         let mut guide = self.guide.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         let most = self.samples_per_dispatch;
@@ -372,16 +384,17 @@ impl Renderer {
                     return;
                 }
                 let mut params = base;
-                if lap.is_some() {
-                    params.flags |= shaders::FLAG_RACE;
-                }
                 params.pass_index = pending_first;
                 params.item_count = pending;
+                let (pipeline, set) = match (lap, race_accumulate) {
+                    (Some(_), Some((p, s))) => (p, s),
+                    _ => (accumulate, accumulate_set),
+                };
                 rec.dispatch_covering(
                     Pass {
                         name: "accumulate",
-                        pipeline: accumulate,
-                        set: accumulate_set,
+                        pipeline,
+                        set,
                         push: bytemuck::bytes_of(&params),
                         groups: g,
                     },
@@ -509,10 +522,11 @@ impl Renderer {
             }
         }
         let laps = race::LAPS.len() as u32;
-        let room = match self.settings.budget {
-            Budget::Samples(n) => n.saturating_sub(done) >= 2 * laps,
-            Budget::Seconds(_) => true,
-        };
+        let room = done >= race::FIRST
+            && match self.settings.budget {
+                Budget::Samples(n) => n.saturating_sub(done) >= 2 * laps,
+                Budget::Seconds(_) => true,
+            };
         if room {
             let (accum, race_ref) = (&self.accum, &self.race_ref);
             self.ctx.submit(None, |rec| rec.copy(accum, race_ref))?;

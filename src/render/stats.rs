@@ -75,6 +75,18 @@ pub struct RenderStats {
 }
 
 impl RenderStats {
+    /// Why the guide stood back, if it did: the race it lost, or its shares.
+    pub fn stood_back_because(&self) -> Option<String> {
+        self.guide_stood_back_after?;
+        Some(match self.guide_races.last().filter(|r| r.stands_back) {
+            Some(r) => format!(
+                "plain path tracing won the race after {} passes, its noise per second {:.2}x the guide's",
+                r.after, r.plain_over_guide
+            ),
+            None => "every volume learned to sample the BSDF".into(),
+        })
+    }
+
     /// The `--profile` table: one line per pass name.
     pub fn profile_table(&self) -> String {
         let total: f64 = self.gpu_passes.iter().map(|t| t.total_ms).sum();
