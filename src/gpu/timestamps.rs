@@ -42,6 +42,8 @@ pub struct Profiler {
     pool: Option<vk::QueryPool>,
     pending: Vec<(String, u32)>,
     timings: Vec<PassTiming>,
+    /// Milliseconds of every timed dispatch of the last submit.
+    last_submit_ms: Option<f64>,
     valid_mask: u64,
 }
 
@@ -62,6 +64,7 @@ impl Profiler {
             pool,
             pending: Vec::new(),
             timings: Vec::new(),
+            last_submit_ms: None,
             valid_mask: u64::MAX,
         })
     }
@@ -108,6 +111,7 @@ impl Profiler {
 
     /// Reads the finished submit's timestamps into the totals.
     pub(super) fn collect(&mut self) -> Result<()> {
+        self.last_submit_ms = None;
         let Some(pool) = self.pool else {
             return Ok(());
         };
@@ -128,6 +132,7 @@ impl Profiler {
             let start = ticks[2 * i] & self.valid_mask;
             let end = ticks[2 * i + 1] & self.valid_mask;
             let ms = end.saturating_sub(start) as f64 * period_ms / passes as f64;
+            *self.last_submit_ms.get_or_insert(0.0) += ms * passes as f64;
             let t = match self.timings.iter_mut().find(|t| t.name == name) {
                 Some(t) => t,
                 None => {
@@ -147,6 +152,12 @@ impl Profiler {
                 .extend(std::iter::repeat_n(ms as f32, passes as usize));
         }
         Ok(())
+    }
+
+    /// GPU milliseconds of the last submit's dispatches (None where the
+    /// device has no timestamps or nothing was timed).
+    pub fn last_submit_ms(&self) -> Option<f64> {
+        self.last_submit_ms
     }
 
     /// Totals per pass name, in first-seen order.

@@ -553,7 +553,8 @@ impl Renderer {
         let learning = (done..until)
             .filter(|&i| self.settings.learns_in_pass(i))
             .count();
-        let verdict = r.verdict(learning as f64 / (until - done) as f64);
+        let won_before = tally.races.last().is_some_and(|r| r.plain_wins);
+        let verdict = r.verdict(learning as f64 / (until - done) as f64, won_before);
         log::info!("race after {} passes: {verdict:?}", verdict.after);
         if verdict.stands_back {
             self.stood_back = Some(done);
@@ -669,8 +670,12 @@ impl Renderer {
             }
             let batch_start = Instant::now();
             let batch = self.passes(done, count, lap)?;
-            let seconds = batch_start.elapsed().as_secs_f64();
-            pass_seconds = seconds / count as f64;
+            let wall = batch_start.elapsed().as_secs_f64();
+            pass_seconds = wall / count as f64;
+            // Races compare GPU time where the device has timestamps: a
+            // submit's wall time also holds the host's waits, which
+            // swamp small images' passes.
+            let seconds = self.profiler.last_submit_ms().map_or(wall, |ms| ms * 1e-3);
             for s in &batch {
                 tally.add(s, self.guide.is_some());
             }

@@ -48,9 +48,10 @@ pub struct Lap {
 /// noise per second, and after 16 at 1.37-1.41x (later 1.6-5x).
 pub const FIRST: u32 = 16;
 
-/// The guide stands back only where plain path tracing's cost is lower by
-/// this factor: the guide keeps learning after the race, and one pass's
-/// noise is itself noisy.
+/// Plain path tracing wins a race where its cost is lower by this factor:
+/// the guide keeps learning after the race, and one pass's noise is itself
+/// noisy. The guide stands back once plain path tracing has won two races
+/// in a row.
 pub const MARGIN: f64 = 1.25;
 
 /// What a race measured and what it decided (kept in the render's stats).
@@ -68,6 +69,9 @@ pub struct RaceRecord {
     pub guide_future_seconds: f64,
     /// Plain deviation × seconds over the guide's, the guide's to come.
     pub plain_over_guide: f64,
+    /// Plain path tracing won this race (its cost lower by [`MARGIN`])...
+    pub plain_wins: bool,
+    /// ...and the one before, so the guide stands back.
     pub stands_back: bool,
 }
 
@@ -120,9 +124,10 @@ impl Race {
         self.laps.push((seconds, deviation));
     }
 
-    /// The verdict, once every lap has run; `future_learning` is the share of
-    /// the passes up to the next check in which the guide learns.
-    pub fn verdict(&self, future_learning: f64) -> RaceRecord {
+    /// The verdict, once every lap has run: `future_learning` is the share of
+    /// the passes left in which the guide learns, `won_before` whether plain
+    /// path tracing won the race before.
+    pub fn verdict(&self, future_learning: f64, won_before: bool) -> RaceRecord {
         let of = |who: Entrant| {
             let laps = LAPS.iter().zip(&self.laps).filter(move |(&e, _)| e == who);
             let seconds = laps.clone().map(|(_, l)| l.0).fold(f64::INFINITY, f64::min);
@@ -142,7 +147,8 @@ impl Race {
             guide_seconds,
             guide_future_seconds,
             plain_over_guide,
-            stands_back: plain_over_guide * MARGIN < 1.0,
+            plain_wins: plain_over_guide * MARGIN < 1.0,
+            stands_back: won_before && plain_over_guide * MARGIN < 1.0,
         }
     }
 }
@@ -181,9 +187,9 @@ mod tests {
             [(1e-3, 1.0), (2e-3, 0.5), (1e-3, 1.0), (2e-3, 0.5)],
             Window::default(),
         );
-        let v = r.verdict(0.0);
+        let v = r.verdict(0.0, true);
         assert!((v.plain_over_guide - 1.0).abs() < 1e-9);
-        assert!(!v.stands_back);
+        assert!(!v.plain_wins && !v.stands_back);
     }
 
     #[test]
@@ -192,12 +198,15 @@ mod tests {
             [(1e-3, 1.0), (1.5e-3, 1.0), (1.4e-3, 1.0), (1.2e-3, 1.0)],
             Window::default(),
         );
-        let v = r.verdict(0.0);
+        let v = r.verdict(0.0, true);
         // The faster lap of each: 1 ms against 1.4 ms.
         assert_eq!(v.plain_seconds, 1e-3);
         assert_eq!(v.guide_seconds, 1.4e-3);
         assert!((v.plain_over_guide - 1.0 / 1.4).abs() < 1e-9);
-        assert!(v.stands_back);
+        assert!(v.plain_wins && v.stands_back);
+        // One race won is not enough.
+        let first = r.verdict(0.0, false);
+        assert!(first.plain_wins && !first.stands_back);
     }
 
     #[test]
@@ -214,7 +223,7 @@ mod tests {
         // A window that learned nothing tells nothing of learning's cost.
         assert_eq!(future_seconds(2e-3, &Window::default(), 1.0), 2e-3);
         let r = race([(1e-3, 1.0), (2e-3, 0.6), (1e-3, 1.0), (2e-3, 0.6)], w);
-        assert!(!r.verdict(0.0).stands_back);
-        assert!((r.verdict(1.0).guide_future_seconds - 3e-3).abs() < 1e-12);
+        assert!(!r.verdict(0.0, true).plain_wins);
+        assert!((r.verdict(1.0, true).guide_future_seconds - 3e-3).abs() < 1e-12);
     }
 }

@@ -78,10 +78,13 @@ impl RenderStats {
     /// Why the guide stood back, if it did: the race it lost, or its shares.
     pub fn stood_back_because(&self) -> Option<String> {
         self.guide_stood_back_after?;
-        Some(match self.guide_races.last().filter(|r| r.stands_back) {
+        let races = &self.guide_races;
+        Some(match races.last().filter(|r| r.stands_back) {
             Some(r) => format!(
-                "plain path tracing won the race after {} passes, its noise per second {:.2}x the guide's",
-                r.after, r.plain_over_guide
+                "plain path tracing won the races after {} and {} passes (its noise times time {:.2}x the guide's in the last)",
+                races[races.len().saturating_sub(2)].after,
+                r.after,
+                r.plain_over_guide
             ),
             None => "every volume learned to sample the BSDF".into(),
         })

@@ -411,15 +411,27 @@ pub fn assert_converges_to_pt(name: &str, scene: &Scene, guided: Overrides) -> R
     out
 }
 
-/// Learning shows: the last 8 passes leave fewer zero-contribution paths
-/// than the first, and every pass reports a finite loss.
+/// Learning shows: the last 8 passes the guide guided in its usual way
+/// (neither a race's pass nor one after it stood back) leave fewer
+/// zero-contribution paths than the first, and every pass reports a finite
+/// loss.
 pub fn assert_learning_shows(name: &str, out: &RenderOutput) {
-    let p = &out.stats.passes;
+    let s = &out.stats;
+    let p = &s.passes;
     // Passes that learn report a finite loss (learning thins out over a render).
     assert!(p[0].loss.is_some());
     assert!(p.iter().all(|r| r.loss.is_none_or(f64::is_finite)));
+    let guided: Vec<&qtrace::render::PassRecord> = p
+        .iter()
+        .filter(|r| s.guide_stood_back_after.is_none_or(|a| r.pass < a))
+        .filter(|r| {
+            !s.guide_races
+                .iter()
+                .any(|race| (race.after..race.after + 4).contains(&r.pass))
+        })
+        .collect();
     let first = p[0].zero_contribution_fraction;
-    let last = p[p.len() - 8..]
+    let last = guided[guided.len() - 8..]
         .iter()
         .map(|r| r.zero_contribution_fraction)
         .sum::<f64>()
