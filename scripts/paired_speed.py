@@ -16,8 +16,12 @@ The render arguments start with the scene, e.g.
 It prints, per round, each render's trace pass (GPU ms, from its stats) per
 pass and per path vertex and all its dispatches per pass, and the median
 ratios of the second to the first (all dispatches also per path vertex,
-the cost a guide's per-vertex target is stated in). Needs `taskset` (util-linux) and two
-cores. Benchmarks only.
+the cost a guide's per-vertex target is stated in). With `--reference REF.exr`
+(the scene's reference at the same size, such as the one `qtrace bench`
+caches) it also measures each image's relMSE against it and prints the
+second's relMSE at the first's GPU time over the first's: relMSE times GPU
+time, whose timing both renders share (relMSE falls as 1/time). Needs
+`taskset` (util-linux) and two cores. Benchmarks only.
 """
 
 import argparse
@@ -41,10 +45,22 @@ def trace_cost(stats_path):
     return per_pass, per_pass / length, every, length
 
 
+def rel_mse(binary, image, reference):
+    """relMSE of `image` against `reference`, by `qtrace compare`."""
+    out = subprocess.run([binary, "compare", str(image), str(reference)],
+                         capture_output=True, text=True, check=True).stdout
+    for line in out.splitlines():
+        words = line.split()
+        if words[:1] == ["relMSE"]:
+            return float(words[1])
+    sys.exit(f"error: no relMSE in {out!r}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--spp", type=int, default=128, help="samples per pixel of each render")
+    ap.add_argument("--reference", help="reference EXR: also compare relMSE at equal GPU time")
     ap.add_argument("configs", nargs=2, metavar="LABEL|BINARY|ARGS")
     args = ap.parse_args()
     configs = []
@@ -54,7 +70,7 @@ def main():
             sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
         configs.append((parts[0], parts[1], parts[2].split()))
     env = dict(os.environ, LP_NUM_THREADS="1")
-    ratios, totals, total_vertex = [], [], []
+    ratios, totals, total_vertex, equal_time = [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
             order = configs if r % 2 == 0 else configs[::-1]
@@ -76,11 +92,20 @@ def main():
             ratios.append(b[1] / a[1])
             totals.append(b[2] / a[2])
             total_vertex.append(b[2] / b[3] / (a[2] / a[3]))
+            if args.reference:
+                ea = rel_mse(configs[0][1], Path(tmp) / f"{la}.exr", args.reference)
+                eb = rel_mse(configs[1][1], Path(tmp) / f"{lb}.exr", args.reference)
+                equal_time.append(eb * b[2] / (ea * a[2]))
+                print(f"round {r}: relMSE {la} {ea:.4g}, {lb} {eb:.4g}; "
+                      f"{lb} at {la}'s time: {equal_time[-1]:.3f}x")
             print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex, {a[2]:.2f} all "
                   f"passes), {lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex, {b[2]:.2f} all "
                   f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}")
     for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals),
-                     ("GPU time of all passes per path vertex", total_vertex)]:
+                     ("GPU time of all passes per path vertex", total_vertex),
+                     ("relMSE at equal GPU time", equal_time)]:
+        if not xs:
+            continue
         print(f"{lb} / {la}, {what}: median {statistics.median(xs):.3f} "
               f"(range {min(xs):.3f}-{max(xs):.3f} over {len(xs)} rounds)")
 

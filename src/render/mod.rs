@@ -537,7 +537,8 @@ impl Renderer {
 
     /// Records a race's lap (one pass, `seconds` long); after its last, the
     /// verdict over the passes up to `end` (the render's last, as far as
-    /// known), and the guide stands back if plain path tracing won.
+    /// known): the guide stands back once plain path tracing has won two
+    /// races in a row.
     fn lap_done(&mut self, tally: &mut Tally, seconds: f64, stats: &PassStats, end: u32) {
         let Some(r) = self.race.as_mut() else {
             return;
