@@ -63,7 +63,7 @@ void main() {
             } else {
                 // Squared deviation from the pixel's mean so far, relative as
                 // relMSE weighs it: the race between guided and plain passes
-                // compares these (see Renderer::race).
+                // compares these (see src/render/race.rs).
                 if (ref.w > 0.0) {
                     vec3 mean = ref.rgb / ref.w;
                     vec3 d = radiance - mean;

@@ -2,20 +2,20 @@
 //! tracing's, measured on the render itself.
 //!
 //! At each stand-back check from the 16th pass on (see
-//! `crate::guide::stand_back_check`) a guide that has not stood back runs four passes that learn nothing, plain and
-//! guided in turn (so that whatever slows the machine slows both). Each
-//! pass's noise is its samples' squared deviation from their pixels' means
-//! so far, relative as relMSE weighs it (the accumulate kernel totals it);
-//! its cost is that noise times the pass's time. Every pass is unbiased and
-//! counts in the image, so the race only decides which kernel the passes
-//! after it run.
+//! `crate::guide::stand_back_check`) a guide that has not stood back runs
+//! four passes that learn nothing: plain, guided, guided, plain (so that
+//! whatever slows the machine slows both). Each pass's noise is its samples'
+//! squared deviation from their pixels' means when the race began, less
+//! those means' own variance, relative as relMSE weighs it (the accumulate
+//! kernel totals it against a copy of the accumulation); its cost is that
+//! noise times the pass's time. Every pass is unbiased and counts in the
+//! image, so the race only decides which kernel the passes after it run.
 //!
 //! Most of a pass's noise can be common to both kernels: a camera ray that
-//! lands on a light's edge, a light sample. So the laps run in pairs on the
-//! same random numbers (the second of a pair draws those of the first; each
-//! sample stays unbiased, the two are merely correlated), and the pairs
-//! alternate which kernel goes first, since the second is measured against
-//! a mean that holds the first's sample.
+//! lands on a light's edge, a light sample near a light. So the laps run in
+//! pairs on the same random numbers (the second of a pair draws those of
+//! the first; each sample stays unbiased, the two are merely correlated),
+//! and a spike that lands in one lands in the other.
 
 use serde::{Deserialize, Serialize};
 
