@@ -75,10 +75,11 @@ pub struct Common {
     pub reset_after: Option<u32>,
     /// Q of every sector before any update.
     pub initial_q: f32,
-    /// Where each volume learns its share of BSDF sampling: once nearly
+    /// The passes left run plain path tracing once the guide is found not to
+    /// pay: where each volume learns its share of BSDF sampling, when nearly
     /// every volume has learned to sample the BSDF all it may (see
-    /// [`stands_back`]), the guide can only add cost, and the passes left run
-    /// plain path tracing (None: true).
+    /// [`stands_back`]); from pass 16 on, when plain path tracing wins two
+    /// races in a row (see `crate::render::race`). None: true.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stand_back: Option<bool>,
 }

@@ -210,6 +210,21 @@ fn own_bindings<'a>(
     bindings
 }
 
+/// A pipeline of `spirv` under specialisation `constants` and its
+/// descriptor set, from `bindings`.
+fn pipeline_with_set(
+    ctx: &Arc<GpuContext>,
+    name: &str,
+    spirv: &[u8],
+    constants: &[u32],
+    bindings: &[(u32, &Buffer)],
+) -> gpu::Result<(ComputePipeline, DescriptorSet)> {
+    let push = size_of::<PassParams>() as u32;
+    let pipeline = ComputePipeline::specialized(ctx, name, spirv, push, constants)?;
+    let set = DescriptorSet::new(ctx, &pipeline, bindings)?;
+    Ok((pipeline, set))
+}
+
 fn groups(width: u32, height: u32) -> [u32; 3] {
     [
         width.div_ceil(shaders::TILE_X),
@@ -289,11 +304,7 @@ impl Renderer {
             .guide
             .as_ref()
             .and_then(|g| g.frozen_trace_spirv(settings.nee))
-            .map(|spirv| -> gpu::Result<_> {
-                let p = ComputePipeline::specialized(ctx, "trace", spirv, push, &constants)?;
-                let set = DescriptorSet::new(ctx, &p, &bindings)?;
-                Ok((p, set))
-            })
+            .map(|spirv| pipeline_with_set(ctx, "trace", spirv, &constants, &bindings))
             .transpose()?;
         // A race's reference sums: a copy of the accumulation when it began.
         let may_race = settings.guide.as_ref().is_some_and(|g| g.may_stand_back());
@@ -305,12 +316,7 @@ impl Renderer {
         bindings.push((shaders::B_RACE_REF, &race_ref));
         let accumulate_set = DescriptorSet::new(ctx, &accumulate, &bindings)?;
         let race_accumulate = may_race
-            .then(|| -> gpu::Result<_> {
-                let p =
-                    ComputePipeline::specialized(ctx, "accumulate", spirv::ACCUMULATE, push, &[1])?;
-                let set = DescriptorSet::new(ctx, &p, &bindings)?;
-                Ok((p, set))
-            })
+            .then(|| pipeline_with_set(ctx, "accumulate", spirv::ACCUMULATE, &[1], &bindings))
             .transpose()?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
@@ -465,17 +471,19 @@ impl Renderer {
     /// Plain path tracing's kernel and its descriptor set, for passes after
     /// the guide stood back.
     fn plain_pipeline(&self) -> gpu::Result<(ComputePipeline, DescriptorSet)> {
-        let push = size_of::<PassParams>() as u32;
-        let pipeline = ComputePipeline::specialized(
+        let bindings = own_bindings(&self._scene, &self._samples, &self.accum, &self.stats);
+        pipeline_with_set(
             &self.ctx,
             "trace",
             plain_variant(&self.settings),
-            push,
             &self.constants,
-        )?;
-        let bindings = own_bindings(&self._scene, &self._samples, &self.accum, &self.stats);
-        let set = DescriptorSet::new(&self.ctx, &pipeline, &bindings)?;
-        Ok((pipeline, set))
+            &bindings,
+        )
+    }
+
+    /// How many of `passes` the guide learns in.
+    fn learning_passes(&self, passes: std::ops::Range<u32>) -> u32 {
+        passes.filter(|&i| self.settings.learns_in_pass(i)).count() as u32
     }
 
     /// Whether the guide has yet to stand back and may (see
@@ -551,9 +559,7 @@ impl Renderer {
         // The guide's cost to come: what it has learned is paid for.
         let done = tally.done;
         let until = end.max(done + 1);
-        let learning = (done..until)
-            .filter(|&i| self.settings.learns_in_pass(i))
-            .count();
+        let learning = self.learning_passes(done..until);
         let won_before = tally.races.last().is_some_and(|r| r.plain_wins);
         let verdict = r.verdict(learning as f64 / (until - done) as f64, won_before);
         log::info!("race after {} passes: {verdict:?}", verdict.after);
@@ -693,10 +699,8 @@ impl Renderer {
             } else {
                 // The first pass may hold the driver's start-up costs.
                 if done > 0 {
-                    let learning = (done..done + count)
-                        .filter(|&i| self.settings.learns_in_pass(i))
-                        .count();
-                    self.window.add(seconds, count, learning as u32);
+                    let learning = self.learning_passes(done..done + count);
+                    self.window.add(seconds, count, learning);
                 }
                 self.check_stand_back(&tally)?;
             }
