@@ -33,26 +33,19 @@ const uint NO_HIT = 0xffffffffu;
 // Stands for infinity; the scene is far smaller.
 const float FAR = 3.0e38;
 
-// Moller-Trumbore; returns t in (tmin, tmax) or -1.
+// Moller-Trumbore; returns t in (0, tmax) or -1. Without early returns:
+// lavapipe runs every branch anyway, and each would add masks and selects.
 float intersect_triangle(vec3 o, vec3 d, Triangle tri, float tmax) {
     vec3 p = cross(d, tri.e2);
     float det = dot(tri.e1, p);
-    if (abs(det) < 1e-12) {
-        return -1.0;
-    }
     float inv = 1.0 / det;
     vec3 s = o - tri.v0;
     float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) {
-        return -1.0;
-    }
     vec3 q = cross(s, tri.e1);
     float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) {
-        return -1.0;
-    }
     float t = dot(tri.e2, q) * inv;
-    return (t > 0.0 && t < tmax) ? t : -1.0;
+    bool inside = abs(det) >= 1e-12 && u >= 0.0 && u <= 1.0 && v >= 0.0 && u + v <= 1.0;
+    return inside && t > 0.0 && t < tmax ? t : -1.0;
 }
 
 // Entry distance of the ray into the box, or FAR when it misses before tmax.
@@ -78,18 +71,13 @@ vec3 safe_inverse(vec3 d) {
 // keeping the nearer hit, or an inner child's box (min p, max q). Returns the
 // box's entry distance; FAR for a missed box, a leaf or no child.
 float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, inout Hit hit) {
-    if (c == BVH_NO_CHILD) {
-        return FAR;
-    }
-    if ((c & BVH_LEAF) != 0u) {
-        float t = intersect_triangle(o, d, Triangle(p, 0u, q, 0.0, r, 0.0), hit.t);
-        if (t > 0.0) {
-            hit.t = t;
-            hit.triangle = c & ~BVH_LEAF;
-        }
-        return FAR;
-    }
-    return intersect_box(o, inv_d, p, q, hit.t);
+    bool leaf = (c & BVH_LEAF) != 0u; // BVH_NO_CHILD too
+    float t = intersect_triangle(o, d, Triangle(p, 0u, q, 0.0, r, 0.0), hit.t);
+    bool take = leaf && c != BVH_NO_CHILD && t > 0.0;
+    hit.triangle = take ? c & ~BVH_LEAF : hit.triangle;
+    hit.t = take ? t : hit.t;
+    float enter = intersect_box(o, inv_d, p, q, hit.t);
+    return leaf ? FAR : enter;
 }
 
 // The nearest hit before tmax (any_hit false), or any hit (shadow rays).
@@ -136,19 +124,16 @@ Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
         uint second = swap ? a0.w : a1.w;
         bool hit_first = (swap ? t1 : t0) != FAR;
         bool hit_second = (swap ? t0 : t1) != FAR;
-        if (hit_first && hit_second) {
-            lost = lost || depth == 3u;
-            depth = min(depth + 1u, 3u);
-            s2 = s1;
-            s1 = s0;
-            s0 = second;
-        }
+        // Push, pop or neither, as selects (see intersect_triangle).
         uint popped = depth > 0u ? s0 : (lost ? escape : BVH_NO_CHILD);
-        if (!hit_first && !hit_second && depth > 0u) {
-            depth -= 1u;
-            s0 = s1;
-            s1 = s2;
-        }
+        bool push = hit_first && hit_second;
+        bool pop = !hit_first && !hit_second && depth > 0u;
+        lost = lost || (push && depth == 3u);
+        depth = push ? min(depth + 1u, 3u) : (pop ? depth - 1u : depth);
+        uint below = s1;
+        s2 = push ? s1 : s2;
+        s1 = push ? s0 : (pop ? s2 : s1);
+        s0 = push ? second : (pop ? below : s0);
         node = hit_first ? first : (hit_second ? second : popped);
     }
     return hit;
