@@ -83,10 +83,11 @@ void main() {
                 c[1] = (radiance.r + radiance.g + radiance.b) / 3.0 < 1e-4 ? 1u : 0u;
             }
             c[0] = 1u;
-            c[2] = t0.w;
-            c[3] = t1.x;
-            c[5] = t1.y;
-            td = uintBitsToFloat(t1.z);
+            c[2] = t0.w & ((1u << PATH_RAYS_SHIFT) - 1u);
+            c[3] = (t0.w & ~PATH_LEARNED) >> PATH_RAYS_SHIFT;
+            bool learned = (t0.w & PATH_LEARNED) != 0u;
+            c[5] = learned ? t1.x : 0u;
+            td = learned ? uintBitsToFloat(t1.y) : 0.0;
         }
         for (uint k = 0u; k < COUNTERS; ++k) {
             c[k] = subgroupAdd(c[k]);

@@ -432,7 +432,16 @@ void main() {
     begin_path(params.pass_index);
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
         if (!bounce()) {
-            samples[(params.selector + done) * pixels + index] = PathSample(radiance, path_length, rays, td_count, td_sq_sum, 0u);
+            // Only the words accumulate reads (see PathSample).
+            uint slot = (params.selector + done) * pixels + index;
+            uint lengths = path_length | (rays << PATH_RAYS_SHIFT);
+#if defined(GUIDED) && !defined(FROZEN)
+            samples[slot].td_count = td_count;
+            samples[slot].td_sq_sum = td_sq_sum;
+            lengths |= PATH_LEARNED;
+#endif
+            samples[slot].radiance = radiance;
+            samples[slot].lengths = lengths;
 #ifdef GUIDED
             if (learn) {
 #ifndef FROZEN

@@ -70,11 +70,11 @@ pub struct Light {
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct PathSample {
     pub radiance: [f32; 3],
-    pub path_length: u32,
-    pub rays: u32,
+    pub lengths: u32,
     pub td_count: u32,
     pub td_sq_sum: f32,
-    pub pad: u32,
+    pub pad0: u32,
+    pub pad1: u32,
 }
 
 #[repr(C)]

@@ -98,6 +98,9 @@ impl RenderSettings {
 pub const MAX_RESOLUTION: u32 = 16384;
 pub const MAX_SPP: u32 = 1 << 20;
 pub const MAX_DEPTH: u32 = 1024;
+// A path sample packs its surface hits and rays (at most two per hit, and
+// the camera ray) into 16 and 15 bits (glsl/shared.h, PathSample).
+const _: () = assert!(2 * (MAX_DEPTH + 1) + 1 < 1 << 15);
 pub const MAX_SECONDS: f64 = 7.0 * 24.0 * 3600.0;
 
 #[derive(Debug, thiserror::Error)]
