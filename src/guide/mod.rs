@@ -170,11 +170,12 @@ pub fn stand_back_check(done: u32) -> bool {
 
 /// Whether the learned shares of BSDF sampling (`start`: where they began)
 /// say that the guide cannot help: at least half of the volumes have
-/// learned (moved from the start), and 95% of those sit at the cap. In a
-/// white furnace 98% of the volumes get there within 8 passes; on every
-/// other shipped scene at most 30% do. A guided pass costs
-/// about twice a plain one, so the passes left run plain path tracing:
-/// each pass stays unbiased, and so does the image.
+/// learned (moved from the start), and 90% of those sit at the cap. In a
+/// white furnace 86-98% of the volumes get there within 8 passes (both
+/// guides, 32x32 to 256x256; `neural` 93% at 128x128, under the 95% this
+/// once asked); on every other shipped scene at most 39% do. A guided pass
+/// costs about twice a plain one, so the passes left run plain path
+/// tracing: each pass stays unbiased, and so does the image.
 pub fn stands_back(shares: &[f32], start: f32) -> bool {
     let learned: Vec<f32> = shares
         .iter()
@@ -184,7 +185,7 @@ pub fn stands_back(shares: &[f32], start: f32) -> bool {
     let capped = learned.iter().filter(|&&s| s >= CAPPED_SHARE).count();
     2 * learned.len() >= shares.len()
         && !learned.is_empty()
-        && capped as f64 >= 0.95 * learned.len() as f64
+        && capped as f64 >= 0.9 * learned.len() as f64
 }
 
 /// Whether pass `index` falls in a schedule that takes every pass up to
@@ -636,9 +637,9 @@ mod tests {
         // ... unless they are most of them.
         shares.extend([start; 200]);
         assert!(!stands_back(&shares, start));
-        // One learned volume in twenty that trusts the guide keeps it.
-        let mut some = vec![0.9526; 189];
-        some.extend([0.4; 11]);
+        // One learned volume in ten that trusts the guide keeps it.
+        let mut some = vec![0.9526; 179];
+        some.extend([0.4; 21]);
         assert!(!stands_back(&some, start));
         some.truncate(195);
         assert!(stands_back(&some, start));
