@@ -130,10 +130,12 @@ Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
         bool pop = !hit_first && !hit_second && depth > 0u;
         lost = lost || (push && depth == 3u);
         depth = push ? min(depth + 1u, 3u) : (pop ? depth - 1u : depth);
-        uint below = s1;
-        s2 = push ? s1 : s2;
-        s1 = push ? s0 : (pop ? s2 : s1);
-        s0 = push ? second : (pop ? below : s0);
+        uint n0 = push ? second : (pop ? s1 : s0);
+        uint n1 = push ? s0 : (pop ? s2 : s1);
+        uint n2 = push ? s1 : s2;
+        s0 = n0;
+        s1 = n1;
+        s2 = n2;
         node = hit_first ? first : (hit_second ? second : popped);
     }
     return hit;
