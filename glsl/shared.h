@@ -65,6 +65,8 @@
 #define B_MEAN_VISITS 37
 // The race (src/render/race.rs): each pixel's sums when it began.
 #define B_RACE_REF 38
+// Trace dispatches' work counters (one per dispatch of a submit).
+#define B_WORK 39
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -104,6 +106,14 @@
 // Most bounce steps one trace invocation takes: llvmpipe silently ends a loop
 // after 65 535 iterations.
 #define MAX_TRACE_STEPS 65000
+// Most paths one trace invocation takes from its dispatch's work (see
+// trace.comp). llvmpipe's iteration limit counts every loop of an invocation
+// together (the BVH walks' steps too), so an invocation's work must stay
+// bounded: this is twice the share per lane of a full dispatch (MAX_BATCH).
+#define MAX_CLAIMS 32
+// PassParams.selector of a trace dispatch: its samples-buffer slot, and
+// above WORK_SLOT_SHIFT its work counter in the submit.
+#define WORK_SLOT_SHIFT 8
 // PathSample.lengths (MAX_DEPTH keeps both counts within their bits).
 #define PATH_RAYS_SHIFT 16
 #define PATH_LEARNED 0x80000000
@@ -227,7 +237,7 @@ struct PassParams {
     uint max_depth;
     uint flags;
     uint light_count;
-    uint selector;     // probe kernels: the block to run; trace: the samples slot of its first sample
+    uint selector;     // probe kernels: the block to run; trace: the samples slot of its first sample, | its work counter << WORK_SLOT_SHIFT
     uint item_count;   // items of a probe pass; trace and accumulate: samples per pixel
     uint volume_count; // guides: radiance volumes
     uint sector_grid;  // guides: a | (b << 16), n = a * b sectors

@@ -1,6 +1,9 @@
 #version 460
 // The trace kernel: one path per pixel per pass. Method variants are compiled
 // from this one source by build.rs (METHOD_PT, ...).
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#extension GL_KHR_shader_subgroup_vote : require
 
 #include "shared.h"
 #include "rng.glsl"
@@ -27,6 +30,7 @@ layout(push_constant) uniform Push { PassParams params; };
 
 layout(set = 0, binding = B_LIGHTS) uniform usamplerBuffer light_texels; // 1 per Light
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
+layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
 float power_heuristic(float a, float b) {
     float a2 = a * a;
@@ -406,12 +410,23 @@ bool bounce() {
     return more;
 }
 
-void main() {
-    pixel = gl_GlobalInvocationID.xy;
-    if (pixel.x >= params.width || pixel.y >= params.height) {
-        return;
+// The next work item for each lane that `needs` one, from the dispatch's
+// work counter `slot`: lanes that claim together take consecutive items, by
+// one atomic add per subgroup. Call with the whole subgroup active.
+uint claim(bool needs, uint slot) {
+    uvec4 ballot = subgroupBallot(needs);
+    uint n = subgroupBallotBitCount(ballot);
+    uint base = 0u;
+    if (n > 0u) {
+        if (subgroupElect()) {
+            base = atomicAdd(work_counters[slot], n);
+        }
+        base = subgroupBroadcastFirst(base);
     }
-    uint index = pixel.y * params.width + pixel.x;
+    return base + subgroupBallotExclusiveBitCount(ballot);
+}
+
+void main() {
     uint pixels = params.width * params.height;
 #ifdef WITH_NEE
     nee = (params.flags & FLAG_NEE) != 0u && params.light_count > 0u;
@@ -423,25 +438,45 @@ void main() {
 #endif
 #endif
     // This dispatch traces samples pass_index .. pass_index + count - 1 of
-    // each pixel. A lane whose path ends starts its next sample at once, so
-    // SIMD lanes stay busy however unequal their paths' lengths; the step cap
-    // keeps the loop within llvmpipe's 65 535 iterations (the host keeps
-    // count * (max_depth + 1) below it).
+    // every pixel: count * pixels items, each pixel's samples one after
+    // another. A lane whose path ends claims the next item at once, so the
+    // lanes of a SIMD group stay busy however unequal their paths (lavapipe
+    // runs a group until its last lane is done), even in a dispatch of one
+    // sample. An item is (pixel, sample), so which lane traces it changes
+    // nothing in the image.
     uint count = max(params.item_count, 1u);
-    uint done = 0u;
-    begin_path(params.pass_index);
+    uint total = count * pixels;
+    uint slot = params.selector >> WORK_SLOT_SHIFT;
+    uint first_slot = params.selector & ((1u << WORK_SLOT_SHIFT) - 1u);
+    uint item = claim(true, slot);
+    uint taken = 1u;
+    bool alive = item < total;
+    uint index = item / count;
+    uint sample_index = item % count;
+    if (alive) {
+        pixel = uvec2(index % params.width, index / params.width);
+        begin_path(params.pass_index + sample_index);
+    }
+    // Lanes stay in the loop until their whole subgroup is done, for claim.
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
-        if (!bounce()) {
+        if (subgroupAll(!alive)) {
+            break;
+        }
+        bool ended = false;
+        if (alive) {
+            ended = !bounce();
+        }
+        if (ended) {
             // Only the words accumulate reads (see PathSample).
-            uint slot = (params.selector + done) * pixels + index;
+            uint out_slot = (first_slot + sample_index) * pixels + index;
             uint lengths = path_length | (rays << PATH_RAYS_SHIFT);
 #if defined(GUIDED) && !defined(FROZEN)
-            samples[slot].td_count = td_count;
-            samples[slot].td_sq_sum = td_sq_sum;
+            samples[out_slot].td_count = td_count;
+            samples[out_slot].td_sq_sum = td_sq_sum;
             lengths |= PATH_LEARNED;
 #endif
-            samples[slot].radiance = radiance;
-            samples[slot].lengths = lengths;
+            samples[out_slot].radiance = radiance;
+            samples[out_slot].lengths = lengths;
 #ifdef GUIDED
             if (learn) {
 #ifndef FROZEN
@@ -450,11 +485,22 @@ void main() {
                 guide_end_path(index, rng);
             }
 #endif
-            done += 1u;
-            if (done == count) {
-                break;
+        }
+        // A lane takes up to `count` paths as long as any are left, and more
+        // while the step cap leaves room for a whole path (the host keeps
+        // count * (max_depth + 2) under it): so every item is traced.
+        bool room = taken < MAX_CLAIMS && step + params.max_depth + 2u < MAX_TRACE_STEPS;
+        bool needs = ended && (taken < count || room);
+        uint next = claim(needs, slot);
+        if (ended) {
+            alive = needs && next < total;
+            taken += 1u;
+            index = next / count;
+            sample_index = next % count;
+            if (alive) {
+                pixel = uvec2(index % params.width, index / params.width);
+                begin_path(params.pass_index + sample_index);
             }
-            begin_path(params.pass_index + done);
         }
     }
 }

@@ -367,12 +367,13 @@ pub fn devices() -> Result<()> {
             d.index, d.name, d.kind, d.api_version, d.driver
         );
         println!(
-            "    float atomics: {}  int64 atomics: {}  timestamps: {}  subgroup: {} (arithmetic: {})  max storage buffer: {} MiB  workgroup memory: {} KiB",
+            "    float atomics: {}  int64 atomics: {}  timestamps: {}  subgroup: {} (arithmetic: {}, ballot and vote: {})  max storage buffer: {} MiB  workgroup memory: {} KiB",
             yes(d.float_atomics),
             yes(d.int64_atomics),
             yes(d.timestamps),
             d.subgroup_size,
             yes(d.subgroup_arithmetic),
+            yes(d.subgroup_ballot),
             d.max_storage_buffer_range >> 20,
             d.max_shared_memory >> 10
         );

@@ -120,9 +120,11 @@ fn sarsa_is_reproducible_bit_for_bit_with_fixed_point_tallies() {
     }
 }
 
-/// A dispatch that traces several samples per pixel (each lane starting its
-/// next path as soon as one ends) gives exactly the image and per-pass stats
-/// of one dispatch per sample: checkpoints at every sample force the latter.
+/// A dispatch that traces several samples per pixel gives exactly the image
+/// and per-pass stats of one dispatch per sample (checkpoints at every
+/// sample force the latter), though the lanes claim different paths from
+/// their dispatch's work in each (in a dispatch of one sample per pixel a
+/// lane may take up to MAX_CLAIMS): every path is traced once.
 #[test]
 fn several_samples_per_dispatch_change_nothing() {
     let ctx = common::gpu();

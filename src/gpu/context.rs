@@ -40,6 +40,9 @@ pub struct DeviceInfo {
     /// Subgroup arithmetic (subgroupAdd) in compute shaders: the accumulate
     /// pass totals its stats with it.
     pub subgroup_arithmetic: bool,
+    /// Subgroup ballot and vote in compute shaders: the trace kernel's lanes
+    /// claim their paths with them.
+    pub subgroup_ballot: bool,
     #[serde(skip)]
     rank: u32,
     #[serde(skip)]
@@ -142,6 +145,12 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     let subgroup_size = subgroup.subgroup_size;
+    let compute_subgroup = |ops: vk::SubgroupFeatureFlags| {
+        subgroup
+            .supported_stages
+            .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup.supported_operations.contains(ops)
+    };
 
     let has_float_ext = has_device_extension(instance, pd, ext::shader_atomic_float::NAME);
     let mut float_features = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
@@ -194,12 +203,10 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         max_shared_memory: props.limits.max_compute_shared_memory_size,
         max_workgroup_count: props.limits.max_compute_work_group_count,
         subgroup_size,
-        subgroup_arithmetic: subgroup
-            .supported_stages
-            .contains(vk::ShaderStageFlags::COMPUTE)
-            && subgroup
-                .supported_operations
-                .contains(vk::SubgroupFeatureFlags::ARITHMETIC),
+        subgroup_arithmetic: compute_subgroup(vk::SubgroupFeatureFlags::ARITHMETIC),
+        subgroup_ballot: compute_subgroup(
+            vk::SubgroupFeatureFlags::BALLOT | vk::SubgroupFeatureFlags::VOTE,
+        ),
         rank,
         queue_family,
     }

@@ -152,6 +152,8 @@ pub struct Renderer {
     /// The accumulation when the race in progress began.
     race_ref: Buffer,
     stats: Buffer,
+    /// Trace dispatches' work counters, zeroed at each submit.
+    work: Buffer,
     _samples: Buffer,
     /// Most sample passes one trace dispatch may take (see `passes`).
     samples_per_dispatch: u32,
@@ -181,6 +183,11 @@ fn plain_variant(settings: &RenderSettings) -> &'static [u8] {
     }
 }
 
+// A submit's trace dispatches (at most one per pass) each have a work counter,
+// whose number shares the selector with a samples slot (glsl/shared.h).
+const _: () = assert!(shaders::MAX_BATCH < 1 << shaders::WORK_SLOT_SHIFT);
+const _: () = assert!(shaders::MAX_CLAIMS >= shaders::MAX_BATCH);
+
 /// Most sample passes one trace dispatch takes: as many as a submit holds
 /// (MAX_BATCH), as the samples buffer can hold (one path sample per pixel
 /// each), and as keep a path's bounce steps under the kernel's step cap.
@@ -194,18 +201,20 @@ fn samples_per_dispatch(settings: &RenderSettings, pixels: u64, device: &gpu::De
 }
 
 /// What every trace kernel binds besides a guide's buffers: the scene, the
-/// path samples, the accumulation and the pass stats.
+/// path samples, the accumulation, the pass stats and the work counters.
 fn own_bindings<'a>(
     scene: &'a GpuScene,
     samples: &'a Buffer,
     accum: &'a Buffer,
     stats: &'a Buffer,
+    work: &'a Buffer,
 ) -> Vec<(u32, &'a Buffer)> {
     let mut bindings = scene.bindings().to_vec();
     bindings.extend([
         (shaders::B_SAMPLES, samples),
         (shaders::B_ACCUM, accum),
         (shaders::B_STATS, stats),
+        (shaders::B_WORK, work),
     ]);
     bindings
 }
@@ -240,11 +249,13 @@ impl Renderer {
         settings: RenderSettings,
     ) -> Result<Self, RenderError> {
         // The accumulate pass totals its stats per subgroup, in workgroup
-        // memory sized for subgroups of at least 4 invocations.
-        if !ctx.info().subgroup_arithmetic || ctx.info().subgroup_size < 4 {
+        // memory sized for subgroups of at least 4 invocations; the trace
+        // kernel's lanes claim paths by subgroup ballots.
+        let info = ctx.info();
+        if !info.subgroup_arithmetic || !info.subgroup_ballot || info.subgroup_size < 4 {
             return Err(RenderError::Gpu(gpu::Error::MissingFeature {
-                device: ctx.info().name.clone(),
-                feature: "subgroup arithmetic in compute shaders, with subgroups of 4 or more"
+                device: info.name.clone(),
+                feature: "subgroup arithmetic, ballot and vote in compute shaders, with subgroups of 4 or more"
                     .into(),
             }));
         }
@@ -280,6 +291,8 @@ impl Renderer {
             "pass stats",
             shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
         )?;
+        // One counter per trace dispatch of a submit (at most one per pass).
+        let work = Buffer::gpu_only(ctx, "work counters", shaders::MAX_BATCH as u64 * 4)?;
         let push = size_of::<PassParams>() as u32;
         // A guide's kernel may be built for its shape (the network's); every
         // trace kernel, for whether the scene has materials beyond diffuse.
@@ -295,7 +308,7 @@ impl Renderer {
             &constants,
         )?;
         let accumulate = ComputePipeline::new(ctx, "accumulate", spirv::ACCUMULATE, push)?;
-        let mut bindings = own_bindings(&gpu_scene, &samples, &accum, &stats);
+        let mut bindings = own_bindings(&gpu_scene, &samples, &accum, &stats, &work);
         if let Some(g) = &guide {
             bindings.extend(g.bindings());
         }
@@ -340,6 +353,7 @@ impl Renderer {
             accum,
             race_ref,
             stats,
+            work,
             _samples: samples,
             samples_per_dispatch,
             trace_dispatches: 0,
@@ -379,7 +393,11 @@ impl Renderer {
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         let most = self.samples_per_dispatch;
         let dispatches = &mut self.trace_dispatches;
+        let work = &self.work;
         self.ctx.submit(Some(&mut self.profiler), |rec| {
+            // Each trace dispatch hands out its paths from a counter of its own.
+            rec.fill(work, 0);
+            let mut work_slot = 0u32;
             // Samples traced but not yet accumulated: passes pending_first..
             // in samples-buffer slots 0.. . One accumulate dispatch takes
             // them all, so passes that learn (one trace dispatch each) still
@@ -433,7 +451,8 @@ impl Renderer {
                 // The trace kernel draws its random numbers by pass_index.
                 params.pass_index = index - u32::from(lap.is_some_and(|l| l.repeat));
                 params.item_count = samples;
-                params.selector = pending;
+                params.selector = pending | (work_slot << shaders::WORK_SLOT_SHIFT);
+                work_slot += 1;
                 if let Some(g) = guide.as_deref() {
                     g.set_params(&mut params, learn);
                 }
@@ -471,7 +490,13 @@ impl Renderer {
     /// Plain path tracing's kernel and its descriptor set, for passes after
     /// the guide stood back.
     fn plain_pipeline(&self) -> gpu::Result<(ComputePipeline, DescriptorSet)> {
-        let bindings = own_bindings(&self._scene, &self._samples, &self.accum, &self.stats);
+        let bindings = own_bindings(
+            &self._scene,
+            &self._samples,
+            &self.accum,
+            &self.stats,
+            &self.work,
+        );
         pipeline_with_set(
             &self.ctx,
             "trace",
