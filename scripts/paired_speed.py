@@ -6,7 +6,10 @@ binaries or settings timed one after the other are hard to tell apart. Here
 both renders run at the same time, each with one lavapipe thread
 (LP_NUM_THREADS=1) pinned to its own core, so whatever slows the machine
 slows both; the order of the cores alternates between rounds. An A/A run
-(the same command twice) spreads about ±5%.
+(the same command twice) spreads about ±5%. With one thread per render it
+cannot see how a change balances lavapipe's threads (llvmpipe gives each
+thread a fixed share of a dispatch's workgroups): compare such changes in
+alternating runs on all cores as well.
 
   scripts/paired_speed.py [--rounds N] [--spp S] \\
       "LABEL|QTRACE_BINARY|RENDER ARGS…" "LABEL|QTRACE_BINARY|RENDER ARGS…"
