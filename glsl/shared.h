@@ -103,8 +103,8 @@
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
-// Most bounce steps one trace invocation takes: llvmpipe silently ends a loop
-// after 65 535 iterations.
+// Most bounce steps one trace invocation takes: llvmpipe silently ends every
+// loop of an invocation once they have run 65 535 iterations in all.
 #define MAX_TRACE_STEPS 65000
 // Most paths one trace invocation takes from its dispatch's work (see
 // trace.comp). llvmpipe's iteration limit counts every loop of an invocation

@@ -451,6 +451,7 @@ impl Renderer {
                 // The trace kernel draws its random numbers by pass_index.
                 params.pass_index = index - u32::from(lap.is_some_and(|l| l.repeat));
                 params.item_count = samples;
+                debug_assert!(work_slot < shaders::MAX_BATCH);
                 params.selector = pending | (work_slot << shaders::WORK_SLOT_SHIFT);
                 work_slot += 1;
                 if let Some(g) = guide.as_deref() {
