@@ -426,6 +426,19 @@ uint claim(bool needs, uint slot) {
     return base + subgroupBallotExclusiveBitCount(ballot);
 }
 
+// The pixel and sample index of the lane's path (see main).
+uint index;
+uint sample_index;
+
+// Begins item `item` of a dispatch of `count` samples per pixel: sample
+// item % count of pixel item / count.
+void begin_item(uint item, uint count) {
+    index = item / count;
+    sample_index = item % count;
+    pixel = uvec2(index % params.width, index / params.width);
+    begin_path(params.pass_index + sample_index);
+}
+
 void main() {
     uint pixels = params.width * params.height;
 #ifdef WITH_NEE
@@ -451,11 +464,8 @@ void main() {
     uint item = claim(true, slot);
     uint taken = 1u;
     bool alive = item < total;
-    uint index = item / count;
-    uint sample_index = item % count;
     if (alive) {
-        pixel = uvec2(index % params.width, index / params.width);
-        begin_path(params.pass_index + sample_index);
+        begin_item(item, count);
     }
     // Lanes stay in the loop until their whole subgroup is done, for claim.
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
@@ -495,11 +505,8 @@ void main() {
         if (ended) {
             alive = needs && next < total;
             taken += 1u;
-            index = next / count;
-            sample_index = next % count;
             if (alive) {
-                pixel = uvec2(index % params.width, index / params.width);
-                begin_path(params.pass_index + sample_index);
+                begin_item(next, count);
             }
         }
     }
