@@ -9,7 +9,10 @@ slows both; the order of the cores alternates between rounds. An A/A run
 (the same command twice) spreads about ±5%. With one thread per render it
 cannot see how a change balances lavapipe's threads (llvmpipe gives each
 thread a fixed share of a dispatch's workgroups): compare such changes in
-alternating runs on all cores as well.
+alternating runs on all cores as well. The two cores need not be equally
+fast (here one ran 5-6% slower for hours), so each pair of rounds, one in
+each order, gives one figure: the geometric mean of its two ratios, in
+which the cores' difference cancels. It reports the median of those.
 
   scripts/paired_speed.py [--rounds N] [--spp S] \\
       "LABEL|QTRACE_BINARY|RENDER ARGS…" "LABEL|QTRACE_BINARY|RENDER ARGS…"
@@ -29,6 +32,7 @@ time, whose timing both renders share (relMSE falls as 1/time). Needs
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -61,11 +65,13 @@ def rel_mse(binary, image, reference):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rounds", type=int, default=4)
+    ap.add_argument("--rounds", type=int, default=4, help="rounds, an even number (pairs of core orders)")
     ap.add_argument("--spp", type=int, default=128, help="samples per pixel of each render")
     ap.add_argument("--reference", help="reference EXR: also compare relMSE at equal GPU time")
     ap.add_argument("configs", nargs=2, metavar="LABEL|BINARY|ARGS")
     args = ap.parse_args()
+    if args.rounds < 2 or args.rounds % 2:
+        sys.exit("error: --rounds must be an even number, 2 or more (each pair runs both core orders)")
     configs = []
     for c in args.configs:
         parts = c.split("|")
@@ -107,10 +113,16 @@ def main():
     for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals),
                      ("GPU time of all passes per path vertex", total_vertex),
                      ("relMSE at equal GPU time", equal_time)]:
-        if not xs:
+        pairs = [math.sqrt(x * y) for x, y in zip(xs[0::2], xs[1::2])]
+        if not pairs:
             continue
-        print(f"{lb} / {la}, {what}: median {statistics.median(xs):.3f} "
-              f"(range {min(xs):.3f}-{max(xs):.3f} over {len(xs)} rounds)")
+        print(f"{lb} / {la}, {what}: median {statistics.median(pairs):.3f} "
+              f"(range {min(pairs):.3f}-{max(pairs):.3f} over {len(pairs)} pairs of rounds)")
+    if len(ratios) >= 2:
+        # Rounds alternate the cores: the first config ran on core 0 in even rounds.
+        even = statistics.median(ratios[0::2])
+        odd = statistics.median(ratios[1::2])
+        print(f"time on core 1 over core 0 (medians of the rounds): {math.sqrt(even / odd):.3f}")
 
 
 if __name__ == "__main__":
