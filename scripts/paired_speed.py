@@ -42,14 +42,15 @@ from pathlib import Path
 
 
 def trace_cost(stats_path):
-    """Trace ms per pass and per path vertex, and every dispatch's ms per pass
-    (guide updates and training included), of one render."""
+    """Trace ms per pass and per path vertex, every dispatch's ms per pass
+    (guide updates and training included), the mean path length and the pass
+    after which a guide stood back (None if it did not), of one render."""
     s = json.loads(Path(stats_path).read_text())
     trace = next(p for p in s["gpu_passes"] if p["name"] == "trace")
     per_pass = trace["total_ms"] / trace["count"]
     every = sum(p["total_ms"] for p in s["gpu_passes"]) / trace["count"]
     length = max(s["mean_path_length"], 1e-9)
-    return per_pass, per_pass / length, every, length
+    return per_pass, per_pass / length, every, length, s.get("guide_stood_back_after")
 
 
 def rel_mse(binary, image, reference):
@@ -107,9 +108,12 @@ def main():
                 equal_time.append(eb * b[2] / (ea * a[2]))
                 print(f"round {r}: relMSE {la} {ea:.4g}, {lb} {eb:.4g}; "
                       f"{lb} at {la}'s time: {equal_time[-1]:.3f}x")
+            # A guide that stood back (races read the clock) traced other paths.
+            back = "".join(f", {label}'s guide stood back after {x[4]} passes"
+                           for label, x in [(la, a), (lb, b)] if x[4] is not None)
             print(f"round {r}: {la} {a[0]:.2f} ms/pass ({a[1]:.2f} per vertex, {a[2]:.2f} all "
                   f"passes), {lb} {b[0]:.2f} ms/pass ({b[1]:.2f} per vertex, {b[2]:.2f} all "
-                  f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}")
+                  f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}{back}")
     for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals),
                      ("GPU time of all passes per path vertex", total_vertex),
                      ("relMSE at equal GPU time", equal_time)]:
