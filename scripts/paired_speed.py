@@ -10,7 +10,7 @@ slows both; the order of the cores alternates between rounds. An A/A run
 cannot see how a change balances lavapipe's threads (llvmpipe gives each
 thread a fixed share of a dispatch's workgroups): compare such changes in
 alternating runs on all cores as well. The two cores need not be equally
-fast (here one ran 5-6% slower for hours), so each pair of rounds, one in
+fast (here one took 6-14% longer for hours), so each pair of rounds, one in
 each order, gives one figure: the geometric mean of its two ratios, in
 which the cores' difference cancels. It reports the median of those.
 
@@ -122,11 +122,10 @@ def main():
             continue
         print(f"{lb} / {la}, {what}: median {statistics.median(pairs):.3f} "
               f"(range {min(pairs):.3f}-{max(pairs):.3f} over {len(pairs)} pairs of rounds)")
-    if len(ratios) >= 2:
-        # Rounds alternate the cores: the first config ran on core 0 in even rounds.
-        even = statistics.median(ratios[0::2])
-        odd = statistics.median(ratios[1::2])
-        print(f"time on core 1 over core 0 (medians of the rounds): {math.sqrt(even / odd):.3f}")
+    # Rounds alternate the cores: the first config ran on core 0 in even rounds.
+    even = statistics.median(ratios[0::2])
+    odd = statistics.median(ratios[1::2])
+    print(f"time on core 1 over core 0 (medians of the rounds): {math.sqrt(even / odd):.3f}")
 
 
 if __name__ == "__main__":
