@@ -26,8 +26,12 @@ the cost a guide's per-vertex target is stated in). With `--reference REF.exr`
 (the scene's reference at the same size, such as the one `qtrace bench`
 caches) it also measures each image's relMSE against it and prints the
 second's relMSE at the first's GPU time over the first's: relMSE times GPU
-time, whose timing both renders share (relMSE falls as 1/time). Needs
-`taskset` (util-linux) and two cores. Benchmarks only.
+time, whose timing both renders share (relMSE falls as 1/time). A
+reference's own error adds to every relMSE measured against it and pulls
+that ratio toward 1: where the bench cached it beside the reference
+(REF.relmse: its expected relMSE and sample count), the ratio is also given
+with it taken out of both errors. Needs `taskset` (util-linux) and two
+cores. Benchmarks only.
 """
 
 import argparse
@@ -64,6 +68,16 @@ def rel_mse(binary, image, reference):
     sys.exit(f"error: no relMSE in {out!r}")
 
 
+def reference_floor(reference):
+    """The reference's own expected relMSE, from the file `qtrace bench`
+    caches beside it (REF.relmse: relMSE, sample count), or None."""
+    try:
+        words = Path(reference).with_suffix(".relmse").read_text().split()
+        return float(words[0]), int(words[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=4, help="rounds, an even number (pairs of core orders)")
@@ -80,7 +94,10 @@ def main():
             sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
         configs.append((parts[0], parts[1], parts[2].split()))
     env = dict(os.environ, LP_NUM_THREADS="1")
-    ratios, totals, total_vertex, equal_time = [], [], [], []
+    floor = reference_floor(args.reference) if args.reference else None
+    if floor:
+        print(f"the reference's own relMSE: {floor[0]:.3g} ({floor[1]} spp)")
+    ratios, totals, total_vertex, equal_time, equal_time_clean = [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
             order = configs if r % 2 == 0 else configs[::-1]
@@ -106,8 +123,12 @@ def main():
                 ea = rel_mse(configs[0][1], Path(tmp) / f"{la}.exr", args.reference)
                 eb = rel_mse(configs[1][1], Path(tmp) / f"{lb}.exr", args.reference)
                 equal_time.append(eb * b[2] / (ea * a[2]))
+                clean = ""
+                if floor and min(ea, eb) > floor[0]:
+                    equal_time_clean.append((eb - floor[0]) * b[2] / ((ea - floor[0]) * a[2]))
+                    clean = f" ({equal_time_clean[-1]:.3f}x without the reference's error)"
                 print(f"round {r}: relMSE {la} {ea:.4g}, {lb} {eb:.4g}; "
-                      f"{lb} at {la}'s time: {equal_time[-1]:.3f}x")
+                      f"{lb} at {la}'s time: {equal_time[-1]:.3f}x{clean}")
             # A guide that stood back (races read the clock) traced other paths.
             back = "".join(f", {label}'s guide stood back after {x[4]} passes"
                            for label, x in [(la, a), (lb, b)] if x[4] is not None)
@@ -116,7 +137,9 @@ def main():
                   f"passes): {ratios[-1]:.3f}, all passes {totals[-1]:.3f}{back}")
     for what, xs in [("trace time per path vertex", ratios), ("GPU time of all passes", totals),
                      ("GPU time of all passes per path vertex", total_vertex),
-                     ("relMSE at equal GPU time", equal_time)]:
+                     ("relMSE at equal GPU time", equal_time),
+                     ("relMSE at equal GPU time without the reference's own error",
+                      equal_time_clean if len(equal_time_clean) == len(equal_time) else [])]:
         pairs = [math.sqrt(x * y) for x, y in zip(xs[0::2], xs[1::2])]
         if not pairs:
             continue
