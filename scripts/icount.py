@@ -38,6 +38,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from paired_speed import parse_configs
+
 # A callgrind_annotate line of a function in code of no object file.
 JIT_LINE = re.compile(r"\s*([\d,]+) \([^)]*\)\s+\?\?\?:(0x[0-9a-f]+) \[\?\?\?\]$")
 
@@ -76,12 +78,7 @@ def main():
     low, high = args.spp
     if not 1 <= low < high:
         sys.exit("error: --spp takes two sample counts, the first smaller")
-    configs = []
-    for c in args.configs:
-        parts = c.split("|")
-        if len(parts) != 3 or not parts[2].split():
-            sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
-        configs.append((parts[0], parts[1], parts[2].split()))
+    configs = parse_configs(args.configs)
 
     first = None
     for label, binary, render_args in configs:

@@ -68,6 +68,17 @@ def rel_mse(binary, image, reference):
     sys.exit(f"error: no relMSE in {out!r}")
 
 
+def parse_configs(specs):
+    """(label, binary, render arguments) of each "LABEL|BINARY|SCENE ARGS…"."""
+    configs = []
+    for c in specs:
+        parts = c.split("|")
+        if len(parts) != 3 or not parts[2].split():
+            sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
+        configs.append((parts[0], parts[1], parts[2].split()))
+    return configs
+
+
 def reference_floor(reference):
     """The reference's own expected relMSE, from the file `qtrace bench`
     caches beside it (REF.relmse: relMSE, sample count), or None."""
@@ -87,12 +98,7 @@ def main():
     args = ap.parse_args()
     if args.rounds < 2 or args.rounds % 2:
         sys.exit("error: --rounds must be an even number, 2 or more (each pair runs both core orders)")
-    configs = []
-    for c in args.configs:
-        parts = c.split("|")
-        if len(parts) != 3 or not parts[2].split():
-            sys.exit(f"error: expected LABEL|BINARY|SCENE ARGS…, got {c!r}")
-        configs.append((parts[0], parts[1], parts[2].split()))
+    configs = parse_configs(args.configs)
     env = dict(os.environ, LP_NUM_THREADS="1")
     floor = reference_floor(args.reference) if args.reference else None
     if floor:
