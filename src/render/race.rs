@@ -243,7 +243,7 @@ mod tests {
     fn a_spike_in_one_pair_of_laps_does_not_stand_the_guide_back() {
         // The guide halves the noise at 1.5x the time, but a spike common to
         // both entrants swells the second pair: pooled, plain path tracing
-        // would win (cost 0.76x); in the first pair the guide wins.
+        // would win (cost 0.77x); in the first pair the guide wins.
         let r = race(
             [(1e-3, 1.0), (1.5e-3, 0.5), (1.5e-3, 6.0), (1e-3, 6.5)],
             Window::default(),
