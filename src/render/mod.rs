@@ -200,6 +200,33 @@ fn samples_per_dispatch(settings: &RenderSettings, pixels: u64, device: &gpu::De
         .min(by_steps as u64) as u32
 }
 
+/// Workgroups of a trace dispatch of `samples` sample passes over an image
+/// of `tiles` workgroups. Lanes claim their paths from the dispatch's work
+/// counter (glsl/trace.comp), so a dispatch needs only enough lanes to take
+/// every item. On a GPU it covers the image, to fill the device. On a CPU
+/// device (lavapipe) every workgroup past those that find work is a launch
+/// that claims nothing, and a dispatch of one sample per pixel (a pass that
+/// learns, a race's lap) ran such launches for most of its workgroups, so
+/// there it holds four times the lanes its items need, each lane sure to
+/// take as many paths as the step cap leaves room for (see `room` in the
+/// kernel: a path takes at most `max_depth + 1` steps), up to MAX_CLAIMS.
+fn trace_groups(tiles: [u32; 3], samples: u32, pixels: u64, max_depth: u32, cpu: bool) -> [u32; 3] {
+    let all = tiles[0] as u64 * tiles[1] as u64;
+    if !cpu {
+        return tiles;
+    }
+    let sure = (shaders::MAX_CLAIMS as u64)
+        .min((shaders::MAX_TRACE_STEPS as u64 - 1) / (max_depth as u64 + 2))
+        .max(1);
+    let lanes = (shaders::TILE_X * shaders::TILE_Y) as u64;
+    let needed = (4 * samples as u64 * pixels).div_ceil(lanes * sure);
+    if needed >= all {
+        tiles
+    } else {
+        [needed.max(1) as u32, 1, 1]
+    }
+}
+
 /// What every trace kernel binds besides a guide's buffers: the scene, the
 /// path samples, the accumulation, the pass stats and the work counters.
 fn own_bindings<'a>(
@@ -392,6 +419,8 @@ impl Renderer {
         let mut guide = self.guide.as_mut();
         let (base, settings, accum) = (self.params, &self.settings, &self.accum);
         let most = self.samples_per_dispatch;
+        let pixels = settings.width as u64 * settings.height as u64;
+        let cpu = self.ctx.info().kind == "CPU";
         let dispatches = &mut self.trace_dispatches;
         let work = &self.work;
         self.ctx.submit(Some(&mut self.profiler), |rec| {
@@ -468,7 +497,7 @@ impl Renderer {
                         pipeline,
                         set,
                         push: bytemuck::bytes_of(&params),
-                        groups: g,
+                        groups: trace_groups(g, samples, pixels, settings.max_depth, cpu),
                     },
                     samples,
                 );
