@@ -223,7 +223,8 @@ fn trace_groups(tiles: [u32; 3], samples: u32, pixels: u64, max_depth: u32, cpu:
     if needed >= all {
         tiles
     } else {
-        [needed.max(1) as u32, 1, 1]
+        // Whole rows of the image's tiles, within its workgroup counts.
+        [tiles[0], needed.div_ceil(tiles[0] as u64).max(1) as u32, 1]
     }
 }
 
