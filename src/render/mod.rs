@@ -913,3 +913,36 @@ pub fn render(
 ) -> Result<RenderOutput, RenderError> {
     Renderer::new(ctx, scene, settings)?.run(progress)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cpu_trace_dispatch_holds_lanes_enough_for_its_paths() {
+        let tiles = groups(128, 128);
+        // One sample per pixel at max depth 64: each lane is sure of 32
+        // paths, so 8 workgroups would do; it gets four times that.
+        assert_eq!(trace_groups(tiles, 1, 128 * 128, 64, true), [16, 2, 1]);
+        // A GPU, and a dispatch that needs the whole image, get the image.
+        assert_eq!(trace_groups(tiles, 1, 128 * 128, 64, false), tiles);
+        assert_eq!(trace_groups(tiles, 16, 128 * 128, 64, true), tiles);
+        // Every item finds a lane sure to take it, at any depth and size.
+        for (w, h) in [(1, 1), (7, 300), (200, 72), (4096, 4096)] {
+            for samples in 1..=shaders::MAX_BATCH {
+                for depth in [0, 5, 64, 1000, 20000] {
+                    let t = groups(w, h);
+                    let g = trace_groups(t, samples, w as u64 * h as u64, depth, true);
+                    assert!(g[0] <= t[0] && g[1] <= t[1] && g[2] == 1);
+                    let lanes = (g[0] * g[1] * shaders::TILE_X * shaders::TILE_Y) as u64;
+                    let sure = (shaders::MAX_TRACE_STEPS as u64 - 1) / (depth as u64 + 2);
+                    let sure = sure.min(shaders::MAX_CLAIMS as u64).max(samples as u64);
+                    assert!(
+                        g == t || lanes * sure >= samples as u64 * w as u64 * h as u64,
+                        "{w}x{h}, {samples} samples, depth {depth}: {g:?}"
+                    );
+                }
+            }
+        }
+    }
+}
