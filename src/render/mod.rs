@@ -211,10 +211,10 @@ fn samples_per_dispatch(settings: &RenderSettings, pixels: u64, device: &gpu::De
 /// take as many paths as the step cap leaves room for (see `room` in the
 /// kernel: a path takes at most `max_depth + 1` steps), up to MAX_CLAIMS.
 fn trace_groups(tiles: [u32; 3], samples: u32, pixels: u64, max_depth: u32, cpu: bool) -> [u32; 3] {
-    let all = tiles[0] as u64 * tiles[1] as u64;
     if !cpu {
         return tiles;
     }
+    let all = tiles[0] as u64 * tiles[1] as u64;
     let sure = (shaders::MAX_CLAIMS as u64)
         .min((shaders::MAX_TRACE_STEPS as u64 - 1) / (max_depth as u64 + 2))
         .max(1);
