@@ -22,30 +22,46 @@ layout(push_constant) uniform Push { PassParams params; };
 
 layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
 layout(std430, set = 0, binding = B_Q_DIRECT) buffer QDirect { float q_direct[]; };
-// The pass's tallies, as the trace kernel's atomics wrote them (float
-// atomics and the CAS fallback write the same bits).
-layout(std430, set = 0, binding = B_SUM) buffer TargetSums { TALLY target_sum[]; };
-layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { TALLY direct_sum[]; };
-layout(std430, set = 0, binding = B_VISITS) buffer Visits { uint visits[]; };
 layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visits_total[]; };
+// The pass's tallies, as the trace kernel's atomics wrote them (float
+// atomics and the CAS fallback write the same bits), read as texels: lavapipe
+// reads a texel of 8 lanes with one gather, a storage buffer word by word and
+// lane by lane. The host zeroes them after this pass (a fill).
+layout(set = 0, binding = B_SUM) uniform usamplerBuffer target_sum_texels;
+layout(set = 0, binding = B_DIRECT_SUM) uniform usamplerBuffer direct_sum_texels;
+layout(set = 0, binding = B_VISITS) uniform usamplerBuffer visits_texels;
+layout(set = 0, binding = B_MIX_GRAD) uniform usamplerBuffer mix_grad_texels;
 
-// Folds cell i's tallies of the pass into its running means.
-void fold(uint i) {
-    uint count = visits[i];
+// Tally i of a buffer of TALLY (two 32-bit words each as fixed point, else one).
+#ifdef FIXED_ATOMICS
+#define TALLY_AT(texels, i) tally_fixed(texelFetch(texels, int((i) >> 1u)), (i) & 1u)
+float tally_fixed(uvec4 texel, uint half_index) {
+    uvec2 words = half_index != 0u ? texel.zw : texel.xy;
+    return float(words.y) + float(words.x) / FIXED_ONE;
+}
+#else
+#define TALLY_AT(texels, i) uintBitsToFloat(word_of(texelFetch(texels, int((i) >> 2u)), (i) & 3u))
+#endif
+uint word_of(uvec4 texel, uint k) {
+    return k == 0u ? texel.x : (k == 1u ? texel.y : (k == 2u ? texel.z : texel.w));
+}
+
+// Folds cell i's tallies of the pass into its running means q and qd:
+// Q <- (Q N + sum) / (N + count), and writes them.
+void fold(uint i, inout float q, inout float qd) {
+    uint count = word_of(texelFetch(visits_texels, int(i >> 2u)), i & 3u);
     if (count == 0u) {
         return;
     }
     uint seen = visits_total[i];
-    q_values[i] = (q_values[i] * float(seen) + TALLY_VALUE(target_sum[i])) / float(seen + count);
-    q_direct[i] = (q_direct[i] * float(seen) + TALLY_VALUE(direct_sum[i])) / float(seen + count);
-    direct_sum[i] = TALLY_ZERO;
-    target_sum[i] = TALLY_ZERO;
+    q = (q * float(seen) + TALLY_AT(target_sum_texels, i)) / float(seen + count);
+    qd = (qd * float(seen) + TALLY_AT(direct_sum_texels, i)) / float(seen + count);
+    q_values[i] = q;
+    q_direct[i] = qd;
     visits_total[i] = seen + count;
-    visits[i] = 0u;
 }
 layout(std430, set = 0, binding = B_SECTORS) buffer Sectors { SectorEntry sectors[]; };
 layout(std430, set = 0, binding = B_VOLUME_SUMS) writeonly buffer VolumeSums { vec4 volume_sums[]; };
-layout(std430, set = 0, binding = B_MIX_GRAD) buffer MixGrad { TALLY mix_grad[]; };
 layout(std430, set = 0, binding = B_MIX_STATE) buffer MixState { vec4 mix_state[]; };
 
 // Volume v's share of BSDF sampling in the mixture: guide_epsilon, or with
@@ -60,12 +76,10 @@ float bsdf_share(uint v) {
     if (s.w == 0.0) {
         s.x = log(params.guide_epsilon / (1.0 - params.guide_epsilon));
     }
-    float pos = TALLY_VALUE(mix_grad[2u * v]);
-    float neg = TALLY_VALUE(mix_grad[2u * v + 1u]);
+    float pos = TALLY_AT(mix_grad_texels, 2u * v);
+    float neg = TALLY_AT(mix_grad_texels, 2u * v + 1u);
     if (pos + neg > 0.0) {
         float g = pos - neg;
-        mix_grad[2u * v] = TALLY_ZERO;
-        mix_grad[2u * v + 1u] = TALLY_ZERO;
         s.w += 1.0;
         s.y = 0.9 * s.y + 0.1 * g;
         s.z = 0.999 * s.z + 0.001 * g * g;
@@ -88,11 +102,12 @@ void set_column(uint i, uint units, uint alias) {
     sectors[i].column = units | (alias << 16);
 }
 
-// Sector i's weight in its volume's distribution, from its Q (at least 0)
-// and cos(theta): Q, or Q cos(theta) with FLAG_COS_DISTRIBUTION; with NEE,
-// Q less the share NEE carries, as scattering should find what NEE does not.
-float distribution_weight(uint i, float q, float cos_k) {
-    float qs = (params.flags & FLAG_NEE) != 0u ? max(q - q_direct[i], 0.0) : q;
+// A sector's weight in its volume's distribution, from its Q (at least 0),
+// the share of Q that NEE carries, qd, and cos(theta): Q, or Q cos(theta)
+// with FLAG_COS_DISTRIBUTION; with NEE, Q less qd, as scattering should
+// find what NEE does not.
+float distribution_weight(float q, float qd, float cos_k) {
+    float qs = (params.flags & FLAG_NEE) != 0u ? max(q - qd, 0.0) : q;
     return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? qs * cos_k : qs;
 }
 
@@ -121,15 +136,20 @@ void main() {
     float weighted = 0.0;
     float best = 0.0;
     float total = 0.0;
+    // Each sector's weight waits in its table entry for the second sweep.
     for (uint k = 0u; k < n; ++k) {
+        float q = q_values[base + k];
+        float qd = q_direct[base + k];
         if (learned) {
-            fold(base + k);
+            fold(base + k, q, qd);
         }
         float cos_k = sector_cos(k, a, b);
-        float q = max(q_values[base + k], 0.0);
+        q = max(q, 0.0);
         weighted += q * cos_k;
         best = max(best, q * cos_k);
-        total += distribution_weight(base + k, q, cos_k);
+        float w = distribution_weight(q, qd, cos_k);
+        total += w;
+        sectors[base + k].weights = floatBitsToUint(w);
     }
     bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
     volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
@@ -144,7 +164,7 @@ void main() {
     for (uint k = 0u; k < n; ++k) {
         uint w = c;
         if (total > 0.0) {
-            running += distribution_weight(base + k, max(q_values[base + k], 0.0), sector_cos(k, a, b));
+            running += uintBitsToFloat(sectors[base + k].weights);
             uint end = k + 1u == n ? units : min(uint(running * scale), units);
             w = end - start;
             start = end;

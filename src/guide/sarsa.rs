@@ -462,6 +462,14 @@ impl SarsaGuide {
     /// rebuilds every distribution, in one pass over the volumes.
     pub fn record_update(&self, rec: &mut Recorder<'_>, params: &PassParams) {
         self.record_build(rec, bytemuck::bytes_of(params));
+        // The update read the pass's tallies; the next pass that learns
+        // starts them from zero (a fill, where the update would zero them
+        // word by word and lane by lane on lavapipe).
+        if params.flags & shaders::FLAG_LEARN != 0 {
+            for (_, tally) in self.tally_bindings() {
+                rec.fill(tally, 0);
+            }
+        }
     }
 
     /// Folds pending targets and rebuilds the distributions now.
