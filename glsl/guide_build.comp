@@ -40,16 +40,13 @@ float tally_fixed(uvec4 texel, uint half_index) {
     return float(words.y) + float(words.x) / FIXED_ONE;
 }
 #else
-#define TALLY_AT(texels, i) uintBitsToFloat(word_of(texelFetch(texels, int((i) >> 2u)), (i) & 3u))
+#define TALLY_AT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
 #endif
-uint word_of(uvec4 texel, uint k) {
-    return k == 0u ? texel.x : (k == 1u ? texel.y : (k == 2u ? texel.z : texel.w));
-}
 
 // Folds cell i's tallies of the pass into its running means q and qd:
 // Q <- (Q N + sum) / (N + count), and writes them.
 void fold(uint i, inout float q, inout float qd) {
-    uint count = word_of(texelFetch(visits_texels, int(i >> 2u)), i & 3u);
+    uint count = texelFetch(visits_texels, int(i >> 2u))[i & 3u];
     if (count == 0u) {
         return;
     }
