@@ -7,7 +7,8 @@ use crate::gpu::{GpuContext, PassTiming};
 use crate::guide::{Guide, GuideSources};
 use crate::image::{self, ErrorMetrics, Image};
 use crate::render::{
-    Checkpoint, Method, Overrides, PassRecord, RenderSettings, Renderer, SettingsError,
+    Checkpoint, Control, Method, Overrides, PassRecord, RenderSettings, Renderer, Run,
+    SettingsError,
 };
 use crate::scene::Scene;
 use serde::Serialize;
@@ -175,6 +176,17 @@ pub struct Report {
 }
 
 /// FNV-1a, stable across runs and builds (unlike std's hasher).
+/// One configuration's render in [`evaluate`], and what it has kept so far.
+struct Stepped {
+    label: String,
+    message: String,
+    run_dir: PathBuf,
+    renderer: Renderer,
+    run: Run,
+    rows: Vec<CheckpointRow>,
+    kept: Vec<Image>,
+}
+
 fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
     for b in bytes {
         h ^= *b as u64;
@@ -454,10 +466,11 @@ pub fn evaluate(
         }
         write_image(&reference, &dir, "reference", &plan.out)?;
 
-        let mut runs = Vec::new();
-        // Every checkpoint's image, to measure again if the reference is refined.
-        let mut images: Vec<Vec<Image>> = Vec::new();
-        let mut crop_centre = [0.5, 0.5];
+        // Every configuration's render, stepped a batch each in turn, so
+        // that a change in the machine's speed (this one drifts by 15-30%
+        // over minutes) falls on all of them alike rather than on whichever
+        // rendered then: each render's clock counts its own batches only.
+        let mut renders = Vec::new();
         for config in &plan.configs {
             let label = config.label();
             let run_dir = dir.join(&label);
@@ -465,59 +478,93 @@ pub fn evaluate(
                 .map_err(|e| BenchError::Io(run_dir.clone(), e.to_string()))?;
             let settings = render_settings(&scene, plan, config, max_spp, plan.seed)?;
             let mut renderer = Renderer::new(ctx, &scene, settings)?;
-            let mut rows: Vec<CheckpointRow> = Vec::new();
-            let mut kept: Vec<Image> = Vec::new();
-            let mut failure: Option<BenchError> = None;
-            let message = format!("{name}: {label}");
-            let start = done;
-            let out = renderer.run_with_checkpoints(
-                &mut |pr| {
-                    progress(&EvalProgress {
-                        message: &message,
-                        done: start + pr.passes_done as u64,
-                        total,
-                    })
-                },
-                &checkpoints,
-                &mut |c: &Checkpoint| {
-                    let error = match image::compare(&c.image, &reference) {
-                        Ok(e) => e,
-                        Err(e) => {
-                            failure.get_or_insert(e.into());
-                            return;
-                        }
-                    };
-                    let (png, exr) = if plan.spp_list.contains(&c.spp) {
-                        match write_image(
-                            &c.image,
-                            &run_dir,
-                            &format!("spp-{:04}", c.spp),
-                            &plan.out,
-                        ) {
-                            Ok((p, e)) => (Some(p), Some(e)),
+            let run = renderer.start();
+            renders.push(Stepped {
+                message: format!("{name}: {label}"),
+                label,
+                run_dir,
+                renderer,
+                run,
+                rows: Vec::new(),
+                kept: Vec::new(),
+            });
+        }
+        let control = Control {
+            at_passes: &checkpoints,
+            ..Default::default()
+        };
+        while renders.iter().any(|r| !r.run.finished()) {
+            for r in renders.iter_mut().filter(|r| !r.run.finished()) {
+                let mut failure: Option<BenchError> = None;
+                let (rows, kept, run_dir) = (&mut r.rows, &mut r.kept, &r.run_dir);
+                let before = r.run.passes_done();
+                r.renderer.step(
+                    &mut r.run,
+                    &mut |pr| {
+                        done += (pr.passes_done - before) as u64;
+                        progress(&EvalProgress {
+                            message: &r.message,
+                            done,
+                            total,
+                        })
+                    },
+                    &control,
+                    &mut |c: &Checkpoint| {
+                        let error = match image::compare(&c.image, &reference) {
+                            Ok(e) => e,
                             Err(e) => {
-                                failure.get_or_insert(e);
-                                (None, None)
+                                failure.get_or_insert(e.into());
+                                return;
                             }
-                        }
-                    } else {
-                        (None, None)
-                    };
-                    kept.push(c.image.clone());
-                    rows.push(CheckpointRow {
-                        spp: c.spp,
-                        seconds: c.seconds,
-                        error,
-                        zero_contribution_fraction: c.zero_contribution_fraction,
-                        png,
-                        exr,
-                    });
-                },
-            )?;
-            done = start + max_spp as u64;
-            if let Some(e) = failure {
-                return Err(e);
+                        };
+                        let (png, exr) = if plan.spp_list.contains(&c.spp) {
+                            match write_image(
+                                &c.image,
+                                run_dir,
+                                &format!("spp-{:04}", c.spp),
+                                &plan.out,
+                            ) {
+                                Ok((p, e)) => (Some(p), Some(e)),
+                                Err(e) => {
+                                    failure.get_or_insert(e);
+                                    (None, None)
+                                }
+                            }
+                        } else {
+                            (None, None)
+                        };
+                        kept.push(c.image.clone());
+                        rows.push(CheckpointRow {
+                            spp: c.spp,
+                            seconds: c.seconds,
+                            error,
+                            zero_contribution_fraction: c.zero_contribution_fraction,
+                            png,
+                            exr,
+                        });
+                    },
+                )?;
+                if let Some(e) = failure {
+                    return Err(e);
+                }
             }
+        }
+
+        let mut runs = Vec::new();
+        // Every checkpoint's image, to measure again if the reference is refined.
+        let mut images: Vec<Vec<Image>> = Vec::new();
+        let mut crop_centre = [0.5, 0.5];
+        for r in renders {
+            let Stepped {
+                label,
+                run_dir,
+                mut renderer,
+                run,
+                rows,
+                kept,
+                ..
+            } = r;
+            let out = renderer.finish(run, &control)?;
             if runs.is_empty() {
                 crop_centre = worst_block(&out.image, &reference);
             }

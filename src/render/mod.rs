@@ -683,128 +683,154 @@ impl Renderer {
         control: &Control<'_>,
         on_checkpoint: &mut dyn FnMut(&Checkpoint),
     ) -> Result<RenderOutput, RenderError> {
-        let start = Instant::now();
-        let mut paused = 0.0f64;
+        let mut run = self.start();
+        while !run.finished() {
+            self.step(&mut run, progress, control, on_checkpoint)?;
+            if control.stopped() {
+                break;
+            }
+        }
+        self.finish(run, control)
+    }
+
+    /// A render under way, to run a batch at a time with [`Renderer::step`].
+    pub fn start(&mut self) -> Run {
+        let tally = self.resumed.take().unwrap_or_default();
+        self.stood_back = tally.stood_back;
+        Run {
+            tally,
+            seconds: 0.0,
+            last_checkpoint: 0.0,
+            pass_seconds: 0.0,
+            finished: false,
+        }
+    }
+
+    /// Runs `run`'s next batch of passes, and its checkpoint if one is due.
+    pub fn step(
+        &mut self,
+        run: &mut Run,
+        progress: &mut dyn FnMut(&Progress),
+        control: &Control<'_>,
+        on_checkpoint: &mut dyn FnMut(&Checkpoint),
+    ) -> Result<(), RenderError> {
+        // The render's clock runs only inside its own batches.
+        let since = Instant::now();
+        let base = run.seconds;
         let (passes_total, budget_seconds) = match self.settings.budget {
             Budget::Samples(n) => (Some(n), None),
             Budget::Seconds(t) => (None, Some(t)),
         };
-        let mut tally = self.resumed.take().unwrap_or_default();
-        self.stood_back = tally.stood_back;
-        let mut last_checkpoint = 0.0f64;
-        // Seconds per pass, measured, to size batches under a time budget.
-        let mut pass_seconds = 0.0f64;
-        let stopped = || control.stop.is_some_and(|s| s.load(Ordering::Relaxed));
-        let mut finished = false;
-        while !finished {
-            // A batch never runs past the budget or the next checkpoint, and
-            // stays short enough (~0.25 s) for progress, time budgets and
-            // stopping; longer batches let passes that learn nothing share
-            // trace dispatches.
-            let done = tally.done;
-            let mut count = shaders::MAX_BATCH;
-            if let Budget::Samples(n) = self.settings.budget {
-                count = count.min(n - done);
-            }
-            if let Some(&next) = control.at_passes.iter().filter(|&&c| c > done).min() {
-                count = count.min(next - done);
-            }
-            // The guide checks whether to stand back after fixed passes.
-            if self.may_stand_back() {
-                if let Some(next) =
-                    (done + 1..done + count).find(|&i| crate::guide::stand_back_check(i))
-                {
-                    count = next - done;
-                }
-            }
-            if pass_seconds > 0.0 {
-                let mut seconds = 0.25f64;
-                if let Budget::Seconds(t) = self.settings.budget {
-                    seconds = seconds.min(t - (start.elapsed().as_secs_f64() - paused));
-                }
-                count = count.min((seconds / pass_seconds).ceil().max(1.0) as u32);
-            } else {
-                count = 1; // the first pass measures the cost of one
-            }
-            // A race runs its laps a pass at a time.
-            let lap = self.race.as_ref().and_then(|r| r.next());
-            if lap.is_some() {
-                count = 1;
-            }
-            let batch_start = Instant::now();
-            let batch = self.passes(done, count, lap)?;
-            let wall = batch_start.elapsed().as_secs_f64();
-            pass_seconds = wall / count as f64;
-            // Races compare GPU time where the device has timestamps: a
-            // submit's wall time also holds the host's waits, which
-            // swamp small images' passes.
-            let seconds = self.profiler.last_submit_ms().map_or(wall, |ms| ms * 1e-3);
-            for s in &batch {
-                tally.add(s, self.guide.is_some());
-            }
-            if lap.is_some() {
-                // The passes left: the budget's, or as many as its time holds.
-                let end = match self.settings.budget {
-                    Budget::Samples(n) => n,
-                    Budget::Seconds(t) => {
-                        let left = t - (start.elapsed().as_secs_f64() - paused);
-                        done + (left / pass_seconds).clamp(0.0, settings::MAX_SPP as f64) as u32
-                    }
-                };
-                self.lap_done(&mut tally, seconds, &batch[0], end);
-            } else {
-                // The first pass may hold the driver's start-up costs.
-                if done > 0 {
-                    let learning = self.learning_passes(done..done + count);
-                    self.window.add(seconds, count, learning);
-                }
-                self.check_stand_back(&tally)?;
-            }
-            tally.stood_back = self.stood_back;
-            let mut elapsed = start.elapsed().as_secs_f64() - paused;
-            let timed = control
-                .every_seconds
-                .is_some_and(|t| elapsed - last_checkpoint >= t);
-            if control.at_passes.contains(&tally.done) || timed {
-                if let Some(path) = control.state {
-                    self.save_state(path, &tally, elapsed)?;
-                }
-                let (image, _) = self.images()?;
-                on_checkpoint(&Checkpoint {
-                    spp: tally.done,
-                    seconds: elapsed,
-                    zero_contribution_fraction: tally.zero as f64 / tally.paths.max(1) as f64,
-                    stats: self.stats(&tally, elapsed, false),
-                    image,
-                });
-                paused = start.elapsed().as_secs_f64() - elapsed;
-                elapsed = start.elapsed().as_secs_f64() - paused;
-                last_checkpoint = elapsed;
-            }
-            progress(&Progress {
-                passes_done: tally.done,
-                passes_total,
-                elapsed,
-                budget_seconds,
-                rays_per_second: tally.rays as f64 / elapsed.max(1e-9),
-            });
-            finished = match self.settings.budget {
-                Budget::Samples(n) => tally.done >= n,
-                Budget::Seconds(t) => elapsed >= t || tally.done >= settings::MAX_SPP,
-            };
-            if stopped() {
-                break;
+        let tally = &mut run.tally;
+        // A batch never runs past the budget or the next checkpoint, and
+        // stays short enough (~0.25 s) for progress, time budgets and
+        // stopping; longer batches let passes that learn nothing share
+        // trace dispatches.
+        let done = tally.done;
+        let mut count = shaders::MAX_BATCH;
+        if let Budget::Samples(n) = self.settings.budget {
+            count = count.min(n - done);
+        }
+        if let Some(&next) = control.at_passes.iter().filter(|&&c| c > done).min() {
+            count = count.min(next - done);
+        }
+        // The guide checks whether to stand back after fixed passes.
+        if self.may_stand_back() {
+            if let Some(next) =
+                (done + 1..done + count).find(|&i| crate::guide::stand_back_check(i))
+            {
+                count = next - done;
             }
         }
+        if run.pass_seconds > 0.0 {
+            let mut seconds = 0.25f64;
+            if let Budget::Seconds(t) = self.settings.budget {
+                seconds = seconds.min(t - run.seconds);
+            }
+            count = count.min((seconds / run.pass_seconds).ceil().max(1.0) as u32);
+        } else {
+            count = 1; // the first pass measures the cost of one
+        }
+        // A race runs its laps a pass at a time.
+        let lap = self.race.as_ref().and_then(|r| r.next());
+        if lap.is_some() {
+            count = 1;
+        }
+        let batch_start = Instant::now();
+        let batch = self.passes(done, count, lap)?;
+        let wall = batch_start.elapsed().as_secs_f64();
+        run.pass_seconds = wall / count as f64;
+        // Races compare GPU time where the device has timestamps: a
+        // submit's wall time also holds the host's waits, which
+        // swamp small images' passes.
+        let seconds = self.profiler.last_submit_ms().map_or(wall, |ms| ms * 1e-3);
+        for s in &batch {
+            tally.add(s, self.guide.is_some());
+        }
+        if lap.is_some() {
+            // The passes left: the budget's, or as many as its time holds.
+            let end = match self.settings.budget {
+                Budget::Samples(n) => n,
+                Budget::Seconds(t) => {
+                    let left = t - (base + since.elapsed().as_secs_f64());
+                    done + (left / run.pass_seconds).clamp(0.0, settings::MAX_SPP as f64) as u32
+                }
+            };
+            self.lap_done(tally, seconds, &batch[0], end);
+        } else {
+            // The first pass may hold the driver's start-up costs.
+            if done > 0 {
+                let learning = self.learning_passes(done..done + count);
+                self.window.add(seconds, count, learning);
+            }
+            self.check_stand_back(tally)?;
+        }
+        tally.stood_back = self.stood_back;
+        let elapsed = base + since.elapsed().as_secs_f64();
+        let timed = control
+            .every_seconds
+            .is_some_and(|t| elapsed - run.last_checkpoint >= t);
+        if control.at_passes.contains(&tally.done) || timed {
+            if let Some(path) = control.state {
+                self.save_state(path, tally, elapsed)?;
+            }
+            let (image, _) = self.images()?;
+            on_checkpoint(&Checkpoint {
+                spp: tally.done,
+                seconds: elapsed,
+                zero_contribution_fraction: tally.zero as f64 / tally.paths.max(1) as f64,
+                stats: self.stats(tally, elapsed, false),
+                image,
+            });
+            // Reading the checkpoint back is not render time: the clock
+            // stopped before it.
+            run.last_checkpoint = elapsed;
+        }
+        run.seconds = elapsed;
+        progress(&Progress {
+            passes_done: tally.done,
+            passes_total,
+            elapsed,
+            budget_seconds,
+            rays_per_second: tally.rays as f64 / elapsed.max(1e-9),
+        });
+        run.finished = match self.settings.budget {
+            Budget::Samples(n) => tally.done >= n,
+            Budget::Seconds(t) => elapsed >= t || tally.done >= settings::MAX_SPP,
+        };
+        Ok(())
+    }
+
+    /// The image and statistics of `run`, which ended or was stopped.
+    pub fn finish(&mut self, run: Run, control: &Control<'_>) -> Result<RenderOutput, RenderError> {
         let (image, variance) = self.images()?;
-        let wall = start.elapsed().as_secs_f64() - paused;
         if let Some(path) = control.state {
-            self.save_state(path, &tally, wall)?;
+            self.save_state(path, &run.tally, run.seconds)?;
         }
         Ok(RenderOutput {
             image,
             variance,
-            stats: self.stats(&tally, wall, stopped() && !finished),
+            stats: self.stats(&run.tally, run.seconds, !run.finished),
         })
     }
 
@@ -889,6 +915,31 @@ impl Tally {
     }
 }
 
+/// A render under way (see [`Renderer::start`]). Its clock counts only its
+/// own batches, so that renders stepped in turn (the bench's) each time
+/// their own work, and a change in the machine's speed falls on all alike.
+pub struct Run {
+    tally: Tally,
+    /// Render seconds so far: its batches' wall time, checkpoints' reads left out.
+    seconds: f64,
+    last_checkpoint: f64,
+    /// Seconds per pass in the last batch, to size the next.
+    pass_seconds: f64,
+    finished: bool,
+}
+
+impl Run {
+    /// Whether the render has spent its budget.
+    pub fn finished(&self) -> bool {
+        self.finished
+    }
+
+    /// Sample passes run so far.
+    pub fn passes_done(&self) -> u32 {
+        self.tally.done
+    }
+}
+
 /// When a render hands out what it has so far, and when it stops early.
 #[derive(Default)]
 pub struct Control<'a> {
@@ -902,6 +953,13 @@ pub struct Control<'a> {
     /// Where to keep the render's state (see [`state`]), written at every
     /// checkpoint and when the render ends.
     pub state: Option<&'a std::path::Path>,
+}
+
+impl Control<'_> {
+    /// Whether the stop flag is set.
+    pub fn stopped(&self) -> bool {
+        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+    }
 }
 
 /// Loads nothing, checks everything, renders: the library entry point the CLI uses.
