@@ -131,8 +131,9 @@ pub fn mean_pass_ms(timings: &[crate::gpu::PassTiming], spp: u32) -> f64 {
     total / spp.max(1) as f64
 }
 
-/// Renders every configuration on every scene `repeats` times, keeping each
-/// one's fastest run, then the peer once per scene; `progress` hears of each.
+/// Renders every configuration on every scene `repeats` times, the repeats
+/// going round the configurations, keeping each one's fastest run, then the
+/// peer once per scene; `progress` hears of each.
 pub fn speed(
     ctx: &Arc<GpuContext>,
     plan: &SpeedPlan<'_>,
@@ -142,9 +143,9 @@ pub fn speed(
     for path in plan.scenes {
         let scene = Scene::load(path)?;
         let first_row = report.rows.len();
-        let mut baseline = None;
+        let mut overrides = Vec::new();
         for config in plan.configs {
-            let o = Overrides {
+            overrides.push(Overrides {
                 method: Some(config.method),
                 spp: Some(plan.spp),
                 width: Some(plan.width),
@@ -155,10 +156,15 @@ pub fn speed(
                     .resolve(&scene, config.method.name())
                     .map_err(|e| RenderError::from(SettingsError(e)))?,
                 ..Default::default()
-            };
-            let mut best: Option<SpeedRow> = None;
-            for _ in 0..plan.repeats.max(1) {
-                let settings = RenderSettings::resolve(&scene, &o).map_err(RenderError::from)?;
+            });
+        }
+        // The repeats go round the methods (A B C A B C), so that a slow
+        // spell of the machine's falls on one repeat of each, not on all of
+        // one method's.
+        let mut best: Vec<Option<SpeedRow>> = vec![None; plan.configs.len()];
+        for _ in 0..plan.repeats.max(1) {
+            for ((config, o), best) in plan.configs.iter().zip(&overrides).zip(&mut best) {
+                let settings = RenderSettings::resolve(&scene, o).map_err(RenderError::from)?;
                 let s = render::render(ctx, &scene, settings, &mut |_| {})?.stats;
                 let breakdown: Vec<(String, f64)> = s
                     .gpu_passes
@@ -183,9 +189,12 @@ pub fn speed(
                     mean_path_length: s.mean_path_length,
                 };
                 if best.as_ref().is_none_or(|b| row.pass_ms < b.pass_ms) {
-                    best = Some(row);
+                    *best = Some(row);
                 }
             }
+        }
+        let mut baseline = None;
+        for best in best {
             let mut row = best.expect("at least one repeat");
             let (base_ms, base_length) =
                 *baseline.get_or_insert((row.pass_ms, row.mean_path_length));
