@@ -173,6 +173,77 @@ fn samples_per_dispatch_change_nothing(name: &str, width: u32, height: u32) {
     );
 }
 
+/// The bench steps its methods' renders in turn: each gives the image it
+/// gives alone, and its clock counts only its own batches.
+#[test]
+fn renders_stepped_in_turn_keep_their_images_and_their_own_clocks() {
+    use qtrace::render::{Control, Method};
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let settings = |method| {
+        RenderSettings::resolve(
+            &scene,
+            &Overrides {
+                method: Some(method),
+                spp: Some(6),
+                width: Some(24),
+                height: Some(20),
+                nee: true,
+                seed: Some(5),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let alone: Vec<_> = [Method::Pt, Method::Sarsa]
+        .map(|m| {
+            Renderer::new(&ctx, &scene, settings(m))
+                .unwrap()
+                .run(&mut |_| {})
+                .unwrap()
+        })
+        .into();
+    let mut renders: Vec<_> = [Method::Pt, Method::Sarsa]
+        .map(|m| {
+            let mut r = Renderer::new(&ctx, &scene, settings(m)).unwrap();
+            let run = r.start();
+            (r, run)
+        })
+        .into();
+    // A checkpoint after every pass: one pass a step.
+    let every: Vec<u32> = (1..=6).collect();
+    let control = Control {
+        at_passes: &every,
+        ..Default::default()
+    };
+    let outside = std::time::Duration::from_millis(60);
+    let start = std::time::Instant::now();
+    let mut steps = 0;
+    while renders.iter().any(|(_, run)| !run.finished()) {
+        for (r, run) in renders.iter_mut().filter(|(_, run)| !run.finished()) {
+            r.step(run, &mut |_| {}, &control, &mut |_| {}).unwrap();
+            steps += 1;
+            // Time that is not this render's: another's batch, or a pause.
+            std::thread::sleep(outside);
+        }
+    }
+    let wall = start.elapsed().as_secs_f64();
+    for ((mut r, run), a) in renders.into_iter().zip(&alone) {
+        let b = r.finish(run, &control).unwrap();
+        assert_eq!(a.image, b.image, "{}", a.stats.method);
+        assert_eq!(b.stats.spp, 6);
+        assert!(!b.stats.interrupted);
+        assert_eq!(steps, 12);
+        assert!(
+            b.stats.wall_seconds < wall - outside.as_secs_f64() * steps as f64 / 2.0,
+            "{}: its clock ({} s) counted time outside its steps ({steps} steps, {wall} s in all)",
+            a.stats.method,
+            b.stats.wall_seconds
+        );
+    }
+    common::assert_no_validation_errors(&ctx);
+}
+
 #[test]
 fn stats_are_consistent() {
     let ctx = common::gpu();
