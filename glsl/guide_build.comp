@@ -18,6 +18,12 @@ layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 
+// False for a table nothing samples from (Neural-Q's running means of its
+// targets): the update folds the pass's tallies and takes the share's step,
+// and builds no distribution (lavapipe would run the code of a branch no
+// invocation takes, so it is left out when the pipeline is built).
+layout(constant_id = 0) const bool BUILD_TABLE = true;
+
 #include "grid.glsl"
 
 layout(std430, set = 0, binding = B_Q) buffer QValues { float q_values[]; };
@@ -146,10 +152,15 @@ void main() {
         best = max(best, q * cos_k);
         float w = distribution_weight(q, qd, cos_k);
         total += w;
-        sectors[base + k].weights = floatBitsToUint(w);
+        if (BUILD_TABLE) {
+            sectors[base + k].weights = floatBitsToUint(w);
+        }
     }
     bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
     volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
+    if (!BUILD_TABLE) {
+        return;
+    }
     // Whole units: sector k gets the units between the floors of its
     // running sum's start and end (scaled to W), the last end being W, so
     // the weights add up to W exactly (the last sector takes what rounding

@@ -577,7 +577,7 @@ impl NeuralGuide {
             (Some(t), Training::Volumes) => {
                 // The sampling tables' volumes: the trace kernel tallies at
                 // their volume indices.
-                let means = t.guide.twin(ctx)?;
+                let means = t.guide.means_twin(ctx)?;
                 let gather = ComputePipeline::specialized(
                     ctx,
                     "mlp gather from volumes",

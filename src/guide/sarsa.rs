@@ -266,26 +266,31 @@ impl SarsaGuide {
             lookup.bytes() as f64 / (1024.0 * 1024.0),
             start.elapsed().as_secs_f64()
         );
-        Self::from_volumes(ctx, vols, lookup, settings)
+        Self::from_volumes(ctx, vols, lookup, settings, true)
     }
 
-    /// A fresh guide over the same volumes and lookup (no placement or
-    /// lookup build again), with its own Q and tallies.
-    pub fn twin(&self, ctx: &Arc<GpuContext>) -> gpu::Result<Self> {
+    /// A fresh table of running means over the same volumes and lookup (no
+    /// placement or lookup build again), with its own Q and tallies: its
+    /// update folds targets and learns the share, and builds no sampling
+    /// distribution, as nothing samples from it.
+    pub fn means_twin(&self, ctx: &Arc<GpuContext>) -> gpu::Result<Self> {
         Self::from_volumes(
             ctx,
             self.volumes.clone(),
             self.lookup.clone(),
             &self.settings,
+            false,
         )
     }
 
-    /// A guide over given volumes (already in k-d tree order) and their lookup.
+    /// A guide over given volumes (already in k-d tree order) and their
+    /// lookup; its update builds the sampling distributions where `table`.
     fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
         lookup: VolumeLookup,
         settings: &SarsaSettings,
+        table: bool,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
         let cells = vols.len() as u64 * n;
@@ -329,7 +334,8 @@ impl SarsaGuide {
                 spirv::GUIDE_BUILD,
             ],
         )?;
-        let build = ComputePipeline::new(ctx, "guide update", build_spirv, push)?;
+        let build =
+            ComputePipeline::specialized(ctx, "guide update", build_spirv, push, &[table as u32])?;
         let bindings = [
             (shaders::B_Q, &q),
             (shaders::B_SECTORS, &sectors),
