@@ -175,7 +175,6 @@ pub struct Report {
     pub scenes: Vec<SceneReport>,
 }
 
-/// FNV-1a, stable across runs and builds (unlike std's hasher).
 /// One configuration's render in [`evaluate`], and what it has kept so far.
 struct Stepped {
     label: String,
@@ -187,6 +186,7 @@ struct Stepped {
     kept: Vec<Image>,
 }
 
+/// FNV-1a, stable across runs and builds (unlike std's hasher).
 fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
     for b in bytes {
         h ^= *b as u64;
