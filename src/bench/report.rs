@@ -259,6 +259,7 @@ fn write_html(
         "<h1>qtrace evaluation</h1><p>Device: {}. Methods: {}. Images at {} spp. Error is against the reference named per scene; \
          equal time is the time the fastest method needed for its largest sample count, other methods' errors interpolated there (log–log; \
          * marks one extrapolated from a method's first checkpoint, relMSE as 1/time, where equal time came before it). \
+         A scene's methods render side by side, a batch of passes each in turn, each timed by its own batches only. \
          Numbers: <a href=\"summary.csv\">summary.csv</a>, <a href=\"checkpoints.csv\">checkpoints.csv</a>, \
          <a href=\"passes.csv\">passes.csv</a>, <a href=\"equal_time.csv\">equal_time.csv</a>, \
          <a href=\"gpu_passes.csv\">gpu_passes.csv</a>, <a href=\"results.json\">results.json</a>.</p>",
