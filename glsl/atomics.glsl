@@ -21,11 +21,6 @@ uint64_t to_fixed(float value) {
     float whole = floor(v);
     return (uint64_t(uint(whole)) << 32) + uint64_t(uint((v - whole) * FIXED_ONE));
 }
-
-float from_fixed(uint64_t tally) {
-    uvec2 words = unpackUint2x32(tally);
-    return float(words.y) + float(words.x) / FIXED_ONE;
-}
 #endif
 
 // Adds `value` to the float whose bits are the uint `bits` by compare-and-swap.
@@ -52,19 +47,14 @@ float from_fixed(uint64_t tally) {
 #define ADD_TALLY(tally, value) CAS_ADD_FLOAT(tally, value)
 #endif
 
-// A tally's element type, its value as a float, and zero.
+// A tally's element type (the guide update reads tallies as texels:
+// guide_build.comp).
 #if defined(FIXED_ATOMICS)
 #define TALLY uint64_t
-#define TALLY_VALUE(t) from_fixed(t)
-#define TALLY_ZERO uint64_t(0)
 #elif defined(FLOAT_ATOMICS)
 #define TALLY float
-#define TALLY_VALUE(t) (t)
-#define TALLY_ZERO 0.0
 #else
 #define TALLY uint
-#define TALLY_VALUE(t) uintBitsToFloat(t)
-#define TALLY_ZERO 0u
 #endif
 
 #endif
