@@ -224,8 +224,14 @@ pub fn render(
     }
     out.write(&scene, &result.image, &result.stats)?;
     let s = &result.stats;
+    // Start-up the clock leaves out, where it is worth a mention.
+    let compile = if s.compile_seconds >= 0.05 {
+        format!(" (+{:.2} s compiling kernels)", s.compile_seconds)
+    } else {
+        String::new()
+    };
     eprintln!(
-        "{}: {} spp {}x{} in {:.2} s on {} | {:.2} Mrays/s | zero-contribution {:.1}% | mean path length {:.2}",
+        "{}: {} spp {}x{} in {:.2} s{compile} on {} | {:.2} Mrays/s | zero-contribution {:.1}% | mean path length {:.2}",
         s.method,
         s.spp,
         s.width,

@@ -349,6 +349,52 @@ fn render_writes_exr_png_stats_and_profile() {
     assert!(stdout.contains("MSE     0.000000e0"), "{stdout}");
 }
 
+/// llvmpipe compiles a kernel at its first dispatch. With Mesa's shader
+/// cache off, every render compiles its kernels: that time is reported apart
+/// and is in neither a pass's time nor the render's clock (a bench's equal
+/// time would otherwise charge a method's start-up to its samples).
+#[test]
+fn kernel_compiles_stay_out_of_pass_times_and_the_clock() {
+    let dir = scratch("compile");
+    let json = dir.join("c.json");
+    let output = qtrace()
+        .env("MESA_SHADER_CACHE_DISABLE", "true")
+        .arg("render")
+        .arg(dir.join("cornell-box.toml"))
+        .args([
+            "--spp", "4", "--width", "16", "--height", "16", "--nee", "-o",
+        ])
+        .arg(dir.join("c.exr"))
+        .arg("--stats")
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let compile = stats["compile_seconds"].as_f64().unwrap();
+    if !stats["device"].as_str().unwrap().contains("llvmpipe") {
+        eprintln!("skipped the size check: only llvmpipe is known to compile at first dispatch");
+        return;
+    }
+    // A kernel's compile takes hundreds of milliseconds, a 16x16 pass a few.
+    assert!(compile > 0.05, "compile {compile} s: {stderr}");
+    assert!(stderr.contains("compiling kernels"), "{stderr}");
+    let wall = stats["wall_seconds"].as_f64().unwrap();
+    assert!(
+        wall < compile,
+        "clock {wall} s holds the compile ({compile} s)"
+    );
+    for pass in stats["gpu_passes"].as_array().unwrap() {
+        let max_ms = pass["max_ms"].as_f64().unwrap();
+        assert!(
+            max_ms < 1e3 * compile / 2.0,
+            "{pass} holds the compile ({compile} s)"
+        );
+    }
+}
+
 #[test]
 fn sarsa_render_reports_its_guide() {
     let dir = scratch("sarsa-happy");

@@ -4,6 +4,7 @@
 use super::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Profiler, Result};
 use ash::vk;
 use std::ffi::CString;
+use std::sync::atomic::Ordering;
 
 /// The context's one command buffer and fence; each submit waits, so one suffices.
 pub(super) struct Submitter {
@@ -113,10 +114,6 @@ impl Recorder<'_> {
             let info = vk::DebugUtilsLabelEXT::default().label_name(&label);
             unsafe { du.cmd_begin_debug_utils_label(self.cmd, &info) };
         }
-        let query = self
-            .profiler
-            .as_deref_mut()
-            .and_then(|p| p.begin(self.cmd, pass.name, passes));
         unsafe {
             device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pass.pipeline.raw);
             device.cmd_bind_descriptor_sets(
@@ -137,6 +134,26 @@ impl Recorder<'_> {
                     pass.push,
                 );
             }
+        }
+        // llvmpipe compiles a kernel at its first dispatch (hundreds of
+        // milliseconds where Mesa's disk cache does not have it yet): an
+        // empty dispatch does that first, timed apart, so that the pass's
+        // time and a render's clock hold the kernel's work alone.
+        if !pass.pipeline.warm.swap(true, Ordering::Relaxed) {
+            let compile = self
+                .profiler
+                .as_deref_mut()
+                .and_then(|p| p.begin(self.cmd, pass.name, 0));
+            unsafe { device.cmd_dispatch(self.cmd, 0, 0, 0) };
+            if let (Some(p), Some(q)) = (self.profiler.as_deref_mut(), compile) {
+                p.end(self.cmd, q);
+            }
+        }
+        let query = self
+            .profiler
+            .as_deref_mut()
+            .and_then(|p| p.begin(self.cmd, pass.name, passes.max(1)));
+        unsafe {
             device.cmd_dispatch(self.cmd, pass.groups[0], pass.groups[1], pass.groups[2]);
         }
         if let (Some(p), Some(q)) = (self.profiler.as_deref_mut(), query) {

@@ -3,6 +3,7 @@
 use super::shader::{self, BindingKind, ShaderModule};
 use super::{GpuContext, Result};
 use ash::vk;
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// A compute pipeline: every binding is a buffer in set 0 (a storage buffer or
@@ -15,6 +16,8 @@ pub struct ComputePipeline {
     pub(super) set_layout: vk::DescriptorSetLayout,
     pub(super) bindings: Vec<(u32, BindingKind)>,
     pub(super) push_size: u32,
+    /// Dispatched at least once (see `Recorder::dispatch_covering`).
+    pub(super) warm: AtomicBool,
     name: String,
 }
 
@@ -109,6 +112,7 @@ impl ComputePipeline {
             set_layout,
             bindings,
             push_size,
+            warm: AtomicBool::new(false),
             name: name.into(),
         })
     }

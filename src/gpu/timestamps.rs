@@ -44,6 +44,9 @@ pub struct Profiler {
     timings: Vec<PassTiming>,
     /// Milliseconds of every timed dispatch of the last submit.
     last_submit_ms: Option<f64>,
+    /// Milliseconds the driver spent compiling kernels at their first
+    /// dispatch (see `Recorder::dispatch_covering`), in all submits.
+    compile_ms: f64,
     valid_mask: u64,
 }
 
@@ -65,6 +68,7 @@ impl Profiler {
             pending: Vec::new(),
             timings: Vec::new(),
             last_submit_ms: None,
+            compile_ms: 0.0,
             valid_mask: u64::MAX,
         })
     }
@@ -74,14 +78,14 @@ impl Profiler {
     }
 
     /// A dispatch doing the work of `passes` passes counts as that many, each
-    /// with an equal share of its time.
+    /// with an equal share of its time; `passes` 0 times a kernel's compile.
     pub(super) fn begin(&mut self, cmd: vk::CommandBuffer, name: &str, passes: u32) -> Option<u32> {
         let pool = self.pool?;
         let index = self.pending.len() as u32;
         if index >= MAX_TIMED_PASSES {
             return None;
         }
-        self.pending.push((name.to_string(), passes.max(1)));
+        self.pending.push((name.to_string(), passes));
         unsafe {
             self.ctx
                 .device
@@ -131,7 +135,12 @@ impl Profiler {
         for (i, (name, passes)) in std::mem::take(&mut self.pending).into_iter().enumerate() {
             let start = ticks[2 * i] & self.valid_mask;
             let end = ticks[2 * i + 1] & self.valid_mask;
-            let ms = end.saturating_sub(start) as f64 * period_ms / passes as f64;
+            let all_ms = end.saturating_sub(start) as f64 * period_ms;
+            if passes == 0 {
+                self.compile_ms += all_ms;
+                continue;
+            }
+            let ms = all_ms / passes as f64;
             *self.last_submit_ms.get_or_insert(0.0) += ms * passes as f64;
             let t = match self.timings.iter_mut().find(|t| t.name == name) {
                 Some(t) => t,
@@ -158,6 +167,12 @@ impl Profiler {
     /// device has no timestamps or nothing was timed).
     pub fn last_submit_ms(&self) -> Option<f64> {
         self.last_submit_ms
+    }
+
+    /// Milliseconds spent compiling kernels so far (0 on drivers that compile
+    /// them when the pipeline is made, or without timestamps).
+    pub fn compile_ms(&self) -> f64 {
+        self.compile_ms
     }
 
     /// Totals per pass name, in first-seen order.

@@ -757,8 +757,12 @@ impl Renderer {
             count = 1;
         }
         let batch_start = Instant::now();
+        let compiled = self.profiler.compile_ms();
         let batch = self.passes(done, count, lap)?;
-        let wall = batch_start.elapsed().as_secs_f64();
+        // The driver's first compile of a kernel is start-up, not render
+        // time: the clock leaves it out.
+        let compile = (self.profiler.compile_ms() - compiled) * 1e-3;
+        let wall = (batch_start.elapsed().as_secs_f64() - compile).max(0.0);
         run.pass_seconds = wall / count as f64;
         // Races compare GPU time where the device has timestamps: a
         // submit's wall time also holds the host's waits, which
@@ -772,7 +776,7 @@ impl Renderer {
             let end = match self.settings.budget {
                 Budget::Samples(n) => n,
                 Budget::Seconds(t) => {
-                    let left = t - (base + since.elapsed().as_secs_f64());
+                    let left = t - (base + since.elapsed().as_secs_f64() - compile);
                     done + (left / run.pass_seconds).clamp(0.0, settings::MAX_SPP as f64) as u32
                 }
             };
@@ -786,7 +790,7 @@ impl Renderer {
             self.check_stand_back(tally)?;
         }
         tally.stood_back = self.stood_back;
-        let elapsed = base + since.elapsed().as_secs_f64();
+        let elapsed = base + since.elapsed().as_secs_f64() - compile;
         let timed = control
             .every_seconds
             .is_some_and(|t| elapsed - run.last_checkpoint >= t);
@@ -852,6 +856,7 @@ impl Renderer {
             image_spp: done - self.settings.reset_after().unwrap_or(0).min(done),
             interrupted,
             wall_seconds: wall,
+            compile_seconds: self.profiler.compile_ms() * 1e-3,
             samples_per_second: tally.paths as f64 / wall.max(1e-9),
             rays_per_second: tally.rays as f64 / wall.max(1e-9),
             paths: tally.paths,
@@ -920,7 +925,8 @@ impl Tally {
 /// their own work, and a change in the machine's speed falls on all alike.
 pub struct Run {
     tally: Tally,
-    /// Render seconds so far: its batches' wall time, checkpoints' reads left out.
+    /// Render seconds so far: its batches' wall time, checkpoints' reads and
+    /// kernel compiles left out.
     seconds: f64,
     last_checkpoint: f64,
     /// Seconds per pass in the last batch, to size the next.

@@ -37,7 +37,12 @@ pub struct RenderStats {
     pub interrupted: bool,
     /// Samples per pixel in the image (fewer than `spp` after a guide's reset).
     pub image_spp: u32,
+    /// The render's time: its batches' wall time, less the driver's first
+    /// compile of each kernel (`compile_seconds`).
     pub wall_seconds: f64,
+    /// Seconds the driver spent compiling kernels at their first dispatch
+    /// (llvmpipe; 0 where the pipelines were compiled when made).
+    pub compile_seconds: f64,
     pub samples_per_second: f64,
     pub rays_per_second: f64,
     pub paths: u64,
@@ -123,6 +128,12 @@ impl RenderStats {
         }
         if self.gpu_passes.is_empty() {
             s += "(this device has no timestamp queries)\n";
+        }
+        if self.compile_seconds > 0.0 {
+            s += &format!(
+                "and {:.3} ms compiling kernels at their first dispatch (not in the passes' times)\n",
+                1e3 * self.compile_seconds
+            );
         }
         s
     }
