@@ -115,20 +115,10 @@ pub enum SpeedEvent<'a> {
 
 /// GPU ms per sample pass: each dispatch kind's time over the `spp` passes,
 /// so one that runs in some passes only (a guide's update once its
-/// learning thins out) counts as often as it runs. Each kind's slowest
-/// dispatch is left out, as it may include the driver's shader compilation.
+/// learning thins out) counts as often as it runs. (No dispatch's time holds
+/// the driver's compile of its kernel: see `Recorder::dispatch_covering`.)
 pub fn mean_pass_ms(timings: &[crate::gpu::PassTiming], spp: u32) -> f64 {
-    let total: f64 = timings
-        .iter()
-        .map(|t| {
-            if t.count > 1 {
-                (t.total_ms - t.max_ms) * t.count as f64 / (t.count - 1) as f64
-            } else {
-                t.total_ms
-            }
-        })
-        .sum();
-    total / spp.max(1) as f64
+    timings.iter().map(|t| t.total_ms).sum::<f64>() / spp.max(1) as f64
 }
 
 /// Renders every configuration on every scene `repeats` times, the repeats
