@@ -763,6 +763,8 @@ impl Renderer {
         // time: the clock leaves it out.
         let compile = (self.profiler.compile_ms() - compiled) * 1e-3;
         let wall = (batch_start.elapsed().as_secs_f64() - compile).max(0.0);
+        // The run's seconds so far: its earlier batches and this step's.
+        let clock = || base + since.elapsed().as_secs_f64() - compile;
         run.pass_seconds = wall / count as f64;
         // Races compare GPU time where the device has timestamps: a
         // submit's wall time also holds the host's waits, which
@@ -776,7 +778,7 @@ impl Renderer {
             let end = match self.settings.budget {
                 Budget::Samples(n) => n,
                 Budget::Seconds(t) => {
-                    let left = t - (base + since.elapsed().as_secs_f64() - compile);
+                    let left = t - clock();
                     done + (left / run.pass_seconds).clamp(0.0, settings::MAX_SPP as f64) as u32
                 }
             };
@@ -790,7 +792,7 @@ impl Renderer {
             self.check_stand_back(tally)?;
         }
         tally.stood_back = self.stood_back;
-        let elapsed = base + since.elapsed().as_secs_f64() - compile;
+        let elapsed = clock();
         let timed = control
             .every_seconds
             .is_some_and(|t| elapsed - run.last_checkpoint >= t);
