@@ -27,7 +27,7 @@ fn intersect_triangle(o: Vec3, d: Vec3, v0: Vec3, e1: Vec3, e2: Vec3, tmax: f32)
     let q = s.cross(e1);
     let v = d.dot(q) * inv;
     let t = e2.dot(q) * inv;
-    let inside = det.abs() >= 1e-12 && u >= 0.0 && u <= 1.0 && v >= 0.0 && u + v <= 1.0;
+    let inside = det.abs() >= 1e-12 && (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0;
     if inside && t > 0.0 && t < tmax {
         t
     } else {
