@@ -63,6 +63,15 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ("mlp_train", "mlp_train_dense", &["MLP_DENSE"]),
     ("mlp_adam_output", "mlp_adam_output", &[]),
     ("mlp_adam_output", "mlp_adam_output_dense", &["MLP_DENSE"]),
+    // The walk alone, its lanes waiting for each round's longest walk or
+    // refilled as they finish (examples/bvh_steps.rs --gpu).
+    ("walk_bench", "walk_bench", &[]),
+    ("walk_bench", "walk_bench_refill", &["REFILL"]),
+    (
+        "walk_bench",
+        "walk_bench_refill_half",
+        &["REFILL", "REFILL_HALF"],
+    ),
 ];
 
 fn main() {

@@ -7,12 +7,19 @@
 //! and the mean of the longest walk among each 8 consecutive rays (a SIMD
 //! group on lavapipe waits for its longest), so a change to the tree's
 //! builder can be judged without a timing. Every 97th camera ray is checked
-//! against a test of every triangle. Run from the repository root:
+//! against a test of every triangle. With `--gpu` it also times the walk
+//! alone on the device (glsl/walk_bench.comp) for each kind of ray: lanes
+//! waiting for their SIMD group's longest walk, as in the trace kernel
+//! ("rounds"), lanes starting their next ray as soon as theirs ends
+//! ("refill"), and lanes starting theirs once half the group waits
+//! ("refill/2"); each must find the replica's hits. Run from the repository
+//! root:
 //!
-//!   cargo run --release --example bvh_steps -- scenes/door-ajar.toml [W=128]
+//!   cargo run --release --example bvh_steps -- scenes/door-ajar.toml [W=128] [--gpu]
 //!
 //! A measurement for the README, not a test.
 use glam::Vec3;
+use qtrace::render::probe::{walk_timed, WalkRay};
 use qtrace::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD};
 use qtrace::Scene;
 
@@ -148,6 +155,9 @@ impl Rng {
 #[derive(Default)]
 struct Tally {
     steps: Vec<u32>,
+    rays: Vec<WalkRay>,
+    /// The replica's hit of each ray (triangle, or BVH_NO_CHILD).
+    hits: Vec<u32>,
 }
 
 impl Tally {
@@ -197,6 +207,8 @@ fn main() {
             );
             let (t, tri, steps) = walk(&scene.nodes, o, d, FAR, false);
             camera.steps.push(steps);
+            camera.rays.push((o, d, FAR, false));
+            camera.hits.push(tri);
             // The replica must find what testing every triangle finds.
             if (x + y * width) % 97 == 0 {
                 checked += 1;
@@ -217,7 +229,10 @@ fn main() {
             let (r, phi) = (u1.sqrt(), 2.0 * std::f32::consts::PI * u2);
             let (tx, ty) = n.any_orthonormal_pair();
             let w = tx * r * phi.cos() + ty * r * phi.sin() + n * (1.0 - u1).max(0.0).sqrt();
-            bounce.steps.push(walk(&scene.nodes, p, w, FAR, false).2);
+            let (_, hit, steps) = walk(&scene.nodes, p, w, FAR, false);
+            bounce.steps.push(steps);
+            bounce.rays.push((p, w, FAR, false));
+            bounce.hits.push(hit);
             // A shadow ray to a point on a light.
             if let Some(light) = scene
                 .lights
@@ -232,9 +247,11 @@ fn main() {
                 let to = target - p;
                 let dist = to.length();
                 if to.dot(n) > 0.0 {
-                    shadow
-                        .steps
-                        .push(walk(&scene.nodes, p, to / dist, dist * (1.0 - 1e-4) - eps, true).2);
+                    let tmax = dist * (1.0 - 1e-4) - eps;
+                    let (_, hit, steps) = walk(&scene.nodes, p, to / dist, tmax, true);
+                    shadow.steps.push(steps);
+                    shadow.rays.push((p, to / dist, tmax, true));
+                    shadow.hits.push(hit);
                 }
             }
         }
@@ -250,4 +267,52 @@ fn main() {
     bounce.report("bounce");
     shadow.report("shadow");
     println!("{mismatches} of {checked} camera rays checked against every triangle differ");
+    if args.iter().any(|a| a == "--gpu") {
+        gpu_walks(
+            &scene,
+            [
+                ("camera", &camera),
+                ("bounce", &bounce),
+                ("shadow", &shadow),
+            ],
+        );
+    }
+}
+
+/// Times the walk-only kernel on each kind of ray, lanes waiting for their
+/// group's longest walk and lanes starting their next ray at once, and
+/// checks both find the replica's hits (shadow rays: whether they hit).
+fn gpu_walks(scene: &Scene, kinds: [(&str, &Tally); 3]) {
+    let ctx = match qtrace::gpu::GpuContext::new(&Default::default()) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
+    };
+    let per_lane = 32;
+    for (what, tally) in kinds {
+        let mut line = format!("{what:>8} on {}:", ctx.info().name);
+        for refill in [0, 1, 2] {
+            let (hits, seconds) = walk_timed(&ctx, scene, &tally.rays, per_lane, refill, 5)
+                .unwrap_or_else(|e| {
+                    eprintln!("error: {e}");
+                    std::process::exit(1);
+                });
+            let differ = hits
+                .iter()
+                .zip(&tally.hits)
+                .filter(|&(&(_, g), &c)| {
+                    (g == u32::MAX) != (c == BVH_NO_CHILD) || (!tally.rays[0].3 && g != c)
+                })
+                .count();
+            line += &format!(
+                " {} {:.2} Mrays/s ({:.2} ms, {differ} differ)",
+                ["rounds", "refill", "refill/2"][refill as usize],
+                tally.rays.len() as f64 / seconds / 1e6,
+                seconds * 1e3
+            );
+        }
+        println!("{line}");
+    }
 }

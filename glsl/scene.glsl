@@ -91,54 +91,72 @@ float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, in
 // oldest entry, the last due, and from then on an empty stack sends the walk
 // along the node's escape link for the octant: the next node of the
 // octant's depth-first order after its subtree, a safe continuation from any
-// node because each entry popped since came earlier in that order.
-Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
-    Hit hit = Hit(tmax, NO_HIT);
-    vec3 inv_d = safe_inverse(d);
+// node because each entry popped since came earlier in that order. (A
+// walk a step at a time, walk_begin and walk_step, serves walk_bench.comp.)
+// A walk in progress: the ray, the node to visit next (BVH_NO_CHILD once
+// done), the stack, top first, its depth, whether it ever dropped an entry,
+// and the nearest hit so far.
+struct Walk {
+    vec3 o;
+    vec3 d;
+    vec3 inv_d;
+    uint octant;
+    uint node;
+    uint s0;
+    uint s1;
+    uint s2;
+    uint depth;
+    bool lost;
+    Hit hit;
+};
+
+Walk walk_begin(vec3 o, vec3 d, float tmax) {
     uint octant = (d.x < 0.0 ? 1u : 0u) | (d.y < 0.0 ? 2u : 0u) | (d.z < 0.0 ? 4u : 0u);
-    uint node = 0u;
-    // The stack, top first, its depth, and whether it ever dropped an entry.
-    uint s0 = 0u;
-    uint s1 = 0u;
-    uint s2 = 0u;
-    uint depth = 0u;
-    bool lost = false;
-    while (node != BVH_NO_CHILD) {
-        int base = int(8u * node);
-        uvec4 a0 = texelFetch(node_texels, base);
-        uvec4 b0 = texelFetch(node_texels, base + 1);
-        uvec4 k0 = texelFetch(node_texels, base + 2);
-        uvec4 a1 = texelFetch(node_texels, base + 3);
-        uvec4 b1 = texelFetch(node_texels, base + 4);
-        uvec4 k1 = texelFetch(node_texels, base + 5);
-        uint escape = texelFetch(node_texels, base + 6 + int(octant >> 2u))[octant & 3u];
-        float t0 = visit_child(o, d, inv_d, a0.w, uintBitsToFloat(a0.xyz), uintBitsToFloat(b0.xyz),
-                               uintBitsToFloat(k0.xyz), hit);
-        float t1 = visit_child(o, d, inv_d, a1.w, uintBitsToFloat(a1.xyz), uintBitsToFloat(b1.xyz),
-                               uintBitsToFloat(k1.xyz), hit);
-        if (any_hit && hit.triangle != NO_HIT) {
-            break;
-        }
-        bool swap = ((octant >> b0.w) & 1u) != 0u;
-        uint first = swap ? a1.w : a0.w;
-        uint second = swap ? a0.w : a1.w;
-        bool hit_first = (swap ? t1 : t0) != FAR;
-        bool hit_second = (swap ? t0 : t1) != FAR;
-        // Push, pop or neither, as selects (see intersect_triangle).
-        uint popped = depth > 0u ? s0 : (lost ? escape : BVH_NO_CHILD);
-        bool push = hit_first && hit_second;
-        bool pop = !hit_first && !hit_second && depth > 0u;
-        lost = lost || (push && depth == 3u);
-        depth = push ? min(depth + 1u, 3u) : (pop ? depth - 1u : depth);
-        uint n0 = push ? second : (pop ? s1 : s0);
-        uint n1 = push ? s0 : (pop ? s2 : s1);
-        uint n2 = push ? s1 : s2;
-        s0 = n0;
-        s1 = n1;
-        s2 = n2;
-        node = hit_first ? first : (hit_second ? second : popped);
+    return Walk(o, d, safe_inverse(d), octant, 0u, 0u, 0u, 0u, 0u, false, Hit(tmax, NO_HIT));
+}
+
+// One step of walk w: reads node w.node and visits both its children. A
+// walk for any hit (a shadow ray) ends at its first.
+void walk_step(inout Walk w, bool any_hit) {
+    int base = int(8u * w.node);
+    uvec4 a0 = texelFetch(node_texels, base);
+    uvec4 b0 = texelFetch(node_texels, base + 1);
+    uvec4 k0 = texelFetch(node_texels, base + 2);
+    uvec4 a1 = texelFetch(node_texels, base + 3);
+    uvec4 b1 = texelFetch(node_texels, base + 4);
+    uvec4 k1 = texelFetch(node_texels, base + 5);
+    uint escape = texelFetch(node_texels, base + 6 + int(w.octant >> 2u))[w.octant & 3u];
+    float t0 = visit_child(w.o, w.d, w.inv_d, a0.w, uintBitsToFloat(a0.xyz), uintBitsToFloat(b0.xyz),
+                           uintBitsToFloat(k0.xyz), w.hit);
+    float t1 = visit_child(w.o, w.d, w.inv_d, a1.w, uintBitsToFloat(a1.xyz), uintBitsToFloat(b1.xyz),
+                           uintBitsToFloat(k1.xyz), w.hit);
+    bool swap = ((w.octant >> b0.w) & 1u) != 0u;
+    uint first = swap ? a1.w : a0.w;
+    uint second = swap ? a0.w : a1.w;
+    bool hit_first = (swap ? t1 : t0) != FAR;
+    bool hit_second = (swap ? t0 : t1) != FAR;
+    // Push, pop or neither, as selects (see intersect_triangle).
+    uint popped = w.depth > 0u ? w.s0 : (w.lost ? escape : BVH_NO_CHILD);
+    bool push = hit_first && hit_second;
+    bool pop = !hit_first && !hit_second && w.depth > 0u;
+    w.lost = w.lost || (push && w.depth == 3u);
+    w.depth = push ? min(w.depth + 1u, 3u) : (pop ? w.depth - 1u : w.depth);
+    uint n0 = push ? second : (pop ? w.s1 : w.s0);
+    uint n1 = push ? w.s0 : (pop ? w.s2 : w.s1);
+    uint n2 = push ? w.s1 : w.s2;
+    w.s0 = n0;
+    w.s1 = n1;
+    w.s2 = n2;
+    uint next = hit_first ? first : (hit_second ? second : popped);
+    w.node = any_hit && w.hit.triangle != NO_HIT ? BVH_NO_CHILD : next;
+}
+
+Hit walk_bvh(vec3 o, vec3 d, float tmax, bool any_hit) {
+    Walk w = walk_begin(o, d, tmax);
+    while (w.node != BVH_NO_CHILD) {
+        walk_step(w, any_hit);
     }
-    return hit;
+    return w.hit;
 }
 
 Hit trace_ray(vec3 o, vec3 d, float tmax) {

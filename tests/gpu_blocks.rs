@@ -70,6 +70,47 @@ fn bvh_traversal_equals_brute_force_131k_triangles() {
     check_traversal("complex-direct", 1_500);
 }
 
+/// The walk-only benchmark kernel, in each of its ways of handing lanes
+/// their rays, finds what the trace kernel's walk finds.
+#[test]
+fn walk_benchmark_finds_the_trace_kernels_hits() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let mut rng = Lcg(11);
+    let origin = Vec3::new(278.0, 273.0, 279.6);
+    let rays: Vec<(Vec3, Vec3)> = (0..3000)
+        .map(|_| (origin + 200.0 * (rng.unit() * 0.5), rng.unit()))
+        .collect();
+    let reference = probe::trace_rays(&ctx, &scene, &rays).unwrap();
+    // Every other ray looks for any hit within 300 units.
+    let walks: Vec<probe::WalkRay> = rays
+        .iter()
+        .enumerate()
+        .map(|(i, &(o, d))| (o, d, if i % 2 == 1 { 300.0 } else { 3.0e38 }, i % 2 == 1))
+        .collect();
+    let near: Vec<bool> = rays
+        .iter()
+        .map(|&(o, d)| scene.intersect_brute(o, d).is_some_and(|(t, _)| t < 300.0))
+        .collect();
+    let within = near.iter().skip(1).step_by(2).filter(|&&n| n).count();
+    assert!(
+        within > 100 && within < 1400,
+        "{within} of 1500 any-hit rays hit"
+    );
+    for refill in 0..3 {
+        let (hits, _) = probe::walk_timed(&ctx, &scene, &walks, 7, refill, 0).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        for (i, (&(t, tri), (closest, _))) in hits.iter().zip(&reference).enumerate() {
+            if i % 2 == 1 {
+                assert_eq!(tri != u32::MAX, near[i], "mode {refill}, ray {i}: any hit");
+            } else {
+                let found = (tri != u32::MAX).then_some((t, tri));
+                assert_eq!(found, *closest, "mode {refill}, ray {i}");
+            }
+        }
+    }
+}
+
 #[test]
 fn gpu_hemisphere_map_matches_cpu_and_inverts() {
     let ctx = common::gpu();

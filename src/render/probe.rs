@@ -360,3 +360,69 @@ pub fn bsdf_samples(
         })
         .collect())
 }
+
+/// One ray for [`walk_timed`]: origin, direction, tmax, any hit.
+pub type WalkRay = (Vec3, Vec3, f32, bool);
+
+/// Walks `rays` through the BVH with the walk-only kernel, `per_lane` rays
+/// per invocation, a lane starting its next ray as soon as its walk ends
+/// (`refill`) or after its SIMD group's longest walk of the round. Returns
+/// the hits (t, triangle; `u32::MAX` none) and the fastest of `repeats`
+/// runs' seconds, after one run that compiles the kernel. A benchmark.
+pub fn walk_timed(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    rays: &[WalkRay],
+    per_lane: u32,
+    refill: u32,
+    repeats: u32,
+) -> Result<(Vec<(f32, u32)>, f64), RenderError> {
+    let gpu_scene = GpuScene::upload(ctx, scene)?;
+    let settings = RenderSettings::resolve(scene, &Default::default())?;
+    let mut params = pass_params(scene, &settings);
+    params.item_count = rays.len() as u32;
+    params.selector = per_lane;
+    let spirv = [
+        spirv::WALK_BENCH,
+        spirv::WALK_BENCH_REFILL,
+        spirv::WALK_BENCH_REFILL_HALF,
+    ][refill as usize];
+    let pipeline = ComputePipeline::new(ctx, "walk", spirv, size_of::<PassParams>() as u32)?;
+    let input: Vec<Vec4> = rays
+        .iter()
+        .flat_map(|&(o, d, tmax, any)| [o.extend(tmax), d.extend(if any { 1.0 } else { 0.0 })])
+        .collect();
+    let input_buf = Buffer::gpu_only_with(ctx, "walk rays", &input)?;
+    let output = Buffer::gpu_only(ctx, "walk hits", (rays.len() * size_of::<Vec4>()) as u64)?;
+    let mut bindings = gpu_scene.bindings().to_vec();
+    bindings.extend([
+        (shaders::B_PROBE_IN, &input_buf),
+        (shaders::B_PROBE_OUT, &output),
+    ]);
+    let set = DescriptorSet::new(ctx, &pipeline, &bindings)?;
+    let lanes = (rays.len() as u32).div_ceil(per_lane.max(1));
+    let mut best = f64::INFINITY;
+    for run in 0..=repeats {
+        let start = std::time::Instant::now();
+        ctx.submit(None, |rec| {
+            rec.dispatch(Pass {
+                name: "walk",
+                pipeline: &pipeline,
+                set: &set,
+                push: bytemuck::bytes_of(&params),
+                groups: [lanes.div_ceil(shaders::LINEAR_GROUP), 1, 1],
+            })
+        })?;
+        if run > 0 {
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+    }
+    let out: Vec<Vec4> = output.download()?;
+    Ok((
+        out.iter()
+            .take(rays.len())
+            .map(|v| (v.x, v.y.to_bits()))
+            .collect(),
+        best,
+    ))
+}
