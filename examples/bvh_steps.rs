@@ -20,26 +20,23 @@
 //! A measurement for the README, not a test.
 use glam::Vec3;
 use qtrace::render::probe::{walk_timed, WalkRay};
-use qtrace::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD};
+use qtrace::scene::ray_triangle;
+use qtrace::shaders::{BvhNode, Triangle, BVH_LEAF, BVH_NO_CHILD};
 use qtrace::Scene;
 
 const FAR: f32 = 3.0e38;
 
+/// The GPU's triangle test: t in (0, tmax), or -1.
 fn intersect_triangle(o: Vec3, d: Vec3, v0: Vec3, e1: Vec3, e2: Vec3, tmax: f32) -> f32 {
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    let inv = 1.0 / det;
-    let s = o - v0;
-    let u = s.dot(p) * inv;
-    let q = s.cross(e1);
-    let v = d.dot(q) * inv;
-    let t = e2.dot(q) * inv;
-    let inside = det.abs() >= 1e-12 && (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0;
-    if inside && t > 0.0 && t < tmax {
-        t
-    } else {
-        -1.0
-    }
+    let tri = Triangle {
+        v0: v0.into(),
+        e1: e1.into(),
+        e2: e2.into(),
+        ..Default::default()
+    };
+    ray_triangle(o, d, &tri)
+        .filter(|&t| t < tmax)
+        .unwrap_or(-1.0)
 }
 
 fn intersect_box(o: Vec3, inv_d: Vec3, lo: Vec3, hi: Vec3, tmax: f32) -> f32 {

@@ -353,24 +353,32 @@ impl Scene {
     pub fn intersect_brute(&self, o: Vec3, d: Vec3) -> Option<(f32, u32)> {
         let mut best: Option<(f32, u32)> = None;
         for (i, t) in self.triangles.iter().enumerate() {
-            let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
-            let p = d.cross(e2);
-            let det = e1.dot(p);
-            if det.abs() < 1e-12 {
-                continue;
-            }
-            let inv = 1.0 / det;
-            let s = o - v0;
-            let u = s.dot(p) * inv;
-            let q = s.cross(e1);
-            let v = d.dot(q) * inv;
-            let tt = e2.dot(q) * inv;
-            if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && tt > 0.0 && best.is_none_or(|b| tt < b.0) {
-                best = Some((tt, i as u32));
+            if let Some(tt) = ray_triangle(o, d, t) {
+                if best.is_none_or(|b| tt < b.0) {
+                    best = Some((tt, i as u32));
+                }
             }
         }
         best
     }
+}
+
+/// Distance along the ray (o, d) to triangle `t` (Möller-Trumbore, as the
+/// trace kernel tests it), if the ray meets it ahead.
+pub fn ray_triangle(o: Vec3, d: Vec3, t: &shaders::Triangle) -> Option<f32> {
+    let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - v0;
+    let u = s.dot(p) * inv;
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    let tt = e2.dot(q) * inv;
+    (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && tt > 0.0).then_some(tt)
 }
 
 /// Emissive triangles, chosen for next-event estimation in proportion to
