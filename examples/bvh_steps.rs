@@ -12,8 +12,10 @@
 //! waiting for their SIMD group's longest walk, as in the trace kernel
 //! ("rounds"), lanes starting their next ray as soon as theirs ends
 //! ("refill"), and lanes starting theirs once half the group waits
-//! ("refill/2"); each must find the replica's hits. Run from the repository
-//! root:
+//! ("refill/2"); each must find the replica's hits. A last row walks camera
+//! rays and bounces interleaved, as the trace kernel's walk for the closest
+//! hit meets them once its lanes' paths drift apart. Run from the
+//! repository root:
 //!
 //!   cargo run --release --example bvh_steps -- scenes/door-ajar.toml [W=128] [--gpu]
 //!
@@ -265,12 +267,27 @@ fn main() {
     shadow.report("shadow");
     println!("{mismatches} of {checked} camera rays checked against every triangle differ");
     if args.iter().any(|a| a == "--gpu") {
+        // Camera rays and bounces interleaved, so that a SIMD group's
+        // neighbours are of the other kind, as in the trace kernel's walk for
+        // the closest hit once its lanes' paths drift apart.
+        let mut mixed = Tally::default();
+        let kinds = [&camera, &bounce];
+        let longest = kinds.iter().map(|k| k.rays.len()).max().unwrap_or(0);
+        for i in 0..longest {
+            for k in kinds {
+                if let (Some(&r), Some(&h)) = (k.rays.get(i), k.hits.get(i)) {
+                    mixed.rays.push(r);
+                    mixed.hits.push(h);
+                }
+            }
+        }
         gpu_walks(
             &scene,
             [
                 ("camera", &camera),
                 ("bounce", &bounce),
                 ("shadow", &shadow),
+                ("mixed", &mixed),
             ],
         );
     }
@@ -279,7 +296,7 @@ fn main() {
 /// Times the walk-only kernel on each kind of ray, lanes waiting for their
 /// group's longest walk and lanes starting their next ray at once, and
 /// checks both find the replica's hits (shadow rays: whether they hit).
-fn gpu_walks(scene: &Scene, kinds: [(&str, &Tally); 3]) {
+fn gpu_walks(scene: &Scene, kinds: [(&str, &Tally); 4]) {
     let ctx = match qtrace::gpu::GpuContext::new(&Default::default()) {
         Ok(c) => c,
         Err(e) => {
@@ -299,8 +316,9 @@ fn gpu_walks(scene: &Scene, kinds: [(&str, &Tally); 3]) {
             let differ = hits
                 .iter()
                 .zip(&tally.hits)
-                .filter(|&(&(_, g), &c)| {
-                    (g == u32::MAX) != (c == BVH_NO_CHILD) || (!tally.rays[0].3 && g != c)
+                .zip(&tally.rays)
+                .filter(|&((&(_, g), &c), ray)| {
+                    (g == u32::MAX) != (c == BVH_NO_CHILD) || (!ray.3 && g != c)
                 })
                 .count();
             line += &format!(
