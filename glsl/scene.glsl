@@ -80,7 +80,8 @@ float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, in
     return leaf ? FAR : enter;
 }
 
-// The nearest hit before tmax (any_hit false), or any hit (shadow rays).
+// The walk (walk_bvh below): the nearest hit before tmax (any_hit false),
+// or any hit (shadow rays).
 // Each step reads one node and visits both its children, so every lane does
 // the same work per step (lavapipe runs both sides of a branch). Children
 // are taken in the order the ray's direction octant meets them along the
@@ -93,6 +94,7 @@ float visit_child(vec3 o, vec3 d, vec3 inv_d, uint c, vec3 p, vec3 q, vec3 r, in
 // octant's depth-first order after its subtree, a safe continuation from any
 // node because each entry popped since came earlier in that order. (A
 // walk a step at a time, walk_begin and walk_step, serves walk_bench.comp.)
+
 // A walk in progress: the ray, the node to visit next (BVH_NO_CHILD once
 // done), the stack, top first, its depth, whether it ever dropped an entry,
 // and the nearest hit so far.

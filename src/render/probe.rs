@@ -364,11 +364,13 @@ pub fn bsdf_samples(
 /// One ray for [`walk_timed`]: origin, direction, tmax, any hit.
 pub type WalkRay = (Vec3, Vec3, f32, bool);
 
-/// Walks `rays` through the BVH with the walk-only kernel, `per_lane` rays
-/// per invocation, a lane starting its next ray as soon as its walk ends
-/// (`refill`) or after its SIMD group's longest walk of the round. Returns
-/// the hits (t, triangle; `u32::MAX` none) and the fastest of `repeats`
-/// runs' seconds, after one run that compiles the kernel. A benchmark.
+/// Walks `rays` through the BVH with the walk-only kernel
+/// (glsl/walk_bench.comp), `per_lane` rays per invocation, a lane starting
+/// its next ray after its SIMD group's longest walk of the round (`refill`
+/// 0), as soon as its own walk ends (1), or once half its group waits (2).
+/// Returns the hits (t, triangle; `u32::MAX` none) and the fastest of
+/// `repeats` runs' seconds, after one run that compiles the kernel. A
+/// benchmark.
 pub fn walk_timed(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
