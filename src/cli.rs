@@ -586,22 +586,24 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
         b.finish_and_clear();
     }
     println!(
-        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10}",
-        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s"
+        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10} {:>11}",
+        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s", "later half"
     );
     let mut extrapolated = false;
     for s in &report.scenes {
         for r in &s.runs {
             extrapolated |= r.equal_time_extrapolated;
             println!(
-                "{:<20} {:<12} {:>8.2} {:>12.5} {:>13.5}{} {:>10.3}",
+                "{:<20} {:<12} {:>8.2} {:>12.5} {:>13.5}{} {:>10.3} {:>11}",
                 s.name,
                 r.config,
                 100.0 * r.zero_contribution_fraction,
                 r.checkpoints.last().map_or(f64::NAN, |c| c.error.rel_mse),
                 r.error_at_equal_time.rel_mse,
                 if r.equal_time_extrapolated { "*" } else { " " },
-                r.rays_per_second / 1e6
+                r.rays_per_second / 1e6,
+                r.later_half_cost
+                    .map_or("-".to_string(), |c| format!("{c:.2}x"))
             );
         }
         for r in s.runs.iter() {

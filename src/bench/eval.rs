@@ -131,6 +131,9 @@ pub struct RunReport {
     /// Whether that budget fell before the first checkpoint, so the error
     /// is extrapolated from it (see `error_at_time`).
     pub equal_time_extrapolated: bool,
+    /// Its later half of samples' time over the scene's first method's
+    /// (see `later_half_cost`).
+    pub later_half_cost: Option<f64>,
     pub learned: Option<LearnedPictures>,
 }
 
@@ -298,6 +301,20 @@ pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
 /// Whether time `t` falls before the first checkpoint.
 pub fn t_extrapolated(rows: &[CheckpointRow], t: f64) -> bool {
     t > 0.0 && t < rows[0].seconds
+}
+
+/// The time `rows` took for their later half of samples (from N/2 to N spp,
+/// N the last checkpoint's) over the time `base` took for the same: what a
+/// pass costs once a guide's learning has thinned out, against plain path
+/// tracing's. None without both checkpoints in both.
+pub fn later_half_cost(rows: &[CheckpointRow], base: &[CheckpointRow]) -> Option<f64> {
+    let n = rows.last()?.spp;
+    let span = |rows: &[CheckpointRow]| {
+        let at = |spp: u32| rows.iter().find(|r| r.spp == spp).map(|r| r.seconds);
+        Some(at(n)? - at(n / 2)?)
+    };
+    let (run, plain) = (span(rows)?, span(base)?);
+    (n >= 2 && plain > 0.0).then(|| run / plain)
 }
 
 /// What the evaluation is doing, for a progress bar.
@@ -636,6 +653,7 @@ pub fn evaluate(
                     mape: 0.0,
                 },
                 equal_time_extrapolated: false,
+                later_half_cost: None,
                 learned,
             });
         }
@@ -704,9 +722,14 @@ pub fn evaluate(
             .iter()
             .filter_map(|r| r.checkpoints.last().map(|c| c.seconds))
             .fold(f64::INFINITY, f64::min);
+        let first: Vec<CheckpointRow> = runs
+            .first()
+            .map(|r| r.checkpoints.clone())
+            .unwrap_or_default();
         for r in &mut runs {
             r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
             r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
+            r.later_half_cost = later_half_cost(&r.checkpoints, &first);
         }
         let best = |key: &dyn Fn(&RunReport) -> f64| {
             runs.iter()
@@ -788,5 +811,17 @@ mod tests {
         assert!((early.mape - 0.4f64.sqrt() * 2f64.sqrt()).abs() < 1e-12);
         assert!(t_extrapolated(&rows, 0.5));
         assert!((error_at_time(&rows, 4.0).rel_mse - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_later_half_of_samples_is_timed_against_the_first_method() {
+        let plain = [row(64, 1.0, 0.0), row(128, 2.0, 0.0), row(256, 4.0, 0.0)];
+        // Dear while learning, 1.5x once it thinned out.
+        let guided = [row(64, 3.0, 0.0), row(128, 4.5, 0.0), row(256, 7.5, 0.0)];
+        assert_eq!(later_half_cost(&guided, &plain), Some(1.5));
+        assert_eq!(later_half_cost(&plain, &plain), Some(1.0));
+        // Without the half-way checkpoint there is nothing to tell.
+        assert_eq!(later_half_cost(&guided[2..], &plain), None);
+        assert_eq!(later_half_cost(&guided, &plain[..2]), None);
     }
 }

@@ -306,7 +306,7 @@ fn write_html(
             )
         );
         h += "<table><tr><th>method</th><th>zero-contribution</th><th>mean path length</th><th>Mrays/s</th><th>samples/s</th>\
-              <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
+              <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>time of the later half of samples, over the first method's</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
         for r in &s.runs {
             let last = r.checkpoints.last();
             let win = |cond: bool, text: String| {
@@ -332,7 +332,7 @@ fn write_html(
             };
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{:.1} MiB</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.1} MiB</td><td>{}</td></tr>",
                 method,
                 win(r.config == s.summary.fewest_zero_contribution, format!("{:.1}%", 100.0 * r.zero_contribution_fraction)),
                 r.mean_path_length,
@@ -342,6 +342,7 @@ fn write_html(
                 last.map_or(f64::NAN, |c| c.error.mape),
                 win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}{}", r.error_at_equal_time.rel_mse, if r.equal_time_extrapolated { "*" } else { "" })),
                 r.error_at_equal_time.mape,
+                r.later_half_cost.map_or("-".to_string(), |c| format!("{c:.2}×")),
                 r.guide_bytes as f64 / (1024.0 * 1024.0),
                 esc(&gpu.join(", "))
             );
