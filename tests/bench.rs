@@ -139,8 +139,7 @@ fn quick_bench_writes_the_report() {
         let i = column(&h, name);
         assert!(rows.iter().all(|r| number(r, i) >= 0.0));
     }
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let json = common::read_json(out.join("results.json"));
     let summary = &json["scenes"][0]["summary"];
     for key in [
         "fewest_zero_contribution",
@@ -244,8 +243,7 @@ fn speed_table_reports_every_pass_and_cost() {
         stdout.contains("cost/hit"),
         "no per-hit cost column: {stdout}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report = common::read_json(&json);
     assert_eq!(report["peers"].as_array().map(Vec::len), Some(0));
     let rows = report["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
@@ -336,8 +334,7 @@ fn speed_table_shows_the_peer_or_how_to_set_it_up() {
             "{stdout}{}",
             String::from_utf8_lossy(&output.stderr)
         );
-        let report: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        let report = common::read_json(json);
         (stdout, report)
     };
 

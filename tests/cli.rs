@@ -330,8 +330,7 @@ fn render_writes_exr_png_stats_and_profile() {
     let image = qtrace::image::Image::read_exr(&exr).unwrap();
     assert_eq!((image.width, image.height), (24, 16));
     assert!(std::fs::metadata(&png).unwrap().len() > 0);
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let stats = common::read_json(&json);
     assert_eq!(stats["spp"], 3);
     assert_eq!(stats["method"], "pt");
     assert_eq!(stats["passes"].as_array().unwrap().len(), 3);
@@ -371,8 +370,7 @@ fn kernel_compiles_stay_out_of_pass_times_and_the_clock() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "{stderr}");
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let stats = common::read_json(&json);
     let compile = stats["compile_seconds"].as_f64().unwrap();
     if !stats["device"].as_str().unwrap().contains("llvmpipe") {
         eprintln!("skipped the size check: only llvmpipe is known to compile at first dispatch");
@@ -432,8 +430,7 @@ fn sarsa_render_reports_its_guide() {
         "{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let stats = common::read_json(&json);
     assert_eq!(stats["method"], "sarsa");
     assert_eq!(stats["guide_volumes"], 64);
     assert!(stats["guide_bytes"].as_u64().unwrap() > 64 * 36 * 4);
@@ -556,8 +553,7 @@ fn neural_render_reports_loss_and_training_passes() {
         "{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let stats = common::read_json(&json);
     assert_eq!(stats["method"], "neural");
     assert!(stats["guide_bytes"].as_u64().unwrap() > 0);
     assert!(stats["passes"][3]["loss"].as_f64().is_some());
@@ -714,8 +710,7 @@ fn guide_settings_layer_and_round_trip() {
             "{}",
             String::from_utf8_lossy(&output.stderr)
         );
-        let stats: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        let stats = common::read_json(json);
         stats["guide"]["sarsa"].clone()
     };
     let first = dir.join("first.json");
@@ -817,8 +812,7 @@ fn checkpoints_and_signals_leave_complete_outputs() {
             assert!(start.elapsed().as_secs() < 120, "no checkpoint written");
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
-        let stats: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let stats = common::read_json(&json);
         assert_eq!(stats["interrupted"], false);
         assert!(stats["spp"].as_u64().unwrap() > 0);
         assert!(exr.exists() && dir.join("s.png").exists());
@@ -832,8 +826,7 @@ fn checkpoints_and_signals_leave_complete_outputs() {
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(code), "{stderr}");
         assert!(stderr.contains("interrupted"), "{stderr}");
-        let stats: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let stats = common::read_json(&json);
         assert_eq!(stats["interrupted"], true);
         let spp = stats["spp"].as_u64().unwrap();
         assert!(spp > 0 && spp < 1_000_000, "{spp}");
@@ -891,8 +884,7 @@ fn resume_goes_on_from_the_state_beside_the_output() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let stats = common::read_json(&json);
     assert_eq!(stats["spp"], 8);
     assert_eq!(stats["passes"].as_array().unwrap().len(), 8);
     assert_eq!(qtrace::image::Part::read(&exr).unwrap().provenance.spp, 8);

@@ -16,6 +16,11 @@ pub fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
 }
 
+/// A JSON file the binary wrote (stats, a bench's results).
+pub fn read_json(path: impl AsRef<Path>) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 /// The qtrace binary, with the validation layer (synchronisation
 /// validation included) on: any error it reports fails the command.
 pub fn qtrace() -> std::process::Command {
