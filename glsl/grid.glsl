@@ -14,11 +14,23 @@ uint sector_count() {
     return grid_a() * grid_b();
 }
 
-// Units in one column of a volume's alias table, floor(65535 / n) (see
+// Units in one column of an alias table of n entries, floor(65535 / n) (see
 // SectorEntry); the float division is exact after the floor, as its
 // fraction is at least 1 / n, far above its rounding.
+uint column_units(uint n) {
+    return uint(65535.0 / float(n));
+}
+
 uint sector_column_units() {
-    return uint(65535.0 / float(sector_count()));
+    return column_units(sector_count());
+}
+
+// Where volume v's alias table over the scene's lights starts in the
+// sector tables' buffer: after every volume's sectors. Row volume_count
+// (NO_VOLUME's) follows emitted power alone.
+uint light_row(uint v) {
+    uint row = v == NO_VOLUME ? params.volume_count : v;
+    return params.volume_count * sector_count() + row * params.light_count;
 }
 
 #endif

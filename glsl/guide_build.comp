@@ -123,49 +123,16 @@ uint next_column(uint base, uint from, uint n, uint c, bool large) {
     return from;
 }
 
-void main() {
-    uint v = gl_GlobalInvocationID.x;
-    if (v >= params.volume_count) {
-        return;
-    }
-    uint a = grid_a();
-    uint b = grid_b();
-    uint n = sector_count();
-    // Units per column and in all.
-    uint c = sector_column_units();
+// Turns the float weights waiting in entries base .. base + n - 1 (in
+// `weights`), which add up to `total`, into an alias table in whole units.
+void build_alias(uint base, uint n, float total) {
+    uint c = column_units(n);
     uint units = n * c;
-    uint base = v * n;
-    bool learned = (params.flags & FLAG_LEARN) != 0u;
-    float weighted = 0.0;
-    float best = 0.0;
-    float total = 0.0;
-    // Each sector's weight waits in its table entry for the second sweep.
-    for (uint k = 0u; k < n; ++k) {
-        float q = q_values[base + k];
-        float qd = q_direct[base + k];
-        if (learned) {
-            fold(base + k, q, qd);
-        }
-        float cos_k = sector_cos(k, a, b);
-        q = max(q, 0.0);
-        weighted += q * cos_k;
-        best = max(best, q * cos_k);
-        float w = distribution_weight(q, qd, cos_k);
-        total += w;
-        if (BUILD_TABLE) {
-            sectors[base + k].weights = floatBitsToUint(w);
-        }
-    }
-    bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
-    volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
-    if (!BUILD_TABLE) {
-        return;
-    }
-    // Whole units: sector k gets the units between the floors of its
+    // Whole units: entry k gets the units between the floors of its
     // running sum's start and end (scaled to W), the last end being W, so
-    // the weights add up to W exactly (the last sector takes what rounding
-    // left) and a zero weight stays zero. An all-zero volume samples
-    // sectors uniformly.
+    // the weights add up to W exactly (the last entry takes what rounding
+    // left) and a zero weight stays zero. An all-zero table samples
+    // its entries uniformly.
     float scale = total > 0.0 ? float(units) / total : 0.0;
     float running = 0.0;
     uint start = 0u;
@@ -210,4 +177,96 @@ void main() {
         uint w = sectors[base + k].weights & 0xffffu;
         sectors[base + k].weights = w | ((sectors[base + alias].weights & 0xffffu) << 16);
     }
+}
+
+// NEE's choice of light (FLAG_GUIDE_LIGHTS), per (volume, light): the
+// pass's tallies (texels, as above), the running mean of what a try of the
+// light brought and its count, and the light's share of emitted power.
+layout(set = 0, binding = B_LIGHT_SUM) uniform usamplerBuffer light_sum_texels;
+layout(set = 0, binding = B_LIGHT_TRIES) uniform usamplerBuffer light_tries_texels;
+layout(std430, set = 0, binding = B_LIGHT_MEAN) buffer LightMean { float light_mean[]; };
+layout(std430, set = 0, binding = B_LIGHT_SEEN) buffer LightSeen { uint light_seen[]; };
+layout(std430, set = 0, binding = B_LIGHT_POWER) readonly buffer LightPower { float light_power[]; };
+
+// Volume v's choice of light: after a pass that learned, its tries folded
+// into the running means; then its alias table, LIGHT_POWER_SHARE by
+// emitted power (so every light keeps being tried) and the rest in
+// proportion to what each light brought, once the volume has had
+// LIGHT_MIN_TRIES tries. v = volume_count builds the row by power alone
+// that vertices without a volume use.
+void build_light_choice(uint v, bool learned) {
+    uint n = params.light_count;
+    uint base = v * n;
+    bool own = v < params.volume_count;
+    float brought = 0.0;
+    uint tries = 0u;
+    for (uint l = 0u; own && l < n; ++l) {
+        float mean = light_mean[base + l];
+        uint seen = light_seen[base + l];
+        uint count = learned ? texelFetch(light_tries_texels, int((base + l) >> 2u))[(base + l) & 3u] : 0u;
+        if (count > 0u) {
+            mean = (mean * float(seen) + TALLY_AT(light_sum_texels, base + l)) / float(seen + count);
+            seen += count;
+            light_mean[base + l] = mean;
+            light_seen[base + l] = seen;
+        }
+        brought += mean;
+        tries += seen;
+    }
+    if (!BUILD_TABLE) {
+        return;
+    }
+    bool follows = own && tries >= LIGHT_MIN_TRIES && brought > 0.0;
+    uint row = light_row(v);
+    float total = 0.0;
+    for (uint l = 0u; l < n; ++l) {
+        float w = light_power[l];
+        if (follows) {
+            w = LIGHT_POWER_SHARE * w + (1.0 - LIGHT_POWER_SHARE) * light_mean[base + l] / brought;
+        }
+        total += w;
+        sectors[row + l].weights = floatBitsToUint(w);
+    }
+    build_alias(row, n, total);
+}
+
+void main() {
+    uint v = gl_GlobalInvocationID.x;
+    bool learned = (params.flags & FLAG_LEARN) != 0u;
+    if ((params.flags & FLAG_GUIDE_LIGHTS) != 0u && v <= params.volume_count) {
+        build_light_choice(v, learned);
+    }
+    if (v >= params.volume_count) {
+        return;
+    }
+    uint a = grid_a();
+    uint b = grid_b();
+    uint n = sector_count();
+    uint base = v * n;
+    float weighted = 0.0;
+    float best = 0.0;
+    float total = 0.0;
+    // Each sector's weight waits in its table entry for the second sweep.
+    for (uint k = 0u; k < n; ++k) {
+        float q = q_values[base + k];
+        float qd = q_direct[base + k];
+        if (learned) {
+            fold(base + k, q, qd);
+        }
+        float cos_k = sector_cos(k, a, b);
+        q = max(q, 0.0);
+        weighted += q * cos_k;
+        best = max(best, q * cos_k);
+        float w = distribution_weight(q, qd, cos_k);
+        total += w;
+        if (BUILD_TABLE) {
+            sectors[base + k].weights = floatBitsToUint(w);
+        }
+    }
+    bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
+    volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
+    if (!BUILD_TABLE) {
+        return;
+    }
+    build_alias(base, n, total);
 }

@@ -16,6 +16,22 @@ layout(std430, set = 0, binding = B_DIRECT_SUM) buffer DirectSums { TALLY direct
 // sampling (FLAG_LEARN_MIX): positive part, negative part.
 layout(std430, set = 0, binding = B_MIX_GRAD) buffer MixGrad { TALLY mix_grad[]; };
 
+// With FLAG_GUIDE_LIGHTS, per (volume, light): what NEE's tries of the
+// light brought there, without its MIS weight or the chance of picking it
+// (the light's whole contribution, luminance), and how many tries.
+layout(std430, set = 0, binding = B_LIGHT_SUM) buffer LightSums { TALLY light_sum[]; };
+layout(std430, set = 0, binding = B_LIGHT_TRIES) buffer LightTries { uint light_tries[]; };
+
+// Records one NEE try of light l at g that brought `brought` (0 where the
+// light faced away or was blocked).
+void sarsa_record_light(GuideVertex g, uint l, float brought) {
+    if (g.volume != NO_VOLUME) {
+        uint index = g.volume * params.light_count + l;
+        ADD_TALLY(light_sum[index], brought);
+        atomicAdd(light_tries[index], 1u);
+    }
+}
+
 // Adds one target for (v, k), whose Q was q; the guide update turns sums and
 // counts into means. Returns the squared temporal-difference error.
 float sarsa_record(uint v, uint k, float target, float q) {

@@ -1,7 +1,7 @@
 #version 460
 // Runs the Sarsa guide's GLSL on host-given inputs so tests can compare it
-// with CPU references: the nearest radiance volume, mixture sampling and
-// the update.
+// with CPU references: the nearest radiance volume, mixture sampling, the
+// update and NEE's choice of light.
 
 #include "shared.h"
 #include "sampling.glsl"
@@ -54,5 +54,12 @@ void main() {
             sarsa_record_direct(v, k, probe_in[2u * i + 1u].x);
         }
         probe_out[i] = vec4(target, 0.0, 0.0, 0.0);
+    } else if (params.selector == PROBE_LIGHT_CHOICE) {
+        // in[i] = (volume bits, u, 0, 0); out = (light index bits, its
+        // probability as drawn, as NEE's MIS looks it up, 0)
+        GuideVertex g = guide_vertex(floatBitsToUint(probe_in[i].x));
+        float p;
+        uint l = guide_choose_light(g, probe_in[i].y, p);
+        probe_out[i] = vec4(uintBitsToFloat(l), p, guide_light_probability(g, l), 0.0);
     }
 }

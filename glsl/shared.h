@@ -67,6 +67,14 @@
 #define B_RACE_REF 38
 // Trace dispatches' work counters (one per dispatch of a submit).
 #define B_WORK 39
+// Sarsa's choice of light for NEE (FLAG_GUIDE_LIGHTS), per (volume, light):
+// the pass's tallies of what the light brought and of tries, their running
+// mean and count, and each light's share of the scene's emitted power.
+#define B_LIGHT_SUM 40
+#define B_LIGHT_TRIES 41
+#define B_LIGHT_MEAN 42
+#define B_LIGHT_SEEN 43
+#define B_LIGHT_POWER 44
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -85,6 +93,16 @@
 // [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
 #define MIX_LEARNING_RATE 0.3
 #define MIX_LOGIT_BOUND 3.0
+// Sarsa: each volume learns which light NEE should pick there, as an alias
+// table over the scene's lights after the sector tables (guide_build.comp).
+#define FLAG_GUIDE_LIGHTS 128
+// Scenes with 2 to this many emitting triangles get it.
+#define MAX_GUIDED_LIGHTS 16
+// The share of a volume's choice that follows emitted power (as `pt` picks)
+// whatever was learned, so that every light keeps being tried.
+#define LIGHT_POWER_SHARE 0.25
+// Tries a volume needs, over all lights, before its choice follows them.
+#define LIGHT_MIN_TRIES 16
 
 // Probe kernel modes (tests of the GLSL building blocks).
 #define PROBE_TRACE 0
@@ -93,6 +111,7 @@
 #define PROBE_GUIDE_SAMPLE 3
 #define PROBE_SARSA_UPDATE 4
 #define PROBE_BSDF 5
+#define PROBE_LIGHT_CHOICE 6
 
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
@@ -175,6 +194,9 @@ struct Triangle {
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define SPEC_NON_DIFFUSE 4
+// Specialization constant of Sarsa's trace kernels: the guide picks the
+// light for NEE (FLAG_GUIDE_LIGHTS), so the code is left out where not.
+#define SPEC_GUIDE_LIGHTS 5
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind

@@ -53,6 +53,28 @@ uint pick_light(float u) {
     return lo;
 }
 
+#ifdef METHOD_SARSA
+// Sarsa's tables pick NEE's light (FLAG_GUIDE_LIGHTS): built in only then.
+layout(constant_id = SPEC_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
+
+// Index of the light that is triangle `triangle` (lights are in triangle order).
+uint light_of(uint triangle) {
+    uint lo = 0u;
+    uint hi = params.light_count - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (texelFetch(light_texels, int(mid)).x < triangle) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo;
+}
+#else
+const bool GUIDE_LIGHTS = false;
+#endif
+
 // The state of the path being traced, shared by begin_path and bounce.
 uvec2 pixel;
 uint rng;
@@ -220,7 +242,14 @@ bool scatter() {
         float weight = 1.0;
         if (cos_out > 0.0) {
             if (nee && prev_bsdf_pdf > 0.0) {
-                float light_pdf = tri.light_pdf * hit.t * hit.t / cos_out;
+                float area_pdf = tri.light_pdf;
+#ifdef METHOD_SARSA
+                if (GUIDE_LIGHTS) {
+                    // As NEE at the vertex the ray left would have picked it.
+                    area_pdf = guide_light_probability(prev_vertex, light_of(hit.triangle)) / tri.area;
+                }
+#endif
+                float light_pdf = area_pdf * hit.t * hit.t / cos_out;
                 weight = power_heuristic(prev_bsdf_pdf, light_pdf);
             }
             radiance += throughput * mat.emission.rgb * weight;
@@ -273,7 +302,19 @@ bool scatter() {
     }
 
     if (nee && !delta) {
-        Triangle lt = load_triangle(texelFetch(light_texels, int(pick_light(rng_next(rng)))).x);
+        uint light;
+        float pick_pdf = 0.0;
+#ifdef METHOD_SARSA
+        if (GUIDE_LIGHTS) {
+            light = guide_choose_light(here, rng_next(rng), pick_pdf);
+        } else
+#endif
+        {
+            light = pick_light(rng_next(rng));
+        }
+        Triangle lt = load_triangle(texelFetch(light_texels, int(light)).x);
+        float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
+        float brought = 0.0;
         vec2 u = rng_next2(rng);
         if (u.x + u.y > 1.0) {
             u = 1.0 - u;
@@ -288,7 +329,7 @@ bool scatter() {
         if (cos_x > 0.0 && cos_y > 0.0) {
             rays += 1u;
             if (!occluded(position, wi, dist * (1.0 - 1e-4) - eps)) {
-                float light_pdf = lt.light_pdf * dist2 / cos_y;
+                float light_pdf = area_pdf * dist2 / cos_y;
                 vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
 #ifdef GUIDED
                 float scatter_pdf = mixture_pdf(here, bsdf, wo, wi_local);
@@ -297,13 +338,20 @@ bool scatter() {
 #endif
                 float weight = power_heuristic(light_pdf, scatter_pdf);
                 vec3 le = load_material(lt.material).emission.rgb;
-                vec3 direct = bsdf_eval(bsdf, wo, wi_local) * le * weight / light_pdf;
+                vec3 f_le = bsdf_eval(bsdf, wo, wi_local) * le;
+                vec3 direct = f_le * weight / light_pdf;
                 radiance += throughput * direct;
 #ifdef GUIDED
                 direct_lum = luminance(direct);
 #endif
+                brought = luminance(f_le) / light_pdf * pick_pdf;
             }
         }
+#if defined(METHOD_SARSA) && !defined(FROZEN)
+        if (GUIDE_LIGHTS && learn) {
+            sarsa_record_light(here, light, brought);
+        }
+#endif
     }
 #ifdef GUIDED
     if (learn) {

@@ -145,6 +145,27 @@ float guide_sector_q(GuideVertex g, uint k) {
     return g.volume == NO_VOLUME ? 0.0 : max(load_q(g.volume * sector_count() + k), 0.0);
 }
 
+// NEE's choice of light at g (FLAG_GUIDE_LIGHTS): a light drawn by u from
+// its volume's alias table (NO_VOLUME's row where it has none), and its
+// probability p, exact in the table's whole units.
+uint guide_choose_light(GuideVertex g, float u, out float p) {
+    uint n = params.light_count;
+    uint c = column_units(n);
+    float x = u * float(n);
+    uint column = min(uint(x), n - 1u);
+    SectorEntry e = load_sector(light_row(g.volume) + column);
+    uint unit = min(uint((x - float(column)) * float(c)), c - 1u);
+    bool keep = unit < (e.column & 0xffffu);
+    p = float(keep ? e.weights & 0xffffu : e.weights >> 16) / float(n * c);
+    return keep ? column : e.column >> 16;
+}
+
+// The probability that NEE at g picks light l.
+float guide_light_probability(GuideVertex g, uint l) {
+    uint n = params.light_count;
+    return float(load_sector(light_row(g.volume) + l).weights & 0xffffu) / float(n * column_units(n));
+}
+
 // One read of the alias table serves either side of the mixture: with
 // `pick`, the alias method (u, scaled to [0, n), picks a column; its
 // fraction, in the column's units, decides between the column's sector and

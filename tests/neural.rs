@@ -307,6 +307,20 @@ fn neural_training_on_volume_means_converges_to_pt_on_the_cornell_box() {
     );
 }
 
+/// Training on the volumes' means, its tables pick NEE's light as Sarsa's do.
+#[test]
+fn neural_training_on_volume_means_with_nee_converges_to_pt_with_several_lights() {
+    unbiased(
+        "several-lights",
+        true,
+        512,
+        NeuralSettings {
+            training: Some(Training::Volumes),
+            ..small()
+        },
+    );
+}
+
 #[test]
 fn neural_training_on_volume_means_with_nee_converges_to_pt_on_the_indirectly_lit_room() {
     unbiased(

@@ -63,7 +63,7 @@ fn check_lookup(scene_name: &str, volumes_count: u32, queries: usize) {
         volumes: Some(volumes_count),
         ..Default::default()
     };
-    let guide = SarsaGuide::new(&ctx, &scene, &s, 3).unwrap();
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 3, true).unwrap();
     let lookup = VolumeLookup::build(&scene, &guide.volumes);
     let mut rng = Lcg(5);
     let queries = lookup_queries(&scene, queries, &mut rng);
@@ -126,7 +126,7 @@ fn alias_tables_give_each_sector_its_probability() {
         ..Default::default()
     };
     let n = s.sectors() as usize;
-    let guide = SarsaGuide::new(&ctx, &scene, &s, 1).unwrap();
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 1, true).unwrap();
     // Lumpy Q: spikes, zeros, an all-zero volume and a uniform one.
     let mut rng = Lcg(3);
     let q: Vec<f32> = (0..64 * n)
@@ -205,7 +205,7 @@ fn guided_sampler_matches_its_pdf() {
     };
     let (a, b) = (s.common.grid[0] as usize, s.common.grid[1] as usize);
     let n = a * b;
-    let guide = SarsaGuide::new(&ctx, &scene, &s, 1).unwrap();
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 1, true).unwrap();
     // A lumpy distribution: a few bright sectors, many dim ones, some zero.
     let mut rng = Lcg(9);
     let q: Vec<f32> = (0..4 * n)
@@ -340,7 +340,7 @@ fn check_update(atomics: Atomics) {
         ..Default::default()
     };
     let n = s.sectors() as usize;
-    let guide = SarsaGuide::new(&ctx, &scene, &s, 2).unwrap();
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 2, true).unwrap();
     let mut rng = Lcg(17);
     let mut q: Vec<f32> = (0..6 * n).map(|_| 0.1 + rng.next()).collect();
     guide.upload_q(&ctx, &q).unwrap();
@@ -465,6 +465,12 @@ fn sarsa_converges_to_pt_on_the_cornell_box() {
 #[test]
 fn sarsa_with_nee_converges_to_pt_on_the_cornell_box() {
     unbiased("cornell-box", true, Atomics::Float, 512, None);
+}
+
+/// With several lights each volume picks NEE's light by what it learned.
+#[test]
+fn sarsa_with_nee_converges_to_pt_with_several_lights() {
+    unbiased("several-lights", true, Atomics::Fixed, 512, None);
 }
 
 #[test]
@@ -713,4 +719,127 @@ fn standing_back_survives_a_resume() {
     assert_eq!(through.stats.guide_stood_back_after, after);
     assert_eq!(resumed.image, through.image);
     common::assert_no_validation_errors(&ctx);
+}
+
+/// NEE's choice of light, after a `sarsa+nee` render with several lights:
+/// every volume's row gives each light at least LIGHT_POWER_SHARE of its
+/// share of emitted power (so every light keeps being tried), and volumes
+/// on the back wall, in the plane of the warm light, which cannot light
+/// them, give it no more than that; the row for vertices without a volume
+/// follows power. The lights the GPU draws follow the probabilities (χ²),
+/// and each draw's probability is the one MIS looks up, bit for bit.
+#[test]
+fn volumes_learn_which_light_nee_picks() {
+    let ctx = common::gpu();
+    let scene = common::scene("several-lights");
+    let renderer = common::run_renderer(
+        &ctx,
+        &scene,
+        Overrides {
+            method: Some(Method::Sarsa),
+            nee: true,
+            spp: Some(64),
+            width: Some(32),
+            height: Some(32),
+            guide: Some(GuideSettings::Sarsa(SarsaSettings {
+                volumes: Some(256),
+                ..Default::default()
+            })),
+            ..Default::default()
+        },
+    );
+    let guide = renderer.guide().and_then(|g| g.sarsa()).unwrap();
+    assert!(guide.chooses_lights());
+    let power: Vec<f64> = scene.lights.iter().map(|l| l.pdf as f64).collect();
+    let n = power.len();
+    let choice = guide.download_light_choice().unwrap();
+    let volumes = guide.volumes.len();
+    assert_eq!(choice.len(), (volumes + 1) * n);
+    let units = (n as u32 * SectorEntry::column_units(n as u32)) as f64;
+    let rounding = 2.0 / units;
+    let share = 0.25; // LIGHT_POWER_SHARE
+    let row = |v: usize| &choice[v * n..(v + 1) * n];
+    for (l, &p) in row(volumes).iter().enumerate() {
+        assert!(
+            (p as f64 - power[l]).abs() <= rounding,
+            "light {l}: {p} against its power's share {}",
+            power[l]
+        );
+    }
+    let warm: Vec<usize> = (0..n)
+        .filter(|&l| scene.triangles[scene.lights[l].triangle as usize].v0[2] > 559.0)
+        .collect();
+    assert_eq!(warm.len(), 2, "the warm light's two triangles");
+    let mut back_wall = Vec::new();
+    for v in 0..volumes {
+        let total: f64 = row(v).iter().map(|&p| p as f64).sum();
+        assert!((total - 1.0).abs() < 1e-5, "volume {v}: {total}");
+        for (l, (&p, &w)) in row(v).iter().zip(&power).enumerate() {
+            assert!(
+                p as f64 >= share * w - rounding,
+                "volume {v} light {l}: {p} under its floor"
+            );
+        }
+        let vol = &guide.volumes[v];
+        if vol.position[2] > 559.0 && vol.normal[2] < -0.9 {
+            back_wall.push(v);
+            for &l in &warm {
+                assert!(
+                    (row(v)[l] as f64 - share * power[l]).abs() <= rounding,
+                    "volume {v} on the back wall gives the warm light {} against {}",
+                    row(v)[l],
+                    share * power[l]
+                );
+            }
+        }
+    }
+    assert!(
+        back_wall.len() >= 8,
+        "{} volumes on the back wall",
+        back_wall.len()
+    );
+
+    let mut rng = Lcg(5);
+    let uniforms: Vec<f32> = (0..200_000).map(|_| rng.next()).collect();
+    for v in [
+        back_wall[0],
+        volumes / 2,
+        qtrace::shaders::NO_VOLUME as usize,
+    ] {
+        let p = if v == qtrace::shaders::NO_VOLUME as usize {
+            row(volumes)
+        } else {
+            row(v)
+        };
+        let draws = probe::light_choices(&ctx, &scene, guide, v as u32, &uniforms).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        let mut counts = vec![0u64; n];
+        for &(l, drawn, looked_up) in &draws {
+            let l = l as usize;
+            assert!(l < n, "volume {v}: light {l}");
+            assert_eq!(drawn.to_bits(), looked_up.to_bits(), "volume {v} light {l}");
+            assert_eq!(
+                drawn.to_bits(),
+                p[l].to_bits(),
+                "volume {v} light {l}: the table's"
+            );
+            counts[l] += 1;
+        }
+        let mut chi2 = 0.0;
+        let mut dof = -1.0;
+        for l in 0..n {
+            let expected = p[l] as f64 * uniforms.len() as f64;
+            if expected > 0.0 {
+                chi2 += (counts[l] as f64 - expected).powi(2) / expected;
+                dof += 1.0;
+            } else {
+                assert_eq!(counts[l], 0, "volume {v}: light {l} has no probability");
+            }
+        }
+        let survival = common::chi2_survival(chi2, dof);
+        assert!(
+            survival > 1e-4,
+            "volume {v}: chi2 {chi2} over {dof} dof (p = {survival})"
+        );
+    }
 }

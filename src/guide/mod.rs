@@ -519,7 +519,9 @@ impl Guide {
         pixels: u64,
     ) -> gpu::Result<Self> {
         Ok(match settings {
-            GuideSettings::Sarsa(s) => Self::Sarsa(Box::new(SarsaGuide::new(ctx, scene, s, seed)?)),
+            GuideSettings::Sarsa(s) => {
+                Self::Sarsa(Box::new(SarsaGuide::new(ctx, scene, s, seed, true)?))
+            }
             GuideSettings::Neural(n) => {
                 Self::Neural(Box::new(NeuralGuide::new(ctx, scene, n, seed, pixels)?))
             }
@@ -527,6 +529,15 @@ impl Guide {
     }
 
     /// Specialization constants of its trace kernel.
+    /// Whether its trace kernels pick NEE's light from its tables
+    /// (the SPEC_GUIDE_LIGHTS specialization constant).
+    pub fn chooses_lights(&self) -> bool {
+        match self {
+            Self::Sarsa(s) => s.chooses_lights(),
+            Self::Neural(n) => n.chooses_lights(),
+        }
+    }
+
     pub fn constants(&self) -> Vec<u32> {
         match self {
             Self::Sarsa(_) => Vec::new(),

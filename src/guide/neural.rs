@@ -631,7 +631,10 @@ impl NeuralGuide {
         vertices: &Buffer,
         pending: &Buffer,
     ) -> gpu::Result<VolumeTable> {
-        let guide = SarsaGuide::new(ctx, scene, &settings.table(), seed)?;
+        // Lights are picked where the trace kernel is Sarsa's, which tallies
+        // their tries into the means (training on the volumes).
+        let pick_lights = settings.training() == Training::Volumes;
+        let guide = SarsaGuide::new(ctx, scene, &settings.table(), seed, pick_lights)?;
         let states: Vec<[f32; 4]> = guide
             .volumes
             .iter()
@@ -776,6 +779,20 @@ impl NeuralGuide {
             p.flags |= shaders::FLAG_VERTEX_ENCODING;
         }
         p.volume_count = self.volume_count() as u32;
+        if let Some(t) = &self.table {
+            // The flag and count its tables' updates need.
+            let mut q = *p;
+            t.guide.set_params(&mut q, learn);
+            p.flags |= q.flags & shaders::FLAG_GUIDE_LIGHTS;
+            p.light_count = q.light_count;
+        }
+    }
+
+    /// Whether its paths pick NEE's light from its tables.
+    pub fn chooses_lights(&self) -> bool {
+        self.table
+            .as_ref()
+            .is_some_and(|t| t.guide.chooses_lights())
     }
 
     /// Records the training on what the pass offered: the gather that packs

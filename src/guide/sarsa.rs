@@ -68,19 +68,33 @@ pub const DEFAULT_VOLUMES: u32 = 1024;
 /// Most volumes a guide may hold.
 pub const MAX_VOLUMES: u32 = 1 << 22;
 
-/// Device bytes per volume for an n-sector grid: Q, the alias table, target
-/// sums (8 bytes), new and total visit counts, and the NEE share's sums (8
-/// bytes) and mean per sector; per volume its sums and BSDF share (16),
-/// the share's gradient tallies (16) and state (16).
-fn table_bytes_per_volume(sectors: u32) -> u64 {
-    (8 * 4 + size_of::<SectorEntry>() as u64) * sectors as u64 + 48
+/// Device bytes per volume for an n-sector grid and `lights` lights it
+/// picks among for NEE: Q, the alias table, target sums (8 bytes), new and
+/// total visit counts, and the NEE share's sums (8 bytes) and mean per
+/// sector; per light the tries' sums (8), counts, mean, total count and
+/// alias entry; per volume its sums and BSDF share (16), the share's
+/// gradient tallies (16) and state (16).
+fn table_bytes_per_volume(sectors: u32, lights: u32) -> u64 {
+    let entry = size_of::<SectorEntry>() as u64;
+    (8 * 4 + entry) * sectors as u64 + (8 + 3 * 4 + entry) * lights as u64 + 48
 }
 
 /// What the memory budget counts per volume: its tables and about 16 lookup
 /// cells (cells are half the volume spacing; small triangles add their own,
 /// which `SarsaGuide::bytes` reports).
-pub fn bytes_per_volume(sectors: u32) -> u64 {
-    table_bytes_per_volume(sectors) + 16 * 8
+pub fn bytes_per_volume(sectors: u32, lights: u32) -> u64 {
+    table_bytes_per_volume(sectors, lights) + 16 * 8
+}
+
+/// Each light's share of the scene's emitted power where a guide picks
+/// NEE's light (2 to MAX_GUIDED_LIGHTS emitting triangles), else none.
+pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
+    let n = scene.lights.len();
+    if (2..=shaders::MAX_GUIDED_LIGHTS as usize).contains(&n) {
+        scene.lights.iter().map(|l| l.pdf).collect()
+    } else {
+        Vec::new()
+    }
 }
 
 impl SarsaSettings {
@@ -113,7 +127,7 @@ impl SarsaSettings {
             if !(m.is_finite() && m > 0.0) {
                 return Err(format!("memory_mib = {m} must be positive"));
             }
-            if ((m * 1024.0 * 1024.0) as u64) < bytes_per_volume(self.sectors()) {
+            if ((m * 1024.0 * 1024.0) as u64) < bytes_per_volume(self.sectors(), 0) {
                 return Err(format!("memory_mib = {m} holds no volume"));
             }
         }
@@ -134,7 +148,10 @@ impl SarsaSettings {
         device: &DeviceInfo,
         guide: &str,
     ) -> Result<(), String> {
-        let count = self.volume_count(volumes::placement_area(scene));
+        let count = self.volume_count(
+            volumes::placement_area(scene),
+            guided_light_power(scene).len() as u32,
+        );
         // The largest per-sector buffer is the alias table.
         let bytes = count as u64 * self.sectors() as u64 * size_of::<SectorEntry>() as u64;
         let limit = device.max_storage_buffer_range;
@@ -168,14 +185,15 @@ impl SarsaSettings {
         s
     }
 
-    /// Volumes actually placed on `surface_area` units² of surface: the
-    /// requested count (or density × area) within the memory budget.
-    pub fn volume_count(&self, surface_area: f64) -> u32 {
+    /// Volumes actually placed on `surface_area` units² of surface, each
+    /// picking among `lights` lights for NEE: the requested count (or
+    /// density × area) within the memory budget.
+    pub fn volume_count(&self, surface_area: f64, lights: u32) -> u32 {
         let wanted = match self.density {
             Some(d) => (d * surface_area).ceil().clamp(1.0, MAX_VOLUMES as f64) as u32,
             None => self.volumes.unwrap_or(DEFAULT_VOLUMES),
         };
-        let per = bytes_per_volume(self.sectors());
+        let per = bytes_per_volume(self.sectors(), lights);
         match self.memory_mib {
             Some(m) => wanted.min(((m * 1024.0 * 1024.0) as u64 / per) as u32),
             None => wanted,
@@ -233,6 +251,13 @@ pub struct SarsaGuide {
     visits_total: Buffer,
     direct_sum: Buffer,
     q_direct: Buffer,
+    /// NEE's choice of light (empty tables where the guide makes none).
+    lights: u32,
+    light_power: Buffer,
+    light_sum: Buffer,
+    light_tries: Buffer,
+    light_mean: Buffer,
+    light_seen: Buffer,
     volume_sums: Buffer,
     mix_grad: Buffer,
     mix_state: Buffer,
@@ -245,14 +270,22 @@ pub struct SarsaGuide {
 }
 
 impl SarsaGuide {
-    /// Places volumes over `scene` and uploads the initial guide.
+    /// Places volumes over `scene` and uploads the initial guide, which
+    /// learns to pick NEE's light where `pick_lights` and the scene has
+    /// lights to pick among.
     pub fn new(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
         settings: &SarsaSettings,
         seed: u32,
+        pick_lights: bool,
     ) -> gpu::Result<Self> {
-        let count = settings.volume_count(volumes::placement_area(scene));
+        let light_power = if pick_lights {
+            guided_light_power(scene)
+        } else {
+            Vec::new()
+        };
+        let count = settings.volume_count(volumes::placement_area(scene), light_power.len() as u32);
         let mut vols = volumes::place(scene, count as usize, seed as u64);
         volumes::build_kd_tree(&mut vols);
         let start = std::time::Instant::now();
@@ -266,7 +299,7 @@ impl SarsaGuide {
             lookup.bytes() as f64 / (1024.0 * 1024.0),
             start.elapsed().as_secs_f64()
         );
-        Self::from_volumes(ctx, vols, lookup, settings, true)
+        Self::from_volumes(ctx, vols, lookup, settings, &light_power, true)
     }
 
     /// A fresh table of running means over the same volumes and lookup (no
@@ -274,33 +307,46 @@ impl SarsaGuide {
     /// update folds targets and learns the share, and builds no sampling
     /// distribution, as nothing samples from it.
     pub fn means_twin(&self, ctx: &Arc<GpuContext>) -> gpu::Result<Self> {
+        let light_power: Vec<f32> = if self.lights > 0 {
+            self.light_power.download()?
+        } else {
+            Vec::new()
+        };
         Self::from_volumes(
             ctx,
             self.volumes.clone(),
             self.lookup.clone(),
             &self.settings,
+            &light_power,
             false,
         )
     }
 
     /// A guide over given volumes (already in k-d tree order) and their
-    /// lookup; its update builds the sampling distributions where `table`.
+    /// lookup, picking NEE's light where given the lights' shares of power;
+    /// its update builds the sampling distributions where `table`.
     fn from_volumes(
         ctx: &Arc<GpuContext>,
         vols: Vec<Volume>,
         lookup: VolumeLookup,
         settings: &SarsaSettings,
+        light_power: &[f32],
         table: bool,
     ) -> gpu::Result<Self> {
         let n = settings.sectors() as u64;
         let cells = vols.len() as u64 * n;
+        let lights = light_power.len() as u32;
+        // Per (volume, light); the alias tables have a row more, by power
+        // alone, for vertices without a volume.
+        let light_cells = (vols.len() as u64 * lights as u64).max(1);
+        let light_entries = (vols.len() as u64 + 1) * lights as u64;
         let initial = vec![settings.common.initial_q; cells as usize];
         let push = size_of::<PassParams>() as u32;
         let q = Buffer::gpu_only_with(ctx, "sarsa Q", &initial)?;
         let sectors = Buffer::gpu_only(
             ctx,
             "sarsa sector tables",
-            cells * size_of::<SectorEntry>() as u64,
+            (cells + light_entries) * size_of::<SectorEntry>() as u64,
         )?;
         // Sums are 64-bit fixed point or (in the low half) float.
         let sum = Buffer::gpu_only(ctx, "sarsa target sums", cells * 8)?;
@@ -308,6 +354,16 @@ impl SarsaGuide {
         let visits_total = Buffer::gpu_only(ctx, "sarsa visits (total)", cells * 4)?;
         let direct_sum = Buffer::gpu_only(ctx, "sarsa direct sums", cells * 8)?;
         let q_direct = Buffer::gpu_only(ctx, "sarsa Q carried by NEE", cells * 4)?;
+        let power: &[f32] = if light_power.is_empty() {
+            &[0.0]
+        } else {
+            light_power
+        };
+        let light_power = Buffer::gpu_only_with(ctx, "sarsa light power", power)?;
+        let light_sum = Buffer::gpu_only(ctx, "sarsa light sums", light_cells * 8)?;
+        let light_tries = Buffer::gpu_only(ctx, "sarsa light tries (pass)", light_cells * 4)?;
+        let light_mean = Buffer::gpu_only(ctx, "sarsa light means", light_cells * 4)?;
+        let light_seen = Buffer::gpu_only(ctx, "sarsa light tries (total)", light_cells * 4)?;
         let volume_sums = Buffer::gpu_only(ctx, "sarsa volume sums", vols.len() as u64 * 16)?;
         let mix_grad = Buffer::gpu_only(ctx, "sarsa BSDF share gradients", vols.len() as u64 * 16)?;
         let mix_state = Buffer::gpu_only(ctx, "sarsa BSDF shares", vols.len() as u64 * 16)?;
@@ -347,6 +403,11 @@ impl SarsaGuide {
             (shaders::B_Q_DIRECT, &q_direct),
             (shaders::B_MIX_GRAD, &mix_grad),
             (shaders::B_MIX_STATE, &mix_state),
+            (shaders::B_LIGHT_SUM, &light_sum),
+            (shaders::B_LIGHT_TRIES, &light_tries),
+            (shaders::B_LIGHT_MEAN, &light_mean),
+            (shaders::B_LIGHT_SEEN, &light_seen),
+            (shaders::B_LIGHT_POWER, &light_power),
         ];
         let build_set = DescriptorSet::new(ctx, &build, &bindings)?;
         let guide = Self {
@@ -359,6 +420,12 @@ impl SarsaGuide {
             visits_total,
             direct_sum,
             q_direct,
+            lights,
+            light_power,
+            light_sum,
+            light_tries,
+            light_mean,
+            light_seen,
             volume_sums,
             mix_grad,
             mix_state,
@@ -380,6 +447,10 @@ impl SarsaGuide {
                 &guide.q_direct,
                 &guide.mix_grad,
                 &guide.mix_state,
+                &guide.light_sum,
+                &guide.light_tries,
+                &guide.light_mean,
+                &guide.light_seen,
             ] {
                 rec.fill(b, 0);
             }
@@ -391,21 +462,25 @@ impl SarsaGuide {
     /// The tallies a trace kernel adds targets to (with the bindings of
     /// another guide's tables, for a learner whose targets land apart from
     /// the tables it samples from).
-    pub fn tally_bindings(&self) -> [(u32, &Buffer); 4] {
+    pub fn tally_bindings(&self) -> [(u32, &Buffer); 6] {
         [
             (shaders::B_SUM, &self.sum),
             (shaders::B_VISITS, &self.visits),
             (shaders::B_DIRECT_SUM, &self.direct_sum),
             (shaders::B_MIX_GRAD, &self.mix_grad),
+            (shaders::B_LIGHT_SUM, &self.light_sum),
+            (shaders::B_LIGHT_TRIES, &self.light_tries),
         ]
     }
 
     /// Records a copy of what `from` learned besides Q into this guide: the
-    /// share of Q that NEE carries, which its distributions leave out, and
-    /// each volume's share of BSDF sampling.
+    /// share of Q that NEE carries, which its distributions leave out, each
+    /// volume's share of BSDF sampling, and what each light brought there.
     pub fn record_copy_learned(&self, rec: &mut Recorder<'_>, from: &SarsaGuide) {
         rec.copy(&from.q_direct, &self.q_direct);
         rec.copy(&from.mix_state, &self.mix_state);
+        rec.copy(&from.light_mean, &self.light_mean);
+        rec.copy(&from.light_seen, &self.light_seen);
     }
 
     /// The running means and their counts, as a table built from them binds them.
@@ -417,7 +492,7 @@ impl SarsaGuide {
     }
 
     /// Buffers every kernel that reads or updates the guide binds.
-    pub fn bindings(&self) -> [(u32, &Buffer); 13] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 16] {
         [
             (shaders::B_Q, &self.q),
             (shaders::B_SECTORS, &self.sectors),
@@ -432,6 +507,9 @@ impl SarsaGuide {
             (shaders::B_LOOKUP_TRIANGLES, &self.lookup_triangles),
             (shaders::B_LOOKUP_CELLS, &self.lookup_cells),
             (shaders::B_LOOKUP_ITEMS, &self.lookup_items),
+            (shaders::B_LIGHT_SUM, &self.light_sum),
+            (shaders::B_LIGHT_TRIES, &self.light_tries),
+            (shaders::B_LIGHT_POWER, &self.light_power),
         ]
     }
 
@@ -440,10 +518,19 @@ impl SarsaGuide {
         self.settings.common.set_params(p, learn);
         p.guide_epsilon = self.settings.epsilon();
         p.volume_count = self.volumes.len() as u32;
-        p.flags &= !shaders::FLAG_LEARN_MIX;
+        p.flags &= !(shaders::FLAG_LEARN_MIX | shaders::FLAG_GUIDE_LIGHTS);
         if self.settings.learns_epsilon() {
             p.flags |= shaders::FLAG_LEARN_MIX;
         }
+        if self.lights > 0 {
+            p.flags |= shaders::FLAG_GUIDE_LIGHTS;
+            p.light_count = self.lights;
+        }
+    }
+
+    /// Whether the guide picks NEE's light.
+    pub fn chooses_lights(&self) -> bool {
+        self.lights > 0
     }
 
     /// Records the guide update: with FLAG_LEARN in `push`, the pass's
@@ -454,10 +541,9 @@ impl SarsaGuide {
             pipeline: &self.build,
             set: &self.build_set,
             push,
+            // One more for the lights' row by power alone.
             groups: [
-                (self.volumes.len() as u32)
-                    .div_ceil(shaders::LINEAR_GROUP)
-                    .max(1),
+                (self.volumes.len() as u32 + 1).div_ceil(shaders::LINEAR_GROUP),
                 1,
                 1,
             ],
@@ -487,7 +573,7 @@ impl SarsaGuide {
 
     /// Device memory the guide holds.
     pub fn bytes(&self) -> u64 {
-        self.volumes.len() as u64 * table_bytes_per_volume(self.settings.sectors())
+        self.volumes.len() as u64 * table_bytes_per_volume(self.settings.sectors(), self.lights)
             + self.lookup.bytes()
     }
 
@@ -524,6 +610,18 @@ impl SarsaGuide {
         Ok(entries)
     }
 
+    /// NEE's probability of picking each light at each volume, then in the
+    /// row by power alone (volume-major); empty where the guide picks none.
+    pub fn download_light_choice(&self) -> gpu::Result<Vec<f32>> {
+        let entries: Vec<SectorEntry> = self.sectors.download()?;
+        let start = self.volumes.len() * self.settings.sectors() as usize;
+        let end = start + (self.volumes.len() + 1) * self.lights as usize;
+        Ok(entries[start..end]
+            .iter()
+            .map(|e| e.p(self.lights))
+            .collect())
+    }
+
     /// What the guide has learned, to resume from: Q, the visit counts,
     /// the share NEE carries and the volumes' BSDF shares (the tables are
     /// rebuilt from them).
@@ -533,6 +631,8 @@ impl SarsaGuide {
             ("sarsa visits", self.visits_total.download()?),
             ("sarsa Q carried by NEE", self.q_direct.download()?),
             ("sarsa BSDF shares", self.mix_state.download()?),
+            ("sarsa light means", self.light_mean.download()?),
+            ("sarsa light tries", self.light_seen.download()?),
         ])
     }
 
@@ -547,6 +647,8 @@ impl SarsaGuide {
             ("sarsa visits", &self.visits_total),
             ("sarsa Q carried by NEE", &self.q_direct),
             ("sarsa BSDF shares", &self.mix_state),
+            ("sarsa light means", &self.light_mean),
+            ("sarsa light tries", &self.light_seen),
         ] {
             super::restore_blob(buffer, name, blobs)?;
         }
@@ -626,18 +728,20 @@ mod tests {
     #[test]
     fn volume_count_follows_count_density_and_budget() {
         let s = SarsaSettings::default();
-        assert_eq!(s.volume_count(1e6), 1024);
+        assert_eq!(s.volume_count(1e6, 0), 1024);
         let dense = SarsaSettings {
             density: Some(0.002),
             ..Default::default()
         };
-        assert_eq!(dense.volume_count(1e6), 2000);
+        assert_eq!(dense.volume_count(1e6, 0), 2000);
         let budget = SarsaSettings {
             memory_mib: Some(1.0),
             ..dense.clone()
         };
-        let per = bytes_per_volume(144);
-        assert_eq!(budget.volume_count(1e6) as u64, (1 << 20) / per);
+        let per = bytes_per_volume(144, 0);
+        assert_eq!(budget.volume_count(1e6, 0) as u64, (1 << 20) / per);
+        let per = bytes_per_volume(144, 6);
+        assert_eq!(budget.volume_count(1e6, 6) as u64, (1 << 20) / per);
         assert!(SarsaSettings {
             density: Some(0.0),
             ..Default::default()

@@ -328,6 +328,7 @@ impl Renderer {
         debug_assert!(constants.len() <= shaders::SPEC_NON_DIFFUSE as usize);
         constants.resize(shaders::SPEC_NON_DIFFUSE as usize, 0);
         constants.push(scene.has_non_diffuse() as u32);
+        constants.push(guide.as_ref().is_some_and(|g| g.chooses_lights()) as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

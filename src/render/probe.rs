@@ -210,6 +210,31 @@ pub fn guide_samples(
     Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
 }
 
+/// The lights NEE picks at volume `volume` (NO_VOLUME: where there is
+/// none) for the given uniforms, each with its probability as drawn and as
+/// looked up for MIS.
+pub fn light_choices(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    volume: u32,
+    uniforms: &[f32],
+) -> Result<Vec<(u32, f32, f32)>, RenderError> {
+    let input: Vec<Vec4> = uniforms
+        .iter()
+        .map(|&u| Vec4::new(f32::from_bits(volume), u, 0.0, 0.0))
+        .collect();
+    let out = run(
+        ctx,
+        scene,
+        Some(guide),
+        shaders::PROBE_LIGHT_CHOICE,
+        &input,
+        uniforms.len(),
+    )?;
+    Ok(out.iter().map(|v| (v.x.to_bits(), v.y, v.z)).collect())
+}
+
 /// Directions the GPU Neural-Q sampler draws at the state (point, normal)
 /// from the given uniform triples, with the pdf it reports for each.
 pub fn neural_samples(
