@@ -8,7 +8,7 @@ use common::Lcg;
 use glam::{Vec2, Vec3};
 use qtrace::bsdf::{Bsdf, Sampling, Surface};
 use qtrace::guide::lookup::VolumeLookup;
-use qtrace::guide::sarsa::{Atomics, SarsaSettings};
+use qtrace::guide::sarsa::{self, Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
 use qtrace::guide::{Common, GuideSettings};
 use qtrace::render::probe::{self, SurfacePoint, Transition};
@@ -730,8 +730,13 @@ fn standing_back_survives_a_resume() {
 /// and each draw's probability is the one MIS looks up, bit for bit.
 #[test]
 fn volumes_learn_which_light_nee_picks() {
+    // Not between the halves of one quad light.
+    for one_light in ["cornell-box", "glass-cornell", "complex-direct"] {
+        assert!(sarsa::guided_light_power(&common::scene(one_light)).is_empty());
+    }
     let ctx = common::gpu();
     let scene = common::scene("several-lights");
+    assert_eq!(sarsa::guided_light_power(&scene).len(), 6);
     let renderer = common::run_renderer(
         &ctx,
         &scene,
