@@ -82,6 +82,10 @@ pub struct Common {
     /// races in a row (see `crate::render::race`). None: true.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stand_back: Option<bool>,
+    /// Each volume learns which light NEE picks, where the scene has several
+    /// (see `sarsa::guided_light_power`). None: true.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pick_lights: Option<bool>,
 }
 
 impl Default for Common {
@@ -96,6 +100,7 @@ impl Default for Common {
             reset_after: None,
             initial_q: 1e-2,
             stand_back: None,
+            pick_lights: None,
         }
     }
 }
@@ -120,6 +125,11 @@ impl Common {
             return Err(format!("initial_q = {} must be positive", self.initial_q));
         }
         Ok(())
+    }
+
+    /// Whether volumes learn which light NEE picks, where there are several.
+    pub fn picks_lights(&self) -> bool {
+        self.pick_lights.unwrap_or(true)
     }
 
     /// The share of BSDF sampling: as set, or the default for a share that
@@ -274,6 +284,7 @@ impl GuideSettings {
             thin_after: Some(0),
             reset_after: Some(0),
             stand_back: Some(true),
+            pick_lights: Some(true),
             ..Default::default()
         };
         let e = |e: toml::de::Error, all: Self| {
@@ -519,9 +530,13 @@ impl Guide {
         pixels: u64,
     ) -> gpu::Result<Self> {
         Ok(match settings {
-            GuideSettings::Sarsa(s) => {
-                Self::Sarsa(Box::new(SarsaGuide::new(ctx, scene, s, seed, true)?))
-            }
+            GuideSettings::Sarsa(s) => Self::Sarsa(Box::new(SarsaGuide::new(
+                ctx,
+                scene,
+                s,
+                seed,
+                s.common.picks_lights(),
+            )?)),
             GuideSettings::Neural(n) => {
                 Self::Neural(Box::new(NeuralGuide::new(ctx, scene, n, seed, pixels)?))
             }
@@ -703,6 +718,7 @@ mod tests {
                 reset_after: Some(2),
                 initial_q: 0.5,
                 stand_back: Some(false),
+                pick_lights: Some(false),
             },
             volumes: Some(77),
             density: None,

@@ -633,7 +633,8 @@ impl NeuralGuide {
     ) -> gpu::Result<VolumeTable> {
         // Lights are picked where the trace kernel is Sarsa's, which tallies
         // their tries into the means (training on the volumes).
-        let pick_lights = settings.training() == Training::Volumes;
+        let pick_lights =
+            settings.training() == Training::Volumes && settings.common.picks_lights();
         let guide = SarsaGuide::new(ctx, scene, &settings.table(), seed, pick_lights)?;
         let states: Vec<[f32; 4]> = guide
             .volumes
