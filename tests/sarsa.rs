@@ -867,3 +867,84 @@ fn volumes_learn_which_light_nee_picks() {
         );
     }
 }
+
+/// The guide update builds each volume's choice of light from the running
+/// means it holds, as the CPU does: a quarter by emitted power and three
+/// quarters in proportion to the means once a volume has had 16 tries, by
+/// power alone before (and where every mean is zero), to within the
+/// table's whole units.
+#[test]
+fn light_choice_follows_the_means_it_holds() {
+    let ctx = common::gpu();
+    let scene = common::scene("several-lights");
+    let s = SarsaSettings {
+        volumes: Some(8),
+        ..Default::default()
+    };
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 4, true).unwrap();
+    let power: Vec<f64> = scene.lights.iter().map(|l| l.pdf as f64).collect();
+    let n = power.len();
+    let volumes = guide.volumes.len();
+    let mut rng = Lcg(11);
+    // Volume 0 has one try too few (15), volume 2 just enough (16); volume
+    // 1 all-zero means; the others lumpy means, some lights bringing
+    // nothing.
+    let means: Vec<f32> = (0..volumes * n)
+        .map(|i| match (i / n, i % 3) {
+            (1, _) | (_, 0) => 0.0,
+            _ => 10.0 * rng.next() * rng.next(),
+        })
+        .collect();
+    let tries: Vec<u32> = (0..volumes * n)
+        .map(|i| match (i / n, i % n) {
+            (0, 0) => 5,
+            (0, _) => 2,
+            (2, 0) => 6,
+            (2, _) => 2,
+            _ => 1 + rng.below(40),
+        })
+        .collect();
+    assert_eq!(tries[..n].iter().sum::<u32>(), 15);
+    assert_eq!(tries[2 * n..3 * n].iter().sum::<u32>(), 16);
+    let blobs: Vec<(String, Vec<u8>)> = guide
+        .save()
+        .unwrap()
+        .into_iter()
+        .map(|(name, bytes)| {
+            let bytes = match name {
+                "sarsa light means" => bytemuck::cast_slice(&means).to_vec(),
+                "sarsa light tries" => bytemuck::cast_slice(&tries).to_vec(),
+                _ => bytes,
+            };
+            (name.to_string(), bytes)
+        })
+        .collect();
+    guide.restore(&ctx, &blobs).unwrap();
+    let choice = guide.download_light_choice().unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let units = (n as u32 * SectorEntry::column_units(n as u32)) as f64;
+    for v in 0..=volumes {
+        let want: Vec<f64> = if v == volumes {
+            power.clone()
+        } else {
+            let row = &means[v * n..(v + 1) * n];
+            let brought: f64 = row.iter().map(|&m| m as f64).sum();
+            let seen: u32 = tries[v * n..(v + 1) * n].iter().sum();
+            if seen >= 16 && brought > 0.0 {
+                (0..n)
+                    .map(|l| 0.25 * power[l] + 0.75 * row[l] as f64 / brought)
+                    .collect()
+            } else {
+                power.clone()
+            }
+        };
+        for l in 0..n {
+            let p = choice[v * n + l] as f64;
+            assert!(
+                (p - want[l]).abs() <= 2.0 / units,
+                "volume {v} light {l}: P {p} against {}",
+                want[l]
+            );
+        }
+    }
+}
