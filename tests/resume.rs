@@ -34,9 +34,15 @@ fn overrides(method: Method, spp: u32, seed: u32) -> Overrides {
 
 /// Renders `spp` samples in two runs: half, its state saved, then a new
 /// renderer resumed from that state.
-fn stopped_and_resumed(method: Method, spp: u32, seed: u32, state: &Path) -> RenderOutput {
+fn stopped_and_resumed(
+    scene: &str,
+    method: Method,
+    spp: u32,
+    seed: u32,
+    state: &Path,
+) -> RenderOutput {
     let ctx = common::gpu();
-    let scene = common::scene("cornell-box");
+    let scene = common::scene(scene);
     let control = Control {
         state: Some(state),
         ..Default::default()
@@ -60,15 +66,17 @@ fn stopped_and_resumed(method: Method, spp: u32, seed: u32, state: &Path) -> Ren
 #[test]
 fn resumed_renders_equal_renders_that_ran_through() {
     let ctx = common::gpu();
-    let scene = common::scene("cornell-box");
-    for (method, spp) in [
-        (Method::Pt, 256),
-        (Method::Sarsa, 256),
-        (Method::Neural, 64),
+    // With several lights the state holds each volume's choice of light too.
+    for (scene_name, method, spp) in [
+        ("cornell-box", Method::Pt, 256),
+        ("cornell-box", Method::Sarsa, 256),
+        ("several-lights", Method::Sarsa, 256),
+        ("cornell-box", Method::Neural, 64),
     ] {
-        let name = format!("resume-{}", method.name());
+        let scene = common::scene(scene_name);
+        let name = format!("resume-{scene_name}-{}", method.name());
         let dir = common::scratch(&name);
-        let resumed = stopped_and_resumed(method, spp, 1, &dir.join("state"));
+        let resumed = stopped_and_resumed(scene_name, method, spp, 1, &dir.join("state"));
         assert_eq!(resumed.stats.spp, spp);
         assert_eq!(resumed.stats.passes.len(), spp as usize);
         assert!(!resumed.stats.interrupted);
@@ -89,7 +97,7 @@ fn a_state_of_another_render_is_refused() {
     let scene = common::scene("cornell-box");
     let dir = common::scratch("resume-refused");
     let state = dir.join("state");
-    stopped_and_resumed(Method::Pt, 4, 1, &state);
+    stopped_and_resumed("cornell-box", Method::Pt, 4, 1, &state);
     for (o, want) in [
         (overrides(Method::Sarsa, 8, 1), "method"),
         (overrides(Method::Pt, 8, 3), "seed"),
