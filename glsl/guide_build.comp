@@ -8,7 +8,8 @@
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
 // sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
 // as an alias table in whole units (see SectorEntry), so a sample costs one
-// read instead of a CDF search.
+// read instead of a CDF search. With FLAG_GUIDE_LIGHTS it likewise folds
+// NEE's tries of each light and builds the volume's choice of light.
 
 #include "shared.h"
 #include "atomics.glsl"
