@@ -61,5 +61,10 @@ void main() {
         float p;
         uint l = guide_choose_light(g, probe_in[i].y, p);
         probe_out[i] = vec4(uintBitsToFloat(l), p, guide_light_probability(g, l), 0.0);
+    } else if (params.selector == PROBE_LIGHT_TRY) {
+        // in[i] = (volume bits, light index bits, what the try brought, 0)
+        vec4 t = probe_in[i];
+        sarsa_record_light(guide_vertex(floatBitsToUint(t.x)), floatBitsToUint(t.y), t.z);
+        probe_out[i] = vec4(0.0);
     }
 }

@@ -96,7 +96,8 @@
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128
-// Scenes with 2 to this many emitting triangles get it.
+// Scenes with several lights (src/guide/sarsa.rs, guided_light_power) of
+// at most this many emitting triangles get it.
 #define MAX_GUIDED_LIGHTS 16
 // The share of a volume's choice that follows emitted power (as `pt` picks)
 // whatever was learned, so that every light keeps being tried.
@@ -112,6 +113,7 @@
 #define PROBE_SARSA_UPDATE 4
 #define PROBE_BSDF 5
 #define PROBE_LIGHT_CHOICE 6
+#define PROBE_LIGHT_TRY 7
 
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu

@@ -948,3 +948,62 @@ fn light_choice_follows_the_means_it_holds() {
         }
     }
 }
+
+/// The guide update folds the pass's NEE tries of each light into running
+/// means per (volume, light), as the CPU does, pass after pass; a pass
+/// that brought no try of a light leaves its mean.
+#[test]
+fn gpu_light_tallies_fold_into_running_means() {
+    let ctx = common::gpu();
+    let scene = common::scene("several-lights");
+    let s = SarsaSettings {
+        volumes: Some(5),
+        ..Default::default()
+    };
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 6, true).unwrap();
+    let n = scene.lights.len();
+    let cells = guide.volumes.len() * n;
+    let mut rng = Lcg(23);
+    let mut sums = vec![0.0f64; cells];
+    let mut counts = vec![0u32; cells];
+    for pass in 0..3 {
+        // Light 0 of volume 0 is tried only in the first pass.
+        let tries: Vec<(u32, u32, f32)> = (0..4000)
+            .map(|_| {
+                let v = rng.below(guide.volumes.len() as u32);
+                let l = if pass > 0 && v == 0 {
+                    1 + rng.below(n as u32 - 1)
+                } else {
+                    rng.below(n as u32)
+                };
+                let brought = if rng.next() < 0.3 {
+                    0.0
+                } else {
+                    5.0 * rng.next()
+                };
+                (v, l, brought)
+            })
+            .collect();
+        for &(v, l, brought) in &tries {
+            let i = v as usize * n + l as usize;
+            sums[i] += brought as f64;
+            counts[i] += 1;
+        }
+        probe::light_tries(&ctx, &scene, &guide, &tries).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        let (means, seen) = guide.download_light_means().unwrap();
+        for i in 0..cells {
+            assert_eq!(seen[i], counts[i], "pass {pass}, cell {i}: tries");
+            let want = if counts[i] > 0 {
+                sums[i] / counts[i] as f64
+            } else {
+                0.0
+            };
+            assert!(
+                (means[i] as f64 - want).abs() <= 1e-5 * want.max(1.0),
+                "pass {pass}, cell {i}: mean {} against {want}",
+                means[i]
+            );
+        }
+    }
+}

@@ -643,6 +643,17 @@ impl SarsaGuide {
             .collect())
     }
 
+    /// Per (volume, light), volume-major: the running mean of what NEE's
+    /// tries of the light brought there, and how many tries.
+    pub fn download_light_means(&self) -> gpu::Result<(Vec<f32>, Vec<u32>)> {
+        let cells = self.volumes.len() * self.lights as usize;
+        let mut means: Vec<f32> = self.light_mean.download()?;
+        let mut seen: Vec<u32> = self.light_seen.download()?;
+        means.truncate(cells);
+        seen.truncate(cells);
+        Ok((means, seen))
+    }
+
     /// What the guide has learned, to resume from: Q, the visit counts,
     /// the share NEE carries and the volumes' BSDF shares (the tables are
     /// rebuilt from them).

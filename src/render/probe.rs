@@ -319,6 +319,30 @@ pub fn sarsa_updates(
     Ok(out.iter().map(|v| v.x).collect())
 }
 
+/// Records NEE tries (volume, light, what it brought) as the trace kernel
+/// does, then folds them into the guide's running means.
+pub fn light_tries(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    tries: &[(u32, u32, f32)],
+) -> Result<(), RenderError> {
+    let input: Vec<Vec4> = tries
+        .iter()
+        .map(|&(v, l, brought)| Vec4::new(f32::from_bits(v), f32::from_bits(l), brought, 0.0))
+        .collect();
+    run(
+        ctx,
+        scene,
+        Some(guide),
+        shaders::PROBE_LIGHT_TRY,
+        &input,
+        tries.len(),
+    )?;
+    guide.fold(ctx)?;
+    Ok(())
+}
+
 /// What the GPU BSDF does with one query: the direction it samples, its
 /// pdf, f·cos there, and the reflected estimate of a unit irradiance; for a
 /// delta lobe, pdf 0 and `eval` its weight f·cos/pdf.
