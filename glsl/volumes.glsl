@@ -31,11 +31,6 @@ SectorEntry load_sector(uint i) {
     return (i & 1u) == 0u ? SectorEntry(t.x, t.y) : SectorEntry(t.z, t.w);
 }
 
-// P(k) of a sector with w units.
-float sector_probability_of(uint units) {
-    return float(units) / float(sector_count() * sector_column_units());
-}
-
 float load_q(uint i) {
     return uintBitsToFloat(texelFetch(q_texels, int(i >> 2u))[i & 3u]);
 }
@@ -137,50 +132,52 @@ float guide_bsdf_share(GuideVertex g) {
     return g.sums.z;
 }
 
-float guide_sector_probability(GuideVertex g, uint k) {
-    return sector_probability_of(load_sector(g.volume * sector_count() + k).weights & 0xffffu);
-}
-
 float guide_sector_q(GuideVertex g, uint k) {
     return g.volume == NO_VOLUME ? 0.0 : max(load_q(g.volume * sector_count() + k), 0.0);
 }
 
-// NEE's choice of light at g (FLAG_GUIDE_LIGHTS): a light drawn by u from
-// its volume's alias table (NO_VOLUME's row where it has none), and its
-// probability p, exact in the table's whole units.
-uint guide_choose_light(GuideVertex g, float u, out float p) {
-    uint n = params.light_count;
+// One read of an alias table of n entries at `base` (see SectorEntry):
+// with `pick`, the alias method (u, scaled to [0, n), picks a column; its
+// fraction, in the column's units, decides between the column's entry and
+// its alias); without, the probability of entry `given`. Returns the entry
+// and its probability p, exact in the table's whole units.
+uint alias_read(uint base, uint n, bool pick, float u, uint given, out float p) {
     uint c = column_units(n);
     float x = u * float(n);
     uint column = min(uint(x), n - 1u);
-    SectorEntry e = load_sector(light_row(g.volume) + column);
+    SectorEntry e = load_sector(base + (pick ? column : given));
     uint unit = min(uint((x - float(column)) * float(c)), c - 1u);
-    bool keep = unit < (e.column & 0xffffu);
+    bool keep = !pick || unit < (e.column & 0xffffu);
     p = float(keep ? e.weights & 0xffffu : e.weights >> 16) / float(n * c);
-    return keep ? column : e.column >> 16;
+    return pick ? (keep ? column : e.column >> 16) : given;
+}
+
+// One read of the alias table serves either side of the mixture: with
+// `pick`, a sector drawn by u; without, the probability of `sector`, which
+// BSDF sampling chose.
+uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
+    uint n = sector_count();
+    return alias_read(g.volume * n, n, pick, u, sector, p);
+}
+
+float guide_sector_probability(GuideVertex g, uint k) {
+    float p;
+    guide_choose_sector(g, false, 0.0, k, p);
+    return p;
+}
+
+// NEE's choice of light at g (FLAG_GUIDE_LIGHTS): a light drawn by u from
+// its volume's alias table (NO_VOLUME's row where it has none), and its
+// probability p.
+uint guide_choose_light(GuideVertex g, float u, out float p) {
+    return alias_read(light_row(g.volume), params.light_count, true, u, 0u, p);
 }
 
 // The probability that NEE at g picks light l.
 float guide_light_probability(GuideVertex g, uint l) {
-    uint n = params.light_count;
-    return float(load_sector(light_row(g.volume) + l).weights & 0xffffu) / float(n * column_units(n));
-}
-
-// One read of the alias table serves either side of the mixture: with
-// `pick`, the alias method (u, scaled to [0, n), picks a column; its
-// fraction, in the column's units, decides between the column's sector and
-// its alias); without, the probability of `sector`, which BSDF sampling
-// chose.
-uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out float p) {
-    uint n = sector_count();
-    uint c = sector_column_units();
-    float x = u * float(n);
-    uint column = min(uint(x), n - 1u);
-    SectorEntry e = load_sector(g.volume * n + (pick ? column : sector));
-    uint unit = min(uint((x - float(column)) * float(c)), c - 1u);
-    bool keep = !pick || unit < (e.column & 0xffffu);
-    p = sector_probability_of(keep ? e.weights & 0xffffu : e.weights >> 16);
-    return pick ? (keep ? column : e.column >> 16) : sector;
+    float p;
+    alias_read(light_row(g.volume), params.light_count, false, 0.0, l, p);
+    return p;
 }
 
 #endif

@@ -543,7 +543,6 @@ impl Guide {
         })
     }
 
-    /// Specialization constants of its trace kernel.
     /// Whether its trace kernels pick NEE's light from its tables
     /// (the SPEC_GUIDE_LIGHTS specialization constant).
     pub fn chooses_lights(&self) -> bool {
@@ -553,6 +552,7 @@ impl Guide {
         }
     }
 
+    /// Specialization constants of its trace kernel.
     pub fn constants(&self) -> Vec<u32> {
         match self {
             Self::Sarsa(_) => Vec::new(),
