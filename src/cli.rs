@@ -387,6 +387,22 @@ pub fn devices() -> Result<()> {
     Ok(())
 }
 
+/// How many lights the emitters make and how NEE picks among them.
+fn light_summary(scene: &Scene) -> String {
+    let lights = crate::guide::sarsa::separate_lights(scene);
+    let how = if !crate::guide::sarsa::guided_light_power(scene).is_empty() {
+        "guides learn which one NEE picks where (`pick_lights`)".to_string()
+    } else if lights > 1 {
+        format!(
+            "NEE picks by emitted power (guides learn the choice up to {} emitting triangles)",
+            crate::shaders::MAX_GUIDED_LIGHTS
+        )
+    } else {
+        "NEE picks by emitted power".to_string()
+    };
+    format!("{lights} by material and plane; {how}")
+}
+
 /// The `qtrace inspect` summary of a scene.
 pub fn inspect_summary(scene: &Scene) -> String {
     let area: f32 = scene.triangles.iter().map(|t| t.area).sum();
@@ -406,6 +422,7 @@ pub fn inspect_summary(scene: &Scene) -> String {
             light_area,
             area
         ),
+        format!("lights       {}", light_summary(scene)),
         format!("environment  {:?}", scene.environment.to_array()),
         format!(
             "bvh          {} nodes of two child boxes, one triangle per leaf, depth {}",

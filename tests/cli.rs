@@ -516,6 +516,20 @@ fn devices_and_inspect() {
         .and_then(|v| v.trim().parse().ok())
         .expect("a triangle count");
     assert!(triangles >= 100_000, "{stdout}");
+    assert!(
+        stdout.contains("lights       1 by material and plane; NEE picks by emitted power"),
+        "{stdout}"
+    );
+    let output = qtrace()
+        .arg("inspect")
+        .arg(common::repo("scenes/several-lights.toml"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
+        "{stdout}"
+    );
 }
 
 #[test]

@@ -101,7 +101,7 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
 }
 
 /// Lights told apart by material and plane.
-fn separate_lights(scene: &Scene) -> usize {
+pub fn separate_lights(scene: &Scene) -> usize {
     let tolerance = 1e-4 * scene.extent.max(f32::MIN_POSITIVE);
     let mut planes: Vec<(u32, Vec3, f32)> = Vec::new();
     for light in &scene.lights {
