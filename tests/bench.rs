@@ -387,3 +387,43 @@ fn bench_checks_guide_settings_first() {
         );
     }
 }
+
+/// With several lights the report pictures which light NEE picks where,
+/// with a legend naming each light's colour; without, it has no such picture.
+#[test]
+fn quick_bench_pictures_the_learned_choice_of_light() {
+    let dir = common::scratch("bench-lights");
+    let out = dir.join("report");
+    let output = common::qtrace()
+        .args([
+            "bench",
+            "scenes/several-lights.toml",
+            "scenes/cornell-box.toml",
+            "--quick",
+            "--methods",
+            "sarsa+nee",
+            "--out",
+        ])
+        .arg(&out)
+        .env("QTRACE_CACHE", dir.join("cache"))
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let picture = out.join("several-lights/sarsa+nee/light-choice.png");
+    assert!(
+        picture.is_file() && std::fs::metadata(&picture).unwrap().len() > 0,
+        "missing {}",
+        picture.display()
+    );
+    assert!(!out.join("cornell-box/sarsa+nee/light-choice.png").exists());
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        html.contains("red: light_warm, green: light_blue, blue: light_ceiling"),
+        "no legend in the report"
+    );
+}

@@ -103,6 +103,10 @@ pub struct CheckpointRow {
 pub struct LearnedPictures {
     /// Voronoi regions of the radiance volumes (guides that have volumes).
     pub voronoi: Option<String>,
+    /// Which light NEE picks at each volume (guides that learn it), and
+    /// which colour is which light.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_choice: Option<(String, String)>,
     pub hemispheres: String,
     /// Where the hemispheres are, for their caption.
     pub hemispheres_at: String,
@@ -595,6 +599,18 @@ pub fn evaluate(
                         plan.height.max(128),
                     )?;
                     let (vpng, _) = write_image(&voronoi, &run_dir, "voronoi", &plan.out)?;
+                    let light_choice = learned::light_choice(
+                        ctx,
+                        &scene,
+                        guide,
+                        plan.width.max(128),
+                        plan.height.max(128),
+                    )?
+                    .map(|(image, legend)| {
+                        write_image(&image, &run_dir, "light-choice", &plan.out)
+                            .map(|(png, _)| (png, legend))
+                    })
+                    .transpose()?;
                     let volumes = learned::volumes_near_light(&scene, guide, 6);
                     let q = guide
                         .download_q()
@@ -604,6 +620,7 @@ pub fn evaluate(
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
                         voronoi: Some(vpng),
+                        light_choice,
                         hemispheres: hpng,
                         hemispheres_at: format!(
                             "the {} volumes nearest the brightest light (volumes {})",
@@ -622,6 +639,7 @@ pub fn evaluate(
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
                         voronoi: None,
+                        light_choice: None,
                         hemispheres: hpng,
                         hemispheres_at: format!(
                             "the {} points the camera sees nearest the brightest light, as the network infers them",

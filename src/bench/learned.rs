@@ -83,6 +83,92 @@ pub fn voronoi(
     width: u32,
     height: u32,
 ) -> Result<Image, RenderError> {
+    let (volumes, shade) = seen_volumes(ctx, scene, guide, width, height)?;
+    Ok(shaded(width, height, &volumes, &shade, |v| {
+        v.map_or(Vec3::splat(0.1), volume_colour)
+    }))
+}
+
+/// Colours of the lights in the light-choice picture, by light (see
+/// `sarsa::light_groups`), and their names.
+pub const LIGHT_COLOURS: [([f32; 3], &str); 6] = [
+    ([1.0, 0.15, 0.1], "red"),
+    ([0.1, 0.9, 0.15], "green"),
+    ([0.15, 0.3, 1.0], "blue"),
+    ([1.0, 0.85, 0.1], "yellow"),
+    ([0.9, 0.15, 0.9], "magenta"),
+    ([0.1, 0.9, 0.9], "cyan"),
+];
+
+/// Where the guide picks NEE's light: each pixel in the lights' colours
+/// (LIGHT_COLOURS, one per light, a light being an emitting material's
+/// triangles in one plane) mixed by the probabilities with which NEE picks
+/// them at the volume its first hit uses (by power where none), and a
+/// legend: which light each colour is. None where the guide picks no light.
+pub fn light_choice(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    width: u32,
+    height: u32,
+) -> Result<Option<(Image, String)>, RenderError> {
+    if !guide.chooses_lights() {
+        return Ok(None);
+    }
+    let choice = guide.download_light_choice()?;
+    let groups = crate::guide::sarsa::light_groups(scene);
+    let colours: Vec<Vec3> = groups
+        .iter()
+        .map(|&g| Vec3::from(LIGHT_COLOURS[g % LIGHT_COLOURS.len()].0))
+        .collect();
+    let mut legend: Vec<String> = Vec::new();
+    for (l, &g) in groups.iter().enumerate() {
+        if g == legend.len() {
+            let m = scene.triangles[scene.lights[l].triangle as usize].material;
+            let name = &scene.materials[m as usize].name;
+            legend.push(format!(
+                "{}: {name}",
+                LIGHT_COLOURS[g % LIGHT_COLOURS.len()].1
+            ));
+        }
+    }
+    let n = colours.len();
+    let rows = choice.len() / n - 1;
+    let (volumes, shade) = seen_volumes(ctx, scene, guide, width, height)?;
+    let image = shaded(width, height, &volumes, &shade, |v| {
+        let row = v.map_or(rows, |v| v as usize);
+        let p = &choice[row * n..(row + 1) * n];
+        p.iter().zip(&colours).map(|(&p, &c)| p * c).sum()
+    });
+    Ok(Some((image, legend.join(", "))))
+}
+
+/// An image of `colour` of each pixel's volume, shaded; misses black.
+fn shaded(
+    width: u32,
+    height: u32,
+    volumes: &[Option<u32>],
+    shade: &[f32],
+    colour: impl Fn(Option<u32>) -> Vec3,
+) -> Image {
+    let mut image = Image::new(width as usize, height as usize);
+    for (i, &v) in volumes.iter().enumerate() {
+        if shade[i] > 0.0 {
+            image.pixels[i] = (colour(v) * shade[i]).into();
+        }
+    }
+    image
+}
+
+/// The volume each pixel's first hit uses, and the pixel's shade by the
+/// angle to the camera (0 for a miss).
+fn seen_volumes(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    width: u32,
+    height: u32,
+) -> Result<(Vec<Option<u32>>, Vec<f32>), RenderError> {
     let cam = scene.camera.position;
     let mut queries = Vec::new();
     let mut shade = Vec::new();
@@ -108,14 +194,7 @@ pub fn voronoi(
         }
     }
     let volumes = probe::nearest_volumes(ctx, scene, guide, &queries)?;
-    let mut image = Image::new(width as usize, height as usize);
-    for (i, v) in volumes.iter().enumerate() {
-        if shade[i] > 0.0 {
-            let c = v.map_or(Vec3::splat(0.1), volume_colour) * shade[i];
-            image.pixels[i] = c.into();
-        }
-    }
-    Ok(image)
+    Ok((volumes, shade))
 }
 
 /// Indices of the `count` points nearest to the centre of the brightest light.

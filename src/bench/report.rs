@@ -416,6 +416,15 @@ fn write_html(
                     esc(voronoi)
                 );
             }
+            if let Some((choice, legend)) = &l.light_choice {
+                let _ = write!(
+                    h,
+                    "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Which light NEE picks: \
+                     each pixel in the lights' colours ({}), mixed by the probabilities its volume learned</div>",
+                    esc(choice),
+                    esc(legend)
+                );
+            }
             let _ = write!(
                 h,
                 "<div class=\"cell\"><img src=\"{}\" height=\"120\"><br>Q hemispheres at {}, \

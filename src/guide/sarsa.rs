@@ -102,8 +102,15 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
 
 /// Lights told apart by material and plane.
 pub fn separate_lights(scene: &Scene) -> usize {
+    light_groups(scene).into_iter().max().map_or(0, |g| g + 1)
+}
+
+/// For each emitting triangle (in `scene.lights` order), the light it is
+/// part of: triangles of one material in one plane make one light.
+pub fn light_groups(scene: &Scene) -> Vec<usize> {
     let tolerance = 1e-4 * scene.extent.max(f32::MIN_POSITIVE);
     let mut planes: Vec<(u32, Vec3, f32)> = Vec::new();
+    let mut groups = Vec::with_capacity(scene.lights.len());
     for light in &scene.lights {
         let t = &scene.triangles[light.triangle as usize];
         let normal = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize_or_zero();
@@ -111,11 +118,13 @@ pub fn separate_lights(scene: &Scene) -> usize {
         let same = |&(m, n, d): &(u32, Vec3, f32)| {
             m == t.material && n.dot(normal) > 0.9999 && (d - offset).abs() <= tolerance
         };
-        if !planes.iter().any(same) {
+        let group = planes.iter().position(same).unwrap_or_else(|| {
             planes.push((t.material, normal, offset));
-        }
+            planes.len() - 1
+        });
+        groups.push(group);
     }
-    planes.len()
+    groups
 }
 
 impl SarsaSettings {
