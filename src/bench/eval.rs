@@ -591,7 +591,7 @@ pub fn evaluate(
             }
             let learned = match renderer.guide() {
                 Some(Guide::Sarsa(guide)) => {
-                    let voronoi = learned::voronoi(
+                    let (voronoi, light_choice) = learned::volume_pictures(
                         ctx,
                         &scene,
                         guide,
@@ -599,18 +599,12 @@ pub fn evaluate(
                         plan.height.max(128),
                     )?;
                     let (vpng, _) = write_image(&voronoi, &run_dir, "voronoi", &plan.out)?;
-                    let light_choice = learned::light_choice(
-                        ctx,
-                        &scene,
-                        guide,
-                        plan.width.max(128),
-                        plan.height.max(128),
-                    )?
-                    .map(|(image, legend)| {
-                        write_image(&image, &run_dir, "light-choice", &plan.out)
-                            .map(|(png, _)| (png, legend))
-                    })
-                    .transpose()?;
+                    let light_choice = light_choice
+                        .map(|(image, legend)| {
+                            write_image(&image, &run_dir, "light-choice", &plan.out)
+                                .map(|(png, _)| (png, legend))
+                        })
+                        .transpose()?;
                     let volumes = learned::volumes_near_light(&scene, guide, 6);
                     let q = guide
                         .download_q()

@@ -74,19 +74,29 @@ fn camera_hits(
         .collect())
 }
 
-/// Each pixel coloured by the volume its first hit uses (shaded by the angle
-/// to the camera so shapes stay readable); misses are black.
-pub fn voronoi(
+/// Pictures of the volumes as the camera sees them (shaded by the angle to
+/// the camera so shapes stay readable; misses black): the Voronoi regions,
+/// each pixel coloured by the volume its first hit uses, and where the
+/// guide picks NEE's light, that choice (see `light_choice`) with its legend.
+pub fn volume_pictures(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     guide: &SarsaGuide,
     width: u32,
     height: u32,
-) -> Result<Image, RenderError> {
+) -> Result<(Image, Option<(Image, String)>), RenderError> {
     let (volumes, shade) = seen_volumes(ctx, scene, guide, width, height)?;
-    Ok(shaded(width, height, &volumes, &shade, |v| {
+    let voronoi = shaded(width, height, &volumes, &shade, |v| {
         v.map_or(Vec3::splat(0.1), volume_colour)
-    }))
+    });
+    let choice = light_choice(scene, guide)?.map(|(colours, legend)| {
+        let by_power = colours[colours.len() - 1];
+        let image = shaded(width, height, &volumes, &shade, |v| {
+            v.map_or(by_power, |v| colours[v as usize])
+        });
+        (image, legend)
+    });
+    Ok((voronoi, choice))
 }
 
 /// Colours of the lights in the light-choice picture, by light (see
@@ -100,18 +110,16 @@ pub const LIGHT_COLOURS: [([f32; 3], &str); 6] = [
     ([0.1, 0.9, 0.9], "cyan"),
 ];
 
-/// Where the guide picks NEE's light: each pixel in the lights' colours
+/// Where the guide picks NEE's light: each volume's colour, then that of
+/// the row by power for points without one, the lights' colours
 /// (LIGHT_COLOURS, one per light, a light being an emitting material's
 /// triangles in one plane) mixed by the probabilities with which NEE picks
-/// them at the volume its first hit uses (by power where none), and a
-/// legend: which light each colour is. None where the guide picks no light.
-pub fn light_choice(
-    ctx: &Arc<GpuContext>,
+/// them there; and a legend: which light each colour is. None where the
+/// guide picks no light.
+fn light_choice(
     scene: &Scene,
     guide: &SarsaGuide,
-    width: u32,
-    height: u32,
-) -> Result<Option<(Image, String)>, RenderError> {
+) -> Result<Option<(Vec<Vec3>, String)>, RenderError> {
     if !guide.chooses_lights() {
         return Ok(None);
     }
@@ -132,15 +140,11 @@ pub fn light_choice(
             ));
         }
     }
-    let n = colours.len();
-    let rows = choice.len() / n - 1;
-    let (volumes, shade) = seen_volumes(ctx, scene, guide, width, height)?;
-    let image = shaded(width, height, &volumes, &shade, |v| {
-        let row = v.map_or(rows, |v| v as usize);
-        let p = &choice[row * n..(row + 1) * n];
-        p.iter().zip(&colours).map(|(&p, &c)| p * c).sum()
-    });
-    Ok(Some((image, legend.join(", "))))
+    let mixed = choice
+        .chunks(colours.len())
+        .map(|p| p.iter().zip(&colours).map(|(&p, &c)| p * c).sum())
+        .collect();
+    Ok(Some((mixed, legend.join(", "))))
 }
 
 /// An image of `colour` of each pixel's volume, shaded; misses black.
