@@ -79,6 +79,7 @@ fn quick_bench_writes_the_report() {
         "cornell-box/sarsa/hemispheres.png",
         "cornell-box/neural/spp-0032.png",
         "cornell-box/neural/hemispheres.png",
+        "cornell-box/neural/voronoi.png",
     ] {
         let p = out.join(f);
         assert!(
@@ -388,8 +389,9 @@ fn bench_checks_guide_settings_first() {
     }
 }
 
-/// With several lights the report pictures which light NEE picks where,
-/// with a legend naming each light's colour; without, it has no such picture.
+/// With several lights the report pictures which light NEE picks where
+/// (for both guides: Neural-Q's tables learn it too), with a legend naming
+/// each light's colour; without, it has no such picture.
 #[test]
 fn quick_bench_pictures_the_learned_choice_of_light() {
     let dir = common::scratch("bench-lights");
@@ -401,7 +403,7 @@ fn quick_bench_pictures_the_learned_choice_of_light() {
             "scenes/cornell-box.toml",
             "--quick",
             "--methods",
-            "sarsa+nee",
+            "sarsa+nee,neural+nee",
             "--out",
         ])
         .arg(&out)
@@ -414,12 +416,14 @@ fn quick_bench_pictures_the_learned_choice_of_light() {
         "{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let picture = out.join("several-lights/sarsa+nee/light-choice.png");
-    assert!(
-        picture.is_file() && std::fs::metadata(&picture).unwrap().len() > 0,
-        "missing {}",
-        picture.display()
-    );
+    for method in ["sarsa+nee", "neural+nee"] {
+        let picture = out.join(format!("several-lights/{method}/light-choice.png"));
+        assert!(
+            picture.is_file() && std::fs::metadata(&picture).unwrap().len() > 0,
+            "missing {}",
+            picture.display()
+        );
+    }
     assert!(!out.join("cornell-box/sarsa+nee/light-choice.png").exists());
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(

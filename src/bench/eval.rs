@@ -4,7 +4,7 @@
 
 use super::{learned, BenchError, Config};
 use crate::gpu::{GpuContext, PassTiming};
-use crate::guide::{Guide, GuideSources};
+use crate::guide::{Guide, GuideSources, SarsaGuide};
 use crate::image::{self, ErrorMetrics, Image};
 use crate::render::{
     Checkpoint, Control, Method, Overrides, PassRecord, RenderSettings, Renderer, Run,
@@ -367,6 +367,27 @@ fn render_settings(
     RenderSettings::resolve(scene, &o).map_err(|e| BenchError::Render(e.into()))
 }
 
+/// Writes a guide's pictures of its volumes under `dir` (see
+/// `learned::volume_pictures`): the Voronoi PNG's path, and where it
+/// learns NEE's choice of light, that picture's path and legend.
+fn write_volume_pictures(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: &SarsaGuide,
+    plan: &EvalPlan,
+    dir: &Path,
+) -> Result<(String, Option<(String, String)>), BenchError> {
+    let (voronoi, light_choice) =
+        learned::volume_pictures(ctx, scene, guide, plan.width.max(128), plan.height.max(128))?;
+    let (vpng, _) = write_image(&voronoi, dir, "voronoi", &plan.out)?;
+    let light_choice = light_choice
+        .map(|(image, legend)| {
+            write_image(&image, dir, "light-choice", &plan.out).map(|(png, _)| (png, legend))
+        })
+        .transpose()?;
+    Ok((vpng, light_choice))
+}
+
 fn write_image(
     image: &Image,
     dir: &Path,
@@ -591,20 +612,8 @@ pub fn evaluate(
             }
             let learned = match renderer.guide() {
                 Some(Guide::Sarsa(guide)) => {
-                    let (voronoi, light_choice) = learned::volume_pictures(
-                        ctx,
-                        &scene,
-                        guide,
-                        plan.width.max(128),
-                        plan.height.max(128),
-                    )?;
-                    let (vpng, _) = write_image(&voronoi, &run_dir, "voronoi", &plan.out)?;
-                    let light_choice = light_choice
-                        .map(|(image, legend)| {
-                            write_image(&image, &run_dir, "light-choice", &plan.out)
-                                .map(|(png, _)| (png, legend))
-                        })
-                        .transpose()?;
+                    let (vpng, light_choice) =
+                        write_volume_pictures(ctx, &scene, guide, plan, &run_dir)?;
                     let volumes = learned::volumes_near_light(&scene, guide, 6);
                     let q = guide
                         .download_q()
@@ -628,12 +637,21 @@ pub fn evaluate(
                     })
                 }
                 Some(Guide::Neural(neural)) => {
+                    // With inference at the volumes, its tables' pictures too.
+                    let (voronoi, light_choice) = match neural.table() {
+                        Some(table) => {
+                            let (vpng, choice) =
+                                write_volume_pictures(ctx, &scene, table, plan, &run_dir)?;
+                            (Some(vpng), choice)
+                        }
+                        None => (None, None),
+                    };
                     let rows = learned::neural_rows(ctx, &scene, neural, 6)?;
                     let hemis = learned::hemispheres(neural.settings.common.grid, &rows, 96);
                     let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
                     Some(LearnedPictures {
-                        voronoi: None,
-                        light_choice: None,
+                        voronoi,
+                        light_choice,
                         hemispheres: hpng,
                         hemispheres_at: format!(
                             "the {} points the camera sees nearest the brightest light, as the network infers them",
