@@ -387,18 +387,21 @@ pub fn devices() -> Result<()> {
     Ok(())
 }
 
-/// How many lights the emitters make and how NEE picks among them.
+/// How many lights the emitters make and how NEE picks among them. (The
+/// lights are told apart only where the guides could pick among them: the
+/// grouping compares each emitting triangle with every light found so far.)
 fn light_summary(scene: &Scene) -> String {
+    let max = crate::shaders::MAX_GUIDED_LIGHTS;
+    if scene.lights.len() > max as usize {
+        return format!(
+            "NEE picks by emitted power (guides learn the choice up to {max} emitting triangles)"
+        );
+    }
     let lights = crate::guide::sarsa::separate_lights(scene);
-    let how = if !crate::guide::sarsa::guided_light_power(scene).is_empty() {
-        "guides learn which one NEE picks where (`pick_lights`)".to_string()
-    } else if lights > 1 {
-        format!(
-            "NEE picks by emitted power (guides learn the choice up to {} emitting triangles)",
-            crate::shaders::MAX_GUIDED_LIGHTS
-        )
+    let how = if lights > 1 {
+        "guides learn which one NEE picks where (`pick_lights`)"
     } else {
-        "NEE picks by emitted power".to_string()
+        "NEE picks by emitted power"
     };
     format!("{lights} by material and plane; {how}")
 }

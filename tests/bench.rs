@@ -411,11 +411,7 @@ fn quick_bench_pictures_the_learned_choice_of_light() {
         .current_dir(common::repo("."))
         .output()
         .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    common::assert_success(&output);
     for method in ["sarsa+nee", "neural+nee"] {
         let picture = out.join(format!("several-lights/{method}/light-choice.png"));
         assert!(

@@ -425,11 +425,7 @@ fn sarsa_render_reports_its_guide() {
         .arg(&json)
         .output()
         .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    common::assert_success(&output);
     let stats = common::read_json(&json);
     assert_eq!(stats["method"], "sarsa");
     assert_eq!(stats["guide_volumes"], 64);
@@ -497,11 +493,7 @@ fn bad_sarsa_options() {
 fn devices_and_inspect() {
     let output = qtrace().arg("devices").output().unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    common::assert_success(&output);
     assert!(stdout.contains("float atomics"), "{stdout}");
     let output = qtrace()
         .arg("inspect")
@@ -562,11 +554,7 @@ fn neural_render_reports_loss_and_training_passes() {
         .arg(&json)
         .output()
         .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    common::assert_success(&output);
     let stats = common::read_json(&json);
     assert_eq!(stats["method"], "neural");
     assert!(stats["guide_bytes"].as_u64().unwrap() > 0);
@@ -719,11 +707,7 @@ fn guide_settings_layer_and_round_trip() {
             .arg(json)
             .output()
             .unwrap();
-        assert!(
-            output.status.success(),
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        common::assert_success(&output);
         let stats = common::read_json(json);
         stats["guide"]["sarsa"].clone()
     };
@@ -886,18 +870,10 @@ fn resume_goes_on_from_the_state_beside_the_output() {
     let out = render(&["--spp", "4", "--checkpoint", "100"])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
     assert!(dir.join("r.exr.qtrace-state").exists());
     let out = render(&["--spp", "8", "--resume"]).output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
     let stats = common::read_json(&json);
     assert_eq!(stats["spp"], 8);
     assert_eq!(stats["passes"].as_array().unwrap().len(), 8);
