@@ -46,6 +46,7 @@ fn main() {
     let ctx = GpuContext::new(&ContextOptions {
         device: None,
         validation: false,
+        reads: None,
     })
     .unwrap();
     let scene = Scene::load("scenes/indirect-room.toml").unwrap();

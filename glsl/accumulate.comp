@@ -14,7 +14,7 @@ layout(constant_id = 0) const bool RACE = false;
 
 layout(push_constant) uniform Push { PassParams params; };
 // Read as texels (2 per PathSample): one vector gather each on lavapipe.
-layout(set = 0, binding = B_SAMPLES) uniform usamplerBuffer sample_texels;
+WORDS(sample_texels, B_SAMPLES)
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
 // PassStats as words: paths, zero_paths, length_sum, rays, nan_paths,
 // td_count, td_sq_bits, dev_bits.
@@ -54,8 +54,8 @@ void main() {
         float td = 0.0;
         float dev = 0.0;
         if (inside) {
-            uvec4 t0 = texelFetch(sample_texels, int(2u * (s * pixels + index)));
-            uvec4 t1 = texelFetch(sample_texels, int(2u * (s * pixels + index) + 1u));
+            uvec4 t0 = FETCH(sample_texels, int(2u * (s * pixels + index)));
+            uvec4 t1 = FETCH(sample_texels, int(2u * (s * pixels + index) + 1u));
             vec3 radiance = uintBitsToFloat(t0.xyz);
             if (any(isnan(radiance)) || any(isinf(radiance))) {
                 // Counted and left out rather than poisoning the pixel.

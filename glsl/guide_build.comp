@@ -34,26 +34,26 @@ layout(std430, set = 0, binding = B_VISITS_TOTAL) buffer VisitsTotal { uint visi
 // atomics and the CAS fallback write the same bits), read as texels: lavapipe
 // reads a texel of 8 lanes with one gather, a storage buffer word by word and
 // lane by lane. The host zeroes them after this pass (a fill).
-layout(set = 0, binding = B_SUM) uniform usamplerBuffer target_sum_texels;
-layout(set = 0, binding = B_DIRECT_SUM) uniform usamplerBuffer direct_sum_texels;
-layout(set = 0, binding = B_VISITS) uniform usamplerBuffer visits_texels;
-layout(set = 0, binding = B_MIX_GRAD) uniform usamplerBuffer mix_grad_texels;
+WORDS(target_sum_texels, B_SUM)
+WORDS(direct_sum_texels, B_DIRECT_SUM)
+WORDS(visits_texels, B_VISITS)
+WORDS(mix_grad_texels, B_MIX_GRAD)
 
 // Tally i of a buffer of TALLY (two 32-bit words each as fixed point, else one).
 #ifdef FIXED_ATOMICS
-#define TALLY_AT(texels, i) tally_fixed(texelFetch(texels, int((i) >> 1u)), (i) & 1u)
+#define TALLY_AT(texels, i) tally_fixed(FETCH(texels, int((i) >> 1u)), (i) & 1u)
 float tally_fixed(uvec4 texel, uint half_index) {
     uvec2 words = half_index != 0u ? texel.zw : texel.xy;
     return float(words.y) + float(words.x) / FIXED_ONE;
 }
 #else
-#define TALLY_AT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
+#define TALLY_AT(texels, i) uintBitsToFloat(FETCH(texels, int((i) >> 2u))[(i) & 3u])
 #endif
 
 // Folds cell i's tallies of the pass into its running means q and qd:
 // Q <- (Q N + sum) / (N + count), and writes them.
 void fold(uint i, inout float q, inout float qd) {
-    uint count = texelFetch(visits_texels, int(i >> 2u))[i & 3u];
+    uint count = FETCH(visits_texels, int(i >> 2u))[i & 3u];
     if (count == 0u) {
         return;
     }
@@ -183,8 +183,8 @@ void build_alias(uint base, uint n, float total) {
 // NEE's choice of light (FLAG_GUIDE_LIGHTS), per (volume, light): the
 // pass's tallies (texels, as above), the running mean of what a try of the
 // light brought and its count, and the light's share of emitted power.
-layout(set = 0, binding = B_LIGHT_SUM) uniform usamplerBuffer light_sum_texels;
-layout(set = 0, binding = B_LIGHT_TRIES) uniform usamplerBuffer light_tries_texels;
+WORDS(light_sum_texels, B_LIGHT_SUM)
+WORDS(light_tries_texels, B_LIGHT_TRIES)
 layout(std430, set = 0, binding = B_LIGHT_MEAN) buffer LightMean { float light_mean[]; };
 layout(std430, set = 0, binding = B_LIGHT_SEEN) buffer LightSeen { uint light_seen[]; };
 layout(std430, set = 0, binding = B_LIGHT_POWER) readonly buffer LightPower { float light_power[]; };
@@ -204,7 +204,7 @@ void build_light_choice(uint v, bool learned) {
     for (uint l = 0u; own && l < n; ++l) {
         float mean = light_mean[base + l];
         uint seen = light_seen[base + l];
-        uint count = learned ? texelFetch(light_tries_texels, int((base + l) >> 2u))[(base + l) & 3u] : 0u;
+        uint count = learned ? FETCH(light_tries_texels, int((base + l) >> 2u))[(base + l) & 3u] : 0u;
         if (count > 0u) {
             mean = (mean * float(seen) + TALLY_AT(light_sum_texels, base + l)) / float(seen + count);
             seen += count;

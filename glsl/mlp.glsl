@@ -39,16 +39,16 @@ vec4 mlp_w(uint i4) {
 #else
 // Kernels that only read the parameters read them as texels: lavapipe turns
 // a storage-buffer read into a loop over lanes, a texel read into one gather.
-layout(set = 0, binding = B_MLP_PARAMS) uniform usamplerBuffer mlp_param_texels;
+WORDS(mlp_param_texels, B_MLP_PARAMS)
 
 vec4 mlp_w(uint i4) {
-    return uintBitsToFloat(texelFetch(mlp_param_texels, int(i4)));
+    return uintBitsToFloat(FETCH(mlp_param_texels, int(i4)));
 }
 #endif
 
 // Float i of a batch buffer read as texels of four floats (the Adam steps
 // read the batch so: one gather instead of a loop over lanes).
-#define MLP_TEXEL_FLOAT(texels, i) uintBitsToFloat(texelFetch(texels, int((i) >> 2u))[(i) & 3u])
+#define MLP_TEXEL_FLOAT(texels, i) uintBitsToFloat(FETCH(texels, int((i) >> 2u))[(i) & 3u])
 
 float mlp_param(uint i) {
     return mlp_w(i >> 2)[i & 3u];

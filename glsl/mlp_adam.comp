@@ -14,9 +14,9 @@ layout(std430, set = 0, binding = B_MLP_COUNT) readonly buffer Batch { MlpBatch 
 // The batch's inputs, activations and deltas, read as texels of four
 // floats: lavapipe reads a storage buffer with a loop over lanes, a texel
 // buffer with one gather.
-layout(set = 0, binding = B_MLP_INPUTS) uniform usamplerBuffer input_texels;
-layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
-layout(set = 0, binding = B_MLP_DELTAS) uniform usamplerBuffer delta_texels;
+WORDS(input_texels, B_MLP_INPUTS)
+WORDS(act_texels, B_MLP_ACTS)
+WORDS(delta_texels, B_MLP_DELTAS)
 
 uint unit_index(uint s, uint l, uint o) {
     return (s * MLP_HIDDEN + l) * MLP_WIDTH + o;
@@ -48,8 +48,8 @@ void main() {
     vec4 g = vec4(0.0);
     for (uint s = 0u; s < rows; s++) {
         float delta = MLP_TEXEL_FLOAT(delta_texels, unit_index(s, l, o));
-        uvec4 a = l == 0u ? texelFetch(input_texels, int(s * MLP_IN4 + q))
-                          : texelFetch(act_texels, int(unit_index(s, l - 1u, 0u) / 4u + q));
+        uvec4 a = l == 0u ? FETCH(input_texels, int(s * MLP_IN4 + q))
+                          : FETCH(act_texels, int(unit_index(s, l - 1u, 0u) / 4u + q));
         g += delta * (is_bias ? vec4(1.0) : uintBitsToFloat(a));
     }
     g /= float(rows);

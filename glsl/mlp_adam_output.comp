@@ -20,10 +20,10 @@ layout(std430, set = 0, binding = B_MLP_BUCKETS) readonly buffer Buckets { uint 
 #endif
 // Targets (one texel each: sector, target, loss, delta) and activations,
 // read as texels: one gather each instead of a loop over lanes.
-layout(set = 0, binding = B_MLP_TARGETS) uniform usamplerBuffer target_texels;
-layout(set = 0, binding = B_MLP_ACTS) uniform usamplerBuffer act_texels;
+WORDS(target_texels, B_MLP_TARGETS)
+WORDS(act_texels, B_MLP_ACTS)
 #ifdef MLP_DENSE
-layout(set = 0, binding = B_MLP_DENSE) uniform usamplerBuffer dense_texels;
+WORDS(dense_texels, B_MLP_DENSE)
 #endif
 
 // llvmpipe ends a loop after 65 535 iterations: rows go in blocks.
@@ -50,7 +50,7 @@ void main() {
         for (uint s = b; s < min(b + BLOCK, rows); s++) {
             float delta = MLP_TEXEL_FLOAT(dense_texels, (push.capacity + s) * MLP_OUTPUTS + k);
             uint last4 = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_W4;
-            vec4 a = uintBitsToFloat(texelFetch(act_texels, int(last4 + q)));
+            vec4 a = uintBitsToFloat(FETCH(act_texels, int(last4 + q)));
             g += delta * (is_bias ? vec4(1.0) : a);
         }
     }
@@ -84,7 +84,7 @@ void main() {
     for (uint b = begin; b < end; b += BLOCK) {
         for (uint n = b; n < min(b + BLOCK, end); n++) {
             uint s = buckets[list + n];
-            float delta = uintBitsToFloat(texelFetch(target_texels, int(s)).w);
+            float delta = uintBitsToFloat(FETCH(target_texels, int(s)).w);
             uint last = (s * MLP_HIDDEN + MLP_HIDDEN - 1u) * MLP_WIDTH;
             for (uint j = 0u; j < owned; j++) {
                 uint i = lane + j * LINEAR_GROUP;

@@ -4,24 +4,22 @@
 
 #include "shared.h"
 
-// The scene's buffers are read as uniform texel buffers of raw uvec4 words:
-// lavapipe turns a texel fetch into one vector gather, where a storage
-// buffer read is a branching loop over SIMD lanes per 32-bit word.
-layout(set = 0, binding = B_NODES) uniform usamplerBuffer node_texels;         // 8 per BvhNode
-layout(set = 0, binding = B_TRIANGLES) uniform usamplerBuffer triangle_texels; // 3 per Triangle
-layout(set = 0, binding = B_MATERIALS) uniform usamplerBuffer material_texels; // 2 per Material
+// The scene's buffers, as raw uvec4 words (WORDS in shared.h).
+WORDS(node_texels, B_NODES)         // 8 per BvhNode
+WORDS(triangle_texels, B_TRIANGLES) // 3 per Triangle
+WORDS(material_texels, B_MATERIALS) // 2 per Material
 
 Triangle load_triangle(uint i) {
-    uvec4 a = texelFetch(triangle_texels, int(3u * i));
-    uvec4 b = texelFetch(triangle_texels, int(3u * i + 1u));
-    uvec4 c = texelFetch(triangle_texels, int(3u * i + 2u));
+    uvec4 a = FETCH(triangle_texels, int(3u * i));
+    uvec4 b = FETCH(triangle_texels, int(3u * i + 1u));
+    uvec4 c = FETCH(triangle_texels, int(3u * i + 2u));
     return Triangle(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), uintBitsToFloat(b.w),
                     uintBitsToFloat(c.xyz), uintBitsToFloat(c.w));
 }
 
 Material load_material(uint i) {
-    return Material(uintBitsToFloat(texelFetch(material_texels, int(2u * i))),
-                    uintBitsToFloat(texelFetch(material_texels, int(2u * i + 1u))));
+    return Material(uintBitsToFloat(FETCH(material_texels, int(2u * i))),
+                    uintBitsToFloat(FETCH(material_texels, int(2u * i + 1u))));
 }
 
 struct Hit {
@@ -121,13 +119,13 @@ Walk walk_begin(vec3 o, vec3 d, float tmax) {
 // walk for any hit (a shadow ray) ends at its first.
 void walk_step(inout Walk w, bool any_hit) {
     int base = int(8u * w.node);
-    uvec4 a0 = texelFetch(node_texels, base);
-    uvec4 b0 = texelFetch(node_texels, base + 1);
-    uvec4 k0 = texelFetch(node_texels, base + 2);
-    uvec4 a1 = texelFetch(node_texels, base + 3);
-    uvec4 b1 = texelFetch(node_texels, base + 4);
-    uvec4 k1 = texelFetch(node_texels, base + 5);
-    uint escape = texelFetch(node_texels, base + 6 + int(w.octant >> 2u))[w.octant & 3u];
+    uvec4 a0 = FETCH(node_texels, base);
+    uvec4 b0 = FETCH(node_texels, base + 1);
+    uvec4 k0 = FETCH(node_texels, base + 2);
+    uvec4 a1 = FETCH(node_texels, base + 3);
+    uvec4 b1 = FETCH(node_texels, base + 4);
+    uvec4 k1 = FETCH(node_texels, base + 5);
+    uint escape = FETCH(node_texels, base + 6 + int(w.octant >> 2u))[w.octant & 3u];
     float t0 = visit_child(w.o, w.d, w.inv_d, a0.w, uintBitsToFloat(a0.xyz), uintBitsToFloat(b0.xyz),
                            uintBitsToFloat(k0.xyz), w.hit);
     float t1 = visit_child(w.o, w.d, w.inv_d, a1.w, uintBitsToFloat(a1.xyz), uintBitsToFloat(b1.xyz),

@@ -5,6 +5,19 @@
 
 // Workgroup sizes. lavapipe puts its SIMD lanes along x: a tile 4 wide left
 // half of them idle and doubled the trace pass; 16x4 was no faster than 8x8.
+// Read-only buffers of uvec4 words, declared by WORDS and read by FETCH: as
+// uniform texel buffers, which Mesa 22's llvmpipe reads with one gather where
+// a storage buffer read is a branching loop over SIMD lanes per 32-bit word,
+// or, with QTRACE_STORAGE_READS (the `_storage` kernels), as storage buffers,
+// which Mesa 25's reads faster (see gpu::Reads).
+#ifdef QTRACE_STORAGE_READS
+#define WORDS(name, b) layout(std430, set = 0, binding = b) readonly buffer name##_block { uvec4 name[]; };
+#define FETCH(name, i) name[i]
+#else
+#define WORDS(name, b) layout(set = 0, binding = b) uniform usamplerBuffer name;
+#define FETCH(name, i) texelFetch(name, i)
+#endif
+
 #define TILE_X 8
 #define TILE_Y 8
 #define LINEAR_GROUP 64

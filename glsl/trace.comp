@@ -28,7 +28,7 @@ layout(push_constant) uniform Push { PassParams params; };
 #include "guide.glsl"
 #endif
 
-layout(set = 0, binding = B_LIGHTS) uniform usamplerBuffer light_texels; // 1 per Light
+WORDS(light_texels, B_LIGHTS) // 1 per Light
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -44,7 +44,7 @@ uint pick_light(float u) {
     uint hi = params.light_count - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (uintBitsToFloat(texelFetch(light_texels, int(mid)).y) > u) {
+        if (uintBitsToFloat(FETCH(light_texels, int(mid)).y) > u) {
             hi = mid;
         } else {
             lo = mid + 1u;
@@ -63,7 +63,7 @@ uint light_of(uint triangle) {
     uint hi = params.light_count - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (texelFetch(light_texels, int(mid)).x < triangle) {
+        if (FETCH(light_texels, int(mid)).x < triangle) {
             lo = mid + 1u;
         } else {
             hi = mid;
@@ -312,7 +312,7 @@ bool scatter() {
         {
             light = pick_light(rng_next(rng));
         }
-        Triangle lt = load_triangle(texelFetch(light_texels, int(light)).x);
+        Triangle lt = load_triangle(FETCH(light_texels, int(light)).x);
         float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
         float brought = 0.0;
         vec2 u = rng_next2(rng);

@@ -12,27 +12,27 @@
 
 // The tables the trace kernel only reads are uniform texel buffers of raw
 // words (one vector gather per read on lavapipe; see scene.glsl).
-layout(set = 0, binding = B_SECTORS) uniform usamplerBuffer sector_texels; // 2 SectorEntry per texel
+WORDS(sector_texels, B_SECTORS) // 2 SectorEntry per texel
 // Per volume: (irradiance (2 pi / n) sum_j Q_j cos(theta_j), or the max
 // target's max_j Q_j cos(theta_j); total weight of its sector
 // distribution; share of BSDF sampling in the mixture; 0), one texel each;
 // see guide_build.comp.
-layout(set = 0, binding = B_VOLUME_SUMS) uniform usamplerBuffer volume_sum_texels;
-layout(set = 0, binding = B_Q) uniform usamplerBuffer q_texels; // 4 Q per texel
+WORDS(volume_sum_texels, B_VOLUME_SUMS)
+WORDS(q_texels, B_Q) // 4 Q per texel
 // The lookup tables of src/guide/lookup.rs: per triangle, its cells or its
 // two sides' volumes; cells (uvec2, two per texel); list entries (volume
 // position, volume index bits).
-layout(set = 0, binding = B_LOOKUP_TRIANGLES) uniform usamplerBuffer lookup_triangle_texels;
-layout(set = 0, binding = B_LOOKUP_CELLS) uniform usamplerBuffer lookup_cell_texels;
-layout(set = 0, binding = B_LOOKUP_ITEMS) uniform usamplerBuffer lookup_item_texels;
+WORDS(lookup_triangle_texels, B_LOOKUP_TRIANGLES)
+WORDS(lookup_cell_texels, B_LOOKUP_CELLS)
+WORDS(lookup_item_texels, B_LOOKUP_ITEMS)
 
 SectorEntry load_sector(uint i) {
-    uvec4 t = texelFetch(sector_texels, int(i >> 1u));
+    uvec4 t = FETCH(sector_texels, int(i >> 1u));
     return (i & 1u) == 0u ? SectorEntry(t.x, t.y) : SectorEntry(t.z, t.w);
 }
 
 float load_q(uint i) {
-    return uintBitsToFloat(texelFetch(q_texels, int(i >> 2u))[i & 3u]);
+    return uintBitsToFloat(FETCH(q_texels, int(i >> 2u))[i & 3u]);
 }
 
 
@@ -41,7 +41,7 @@ float load_q(uint i) {
 // NO_VOLUME if none. The triangle's entry or its cell holds the answer, or a
 // short list that does.
 uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
-    uvec4 t = texelFetch(lookup_triangle_texels, int(triangle));
+    uvec4 t = FETCH(lookup_triangle_texels, int(triangle));
     if (t.y == 0u) {
         return front ? t.z : t.w;
     }
@@ -63,7 +63,7 @@ uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
         uvec2 c = uvec2(clamp(uv * vec2(nu, nv), vec2(0.0), vec2(nu - 1u, nv - 1u)));
         cell += c.x + nu * c.y;
     }
-    uvec4 pair = texelFetch(lookup_cell_texels, int(cell >> 1u));
+    uvec4 pair = FETCH(lookup_cell_texels, int(cell >> 1u));
     uvec2 entry = (cell & 1u) == 0u ? pair.xy : pair.zw;
     if (entry.y == 0u) {
         return entry.x;
@@ -71,7 +71,7 @@ uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
     uint best = NO_VOLUME;
     float best_d2 = FAR;
     for (uint i = entry.x; i < entry.x + entry.y; ++i) {
-        vec4 item = uintBitsToFloat(texelFetch(lookup_item_texels, int(i)));
+        vec4 item = uintBitsToFloat(FETCH(lookup_item_texels, int(i)));
         vec3 d = item.xyz - p;
         float d2 = dot(d, d);
         if (d2 < best_d2) {
@@ -87,7 +87,7 @@ vec3 volume_sums_of(uint v) {
     if (v == NO_VOLUME) {
         return vec3(0.0);
     }
-    return uintBitsToFloat(texelFetch(volume_sum_texels, int(v)).xyz);
+    return uintBitsToFloat(FETCH(volume_sum_texels, int(v)).xyz);
 }
 
 // The guide seam's reading side (guide.glsl).

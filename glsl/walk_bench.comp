@@ -18,14 +18,14 @@ layout(local_size_x = LINEAR_GROUP) in;
 layout(push_constant) uniform Push { PassParams params; };
 
 // Two texels per ray: (origin, tmax), (direction, 1 for any hit).
-layout(set = 0, binding = B_PROBE_IN) uniform usamplerBuffer ray_texels;
+WORDS(ray_texels, B_PROBE_IN)
 // Per ray: (t, triangle bits, 0, 0).
 layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
 
 // Ray r's walk, and whether it looks for any hit.
 Walk begin_ray(uint r, out bool any_hit) {
-    vec4 a = uintBitsToFloat(texelFetch(ray_texels, int(2u * r)));
-    vec4 b = uintBitsToFloat(texelFetch(ray_texels, int(2u * r + 1u)));
+    vec4 a = uintBitsToFloat(FETCH(ray_texels, int(2u * r)));
+    vec4 b = uintBitsToFloat(FETCH(ray_texels, int(2u * r + 1u)));
     any_hit = b.w > 0.5;
     return walk_begin(a.xyz, b.xyz, a.w);
 }

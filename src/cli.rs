@@ -19,6 +19,7 @@ use std::sync::Arc;
 pub struct DeviceChoice {
     pub device: Option<String>,
     pub validation: bool,
+    pub reads: Option<gpu::Reads>,
 }
 
 pub fn open_device(choice: &DeviceChoice) -> Result<Arc<GpuContext>> {
@@ -27,6 +28,7 @@ pub fn open_device(choice: &DeviceChoice) -> Result<Arc<GpuContext>> {
     Ok(GpuContext::new(&ContextOptions {
         device: choice.device.clone(),
         validation,
+        reads: choice.reads,
     })?)
 }
 
@@ -382,6 +384,13 @@ pub fn devices() -> Result<()> {
             yes(d.subgroup_ballot),
             d.max_storage_buffer_range >> 20,
             d.max_shared_memory >> 10
+        );
+        println!(
+            "    trace kernels read {} buffers (--reads)",
+            match d.reads {
+                gpu::Reads::Texel => "uniform texel",
+                gpu::Reads::Storage => "storage",
+            }
         );
     }
     Ok(())

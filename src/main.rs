@@ -28,6 +28,10 @@ struct DeviceArgs {
     /// Enable the Khronos validation layer (also QTRACE_VALIDATION=1).
     #[arg(long)]
     validation: bool,
+    /// How the trace kernels read the scene (also QTRACE_READS); default: the
+    /// faster for the driver, as `qtrace devices` shows. Images are the same.
+    #[arg(long, value_enum, env = "QTRACE_READS")]
+    reads: Option<qtrace::gpu::Reads>,
 }
 
 impl DeviceArgs {
@@ -35,6 +39,7 @@ impl DeviceArgs {
         DeviceChoice {
             device: self.device.clone(),
             validation: self.validation,
+            reads: self.reads,
         }
     }
 }

@@ -320,3 +320,67 @@ fn cornell_box_pt_and_nee_converge_to_the_same_image() {
     let nee = common::render_with(&ctx, &scene, tiny(true, 4));
     common::assert_same_expectation_binned("cornell-pt-vs-nee-per-pixel", &plain, &nee, 1);
 }
+
+/// The trace kernels read the scene and the guides' tables through uniform
+/// texel buffers or through storage buffers (`--reads`; the driver decides
+/// by default): one image either way, bit for bit, for plain, learning,
+/// frozen and neural kernels, diffuse and not.
+#[test]
+fn texel_and_storage_reads_give_the_same_image() {
+    use qtrace::gpu::{ContextOptions, GpuContext, Reads};
+    use qtrace::guide::{sarsa::Atomics, GuideSettings, SarsaSettings};
+    use qtrace::render::Method;
+    let open = |reads| {
+        let ctx = GpuContext::new(&ContextOptions {
+            device: std::env::var("QTRACE_DEVICE").ok(),
+            validation: true,
+            reads: Some(reads),
+        })
+        .unwrap_or_else(|e| panic!("GPU test needs a Vulkan device (lavapipe will do): {e}"));
+        assert_eq!(ctx.info().reads, reads);
+        ctx
+    };
+    let (texel, storage) = (open(Reads::Texel), open(Reads::Storage));
+    if !texel.info().int64_atomics {
+        eprintln!(
+            "SKIPPED: device '{}' lacks 64-bit buffer atomics",
+            texel.info().name
+        );
+        return;
+    }
+    // Fixed-point tallies, so that a guided image is one per seed; 24
+    // passes, so that Sarsa's passes after 16 run the kernel that learns
+    // nothing.
+    let sarsa = || {
+        Some(GuideSettings::Sarsa(SarsaSettings {
+            atomics: Atomics::Fixed,
+            ..Default::default()
+        }))
+    };
+    let cases = [
+        ("cornell-box", Method::Pt, false, None),
+        ("glass-cornell", Method::Pt, true, None),
+        ("cornell-box", Method::Sarsa, true, sarsa()),
+        ("glossy-cornell", Method::Sarsa, false, sarsa()),
+        ("cornell-box", Method::Neural, true, None),
+    ];
+    for (name, method, nee, guide) in cases {
+        let scene = common::scene(name);
+        let o = Overrides {
+            method: Some(method),
+            spp: Some(24),
+            width: Some(32),
+            height: Some(32),
+            nee,
+            seed: Some(7),
+            guide,
+            ..Default::default()
+        };
+        let a = common::render_with(&texel, &scene, o.clone()).image;
+        let b = common::render_with(&storage, &scene, o).image;
+        assert!(
+            a == b,
+            "{name} {method:?} nee {nee}: the reads changed the image"
+        );
+    }
+}

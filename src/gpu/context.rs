@@ -17,6 +17,42 @@ pub struct ContextOptions {
     pub device: Option<String>,
     /// Enable the Khronos validation layer when it is installed.
     pub validation: bool,
+    /// How the trace kernels read; `None` picks by driver ([`Reads::for_driver`]).
+    pub reads: Option<Reads>,
+}
+
+/// How the trace kernels read the scene and the guides' tables. Images are
+/// the same either way, bit for bit; only the speed differs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Reads {
+    /// Uniform texel buffers.
+    Texel,
+    /// Storage buffers.
+    Storage,
+}
+
+impl Reads {
+    /// The faster for a driver, as measured (`qtrace bench --speed`, 256×256):
+    /// Mesa 22.3's llvmpipe fetches a texel with one gather but reads a
+    /// storage buffer lane by lane (texel reads halved its trace pass);
+    /// Mesa 25.0's inlines storage reads and calls a slower texel fetch, so
+    /// there storage reads made `pt` 1.5–2.2× and `pt --nee` 1.1–1.6× as
+    /// fast. Versions between were not measured and keep texel reads, as do
+    /// other drivers.
+    pub fn for_driver(driver: vk::DriverId, driver_info: &str) -> Self {
+        // lavapipe's driverVersion is 1 whatever the release; its driver info
+        // reads "Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)".
+        let mesa_major = driver_info
+            .strip_prefix("Mesa ")
+            .and_then(|v| v.split('.').next())
+            .and_then(|v| v.parse::<u32>().ok());
+        if driver == vk::DriverId::MESA_LLVMPIPE && mesa_major.is_some_and(|m| m >= 25) {
+            Reads::Storage
+        } else {
+            Reads::Texel
+        }
+    }
 }
 
 /// What qtrace needs to know about a physical device.
@@ -43,6 +79,8 @@ pub struct DeviceInfo {
     /// Subgroup ballot and vote in compute shaders: the trace kernel's lanes
     /// claim their paths with them.
     pub subgroup_ballot: bool,
+    /// How the trace kernels read: the driver's choice, or the one asked for.
+    pub reads: Reads,
     #[serde(skip)]
     rank: u32,
     #[serde(skip)]
@@ -180,6 +218,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         _ => ("other", 4),
     };
     let v = props.api_version;
+    let reads = Reads::for_driver(driver.driver_id, &driver_name);
     DeviceInfo {
         index,
         name: props
@@ -207,6 +246,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
         subgroup_ballot: compute_subgroup(
             vk::SubgroupFeatureFlags::BALLOT | vk::SubgroupFeatureFlags::VOTE,
         ),
+        reads,
         rank,
         queue_family,
     }
@@ -321,7 +361,8 @@ impl GpuContext {
         has_debug_utils: bool,
         options: &ContextOptions,
     ) -> Result<Self> {
-        let (physical, info) = choose(enumerate(&instance)?, options.device.as_deref())?;
+        let (physical, mut info) = choose(enumerate(&instance)?, options.device.as_deref())?;
+        info.reads = options.reads.unwrap_or(info.reads);
         let queue_family = info.queue_family.ok_or(Error::NoDevice)?;
 
         let priorities = [1.0f32];

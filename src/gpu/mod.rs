@@ -13,7 +13,7 @@ mod timestamps;
 
 pub use buffer::Buffer;
 pub use commands::{Pass, Recorder};
-pub use context::{list_devices, ContextOptions, DeviceInfo, GpuContext};
+pub use context::{list_devices, ContextOptions, DeviceInfo, GpuContext, Reads};
 pub use descriptors::DescriptorSet;
 pub use pipeline::ComputePipeline;
 pub use timestamps::{PassTiming, Profiler};

@@ -169,18 +169,22 @@ pub struct Renderer {
 /// SPIR-V of the trace kernel for the settings on this device.
 fn trace_variant(ctx: &GpuContext, settings: &RenderSettings) -> gpu::Result<&'static [u8]> {
     match &settings.guide {
-        Some(g) => g.trace_spirv(ctx.info(), settings.nee),
-        None => Ok(plain_variant(settings)),
+        Some(g) => Ok(spirv::for_reads(
+            g.trace_spirv(ctx.info(), settings.nee)?,
+            ctx.info().reads,
+        )),
+        None => Ok(plain_variant(ctx, settings)),
     }
 }
 
-/// SPIR-V of plain path tracing's kernel.
-fn plain_variant(settings: &RenderSettings) -> &'static [u8] {
-    if settings.nee {
+/// SPIR-V of plain path tracing's kernel on this device.
+fn plain_variant(ctx: &GpuContext, settings: &RenderSettings) -> &'static [u8] {
+    let kernel = if settings.nee {
         spirv::TRACE_PT_NEE
     } else {
         spirv::TRACE_PT
-    }
+    };
+    spirv::for_reads(kernel, ctx.info().reads)
 }
 
 // A submit's trace dispatches (at most one per pass) each have a work counter,
@@ -346,6 +350,7 @@ impl Renderer {
             .guide
             .as_ref()
             .and_then(|g| g.frozen_trace_spirv(settings.nee))
+            .map(|kernel| spirv::for_reads(kernel, ctx.info().reads))
             .map(|spirv| pipeline_with_set(ctx, "trace", spirv, &constants, &bindings))
             .transpose()?;
         // A race's reference sums: a copy of the accumulation when it began.
@@ -532,7 +537,7 @@ impl Renderer {
         pipeline_with_set(
             &self.ctx,
             "trace",
-            plain_variant(&self.settings),
+            plain_variant(&self.ctx, &self.settings),
             &self.constants,
             &bindings,
         )

@@ -53,6 +53,9 @@ pub fn gpu() -> Arc<GpuContext> {
     let ctx = GpuContext::new(&ContextOptions {
         device: std::env::var("QTRACE_DEVICE").ok(),
         validation: true,
+        reads: std::env::var("QTRACE_READS").ok().map(|v| {
+            clap::ValueEnum::from_str(&v, true).unwrap_or_else(|e| panic!("QTRACE_READS: {e}"))
+        }),
     })
     .unwrap_or_else(|e| panic!("GPU test needs a Vulkan device (lavapipe will do): {e}"));
     if !ctx.validation_enabled() {
