@@ -3,8 +3,6 @@
 #ifndef QTRACE_SHARED_H
 #define QTRACE_SHARED_H
 
-// Workgroup sizes. lavapipe puts its SIMD lanes along x: a tile 4 wide left
-// half of them idle and doubled the trace pass; 16x4 was no faster than 8x8.
 // Read-only buffers of uvec4 words, declared by WORDS and read by FETCH: as
 // uniform texel buffers, which Mesa 22's llvmpipe reads with one gather where
 // a storage buffer read is a branching loop over SIMD lanes per 32-bit word,
@@ -18,6 +16,8 @@
 #define FETCH(name, i) texelFetch(name, i)
 #endif
 
+// Workgroup sizes. lavapipe puts its SIMD lanes along x: a tile 4 wide left
+// half of them idle and doubled the trace pass; 16x4 was no faster than 8x8.
 #define TILE_X 8
 #define TILE_Y 8
 #define LINEAR_GROUP 64
@@ -26,7 +26,7 @@
 // vectors in workgroup memory.
 #define MLP_LANES 64
 
-// Bindings (set 0; every one a storage buffer).
+// Bindings (set 0; storage buffers, and buffers of words declared by WORDS).
 #define B_NODES 0
 #define B_TRIANGLES 1
 #define B_MATERIALS 2

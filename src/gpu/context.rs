@@ -37,9 +37,9 @@ impl Reads {
     /// Mesa 22.3's llvmpipe fetches a texel with one gather but reads a
     /// storage buffer lane by lane (texel reads halved its trace pass);
     /// Mesa 25.0's inlines storage reads and calls a slower texel fetch, so
-    /// there storage reads made `pt` 1.5–2.2× and `pt --nee` 1.1–1.6× as
-    /// fast. Versions between were not measured and keep texel reads, as do
-    /// other drivers.
+    /// there storage reads made `pt` 1.5–2.4× and `pt --nee` 1.2–1.8× as
+    /// fast (README, "Mesa versions"). Versions between were not measured
+    /// and keep texel reads, as do other drivers.
     pub fn for_driver(driver: vk::DriverId, driver_info: &str) -> Self {
         // lavapipe's driverVersion is 1 whatever the release; its driver info
         // reads "Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)".
