@@ -499,7 +499,12 @@ pub fn bench_speed(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceCho
     }
     check_scenes(plan.scenes, plan.configs, plan.guides)?;
     let ctx = open_device(device)?;
-    println!("device: {} ({})", ctx.info().name, ctx.info().driver);
+    let info = ctx.info();
+    let reads = match info.reads {
+        gpu::Reads::Texel => "texel",
+        gpu::Reads::Storage => "storage",
+    };
+    println!("device: {} ({}; {reads} reads)", info.name, info.driver);
     println!(
         "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>6} {:>8} {:>7}  per pass (ms)",
         "scene",

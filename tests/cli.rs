@@ -929,3 +929,39 @@ fn every_allocation_failure_is_an_error() {
         assert!(failed > 5, "{method}: only {failed} allocations");
     }
 }
+
+/// `--reads` or `QTRACE_READS` sets how the trace kernels read; the stats
+/// JSON records it, and a value it does not know is a one-line error.
+#[test]
+fn reads_are_chosen_recorded_and_checked() {
+    let dir = scratch("reads");
+    let scene = dir.join("cornell-box.toml");
+    let json = dir.join("a.json");
+    for (args, env, want) in [
+        (&["--reads", "storage"][..], "texel", "storage"),
+        (&[][..], "texel", "texel"),
+        (&[][..], "storage", "storage"),
+    ] {
+        let output = qtrace()
+            .arg("render")
+            .arg(&scene)
+            .args(["--spp", "2", "--width", "16", "--height", "16"])
+            .args(args)
+            .env("QTRACE_READS", env)
+            .arg("-o")
+            .arg(dir.join("a.exr"))
+            .arg("--stats")
+            .arg(&json)
+            .output()
+            .unwrap();
+        common::assert_success(&output);
+        assert_eq!(common::read_json(&json)["reads"], want, "{args:?} {env}");
+    }
+    expect_error(
+        &dir,
+        &scene,
+        &[],
+        &[("QTRACE_READS", "gather")],
+        &["gather"],
+    );
+}

@@ -856,6 +856,7 @@ impl Renderer {
             method: self.settings.method.name().into(),
             nee: self.settings.nee,
             device: self.ctx.info().name.clone(),
+            reads: self.ctx.info().reads,
             scene: self.scene_name.clone(),
             width: self.settings.width,
             height: self.settings.height,

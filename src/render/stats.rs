@@ -26,6 +26,8 @@ pub struct RenderStats {
     pub method: String,
     pub nee: bool,
     pub device: String,
+    /// How the trace kernels read (`--reads`): speeds differ, images do not.
+    pub reads: crate::gpu::Reads,
     pub scene: String,
     pub width: u32,
     pub height: u32,
