@@ -385,13 +385,7 @@ pub fn devices() -> Result<()> {
             d.max_storage_buffer_range >> 20,
             d.max_shared_memory >> 10
         );
-        println!(
-            "    trace kernels read {} buffers (--reads)",
-            match d.reads {
-                gpu::Reads::Texel => "uniform texel",
-                gpu::Reads::Storage => "storage",
-            }
-        );
+        println!("    trace kernels: {} reads (--reads)", d.reads.name());
     }
     Ok(())
 }
@@ -500,11 +494,12 @@ pub fn bench_speed(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceCho
     check_scenes(plan.scenes, plan.configs, plan.guides)?;
     let ctx = open_device(device)?;
     let info = ctx.info();
-    let reads = match info.reads {
-        gpu::Reads::Texel => "texel",
-        gpu::Reads::Storage => "storage",
-    };
-    println!("device: {} ({}; {reads} reads)", info.name, info.driver);
+    println!(
+        "device: {} ({}; {} reads)",
+        info.name,
+        info.driver,
+        info.reads.name()
+    );
     println!(
         "{:<28} {:<10} {:>5} {:>9} {:>11} {:>9} {:>9} {:>6} {:>6} {:>8} {:>7}  per pass (ms)",
         "scene",

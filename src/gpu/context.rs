@@ -33,6 +33,14 @@ pub enum Reads {
 }
 
 impl Reads {
+    /// As `--reads` spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Reads::Texel => "texel",
+            Reads::Storage => "storage",
+        }
+    }
+
     /// The faster for a driver, as measured (`qtrace bench --speed`, 256×256):
     /// Mesa 22.3's llvmpipe fetches a texel with one gather but reads a
     /// storage buffer lane by lane (texel reads halved its trace pass);
