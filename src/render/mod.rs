@@ -585,7 +585,7 @@ impl Renderer {
                 .map(|g| g.bsdf_shares())
                 .transpose()?
                 .flatten();
-            if shares.is_some_and(|s| crate::guide::stands_back(&s, start)) {
+            if shares.is_some_and(|s| crate::guide::stands_back(&s, start, done)) {
                 log::info!("the guide stands back after {done} passes: every volume learned to sample the BSDF");
                 self.stood_back = Some(done);
                 return Ok(());
