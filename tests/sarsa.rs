@@ -712,7 +712,10 @@ fn standing_back_survives_a_resume() {
     };
     let first = run(24, false);
     let after = first.stats.guide_stood_back_after;
-    assert!(matches!(after, Some(4 | 8 | 16)), "stood back after {after:?}");
+    assert!(
+        matches!(after, Some(4 | 8 | 16)),
+        "stood back after {after:?}"
+    );
     let resumed = run(48, true);
     assert_eq!(resumed.stats.guide_stood_back_after, after);
     let through = common::render_with(&ctx, &scene, o(48));
