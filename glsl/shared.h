@@ -8,11 +8,14 @@
 // a storage buffer read is a branching loop over SIMD lanes per 32-bit word,
 // or, with QTRACE_STORAGE_READS (the `_storage` kernels), as storage buffers,
 // which Mesa 25's reads faster (see gpu::Reads).
+// A texel buffer is declared without a sampler (utextureBuffer): SPIR-V 1.6
+// drops sampled images of buffers, and Mesa 25 warns of them.
 #ifdef QTRACE_STORAGE_READS
 #define WORDS(name, b) layout(std430, set = 0, binding = b) readonly buffer name##_block { uvec4 name[]; };
 #define FETCH(name, i) name[i]
 #else
-#define WORDS(name, b) layout(set = 0, binding = b) uniform usamplerBuffer name;
+#extension GL_EXT_samplerless_texture_functions : require
+#define WORDS(name, b) layout(set = 0, binding = b) uniform utextureBuffer name;
 #define FETCH(name, i) texelFetch(name, i)
 #endif
 

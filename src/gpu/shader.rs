@@ -32,8 +32,9 @@ pub(super) fn words(name: &str, bytes: &[u8]) -> Result<Vec<u32>> {
 pub(super) enum BindingKind {
     /// `buffer { ... }`: a storage buffer.
     StorageBuffer,
-    /// `uniform usamplerBuffer` (or any sampled buffer image): a uniform texel
-    /// buffer, read through a view of 16-byte `uvec4` texels.
+    /// `uniform utextureBuffer` or `usamplerBuffer` (any buffer image read by
+    /// texel fetches): a uniform texel buffer, read through a view of 16-byte
+    /// `uvec4` texels.
     UniformTexelBuffer,
 }
 
@@ -47,8 +48,9 @@ impl BindingKind {
 }
 
 /// Descriptor bindings the shader declares (all in set 0), sorted by number.
-/// A binding whose variable points to a sampled image of dimension Buffer is
-/// a uniform texel buffer; every other one is a storage buffer.
+/// A binding whose variable points to an image of dimension Buffer, or to a
+/// sampled one, is a uniform texel buffer; every other one is a storage
+/// buffer.
 pub(super) fn reflect_bindings(words: &[u32]) -> Vec<(u32, BindingKind)> {
     use std::collections::HashMap;
     let mut binding_of = HashMap::new(); // variable id -> binding
@@ -90,7 +92,7 @@ pub(super) fn reflect_bindings(words: &[u32]) -> Vec<(u32, BindingKind)> {
             let texel = variable_type
                 .get(var)
                 .and_then(|p| pointee.get(p))
-                .and_then(|t| sampled_image.get(t))
+                .map(|t| sampled_image.get(t).unwrap_or(t))
                 .is_some_and(|image| buffer_images.contains(image));
             let kind = if texel {
                 BindingKind::UniformTexelBuffer
