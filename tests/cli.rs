@@ -965,3 +965,25 @@ fn reads_are_chosen_recorded_and_checked() {
         &["gather"],
     );
 }
+
+/// Output into a pipe whose reader has gone (`qtrace devices | head -1`)
+/// ends the process quietly, without a panic.
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    let mut child = qtrace()
+        .arg("devices")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Closed before the device list (after Vulkan's start-up) is written.
+    drop(child.stdout.take());
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        matches!(output.status.code(), Some(0 | 141)),
+        "{:?}: {stderr}",
+        output.status
+    );
+}
