@@ -17,7 +17,7 @@ layout(push_constant) uniform Push { PassParams params; };
 WORDS(sample_texels, B_SAMPLES)
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
 // PassStats as words: paths, zero_paths, length_sum, rays, nan_paths,
-// td_count, td_sq_bits, dev_bits.
+// td_count, td_sq_bits, dev_bits; STATS_COPIES copies of MAX_BATCH slots.
 layout(std430, set = 0, binding = B_STATS) buffer Stats { uint stats_words[]; };
 layout(std430, set = 0, binding = B_RACE_REF) readonly buffer RaceRef { Accum race_ref[]; };
 
@@ -108,11 +108,12 @@ void main() {
     barrier();
 
     // One invocation per (sample, counter): sums the subgroups, then one
-    // global atomic per workgroup.
+    // global atomic per workgroup, into the workgroup's copy of the stats.
+    uint copy = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) % STATS_COPIES;
     for (uint task = gl_LocalInvocationIndex; task < count * (COUNTERS + FLOATS); task += TILE_X * TILE_Y) {
         uint s = task / (COUNTERS + FLOATS);
         uint k = task % (COUNTERS + FLOATS);
-        uint word = ((params.pass_index + s) % MAX_BATCH) * (SIZEOF_PASS_STATS / 4u) + k;
+        uint word = (copy * MAX_BATCH + (params.pass_index + s) % MAX_BATCH) * (SIZEOF_PASS_STATS / 4u) + k;
         if (k < COUNTERS) {
             uint sum = 0u;
             for (uint g = 0u; g < gl_NumSubgroups; ++g) {

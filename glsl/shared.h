@@ -137,6 +137,10 @@
 // Most sample passes recorded into one submit; each has its PassStats slot
 // (pass_index % MAX_BATCH).
 #define MAX_BATCH 16
+// Copies of each pass's stats, summed on the host: workgroups add to the copy
+// of their index modulo this, so that on a GPU thousands of workgroups do not
+// queue on the same few words (compare-and-swap retries most of all).
+#define STATS_COPIES 64
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3

@@ -115,6 +115,25 @@ pub struct PassStats {
 }
 
 impl PassStats {
+    /// The totals of several copies of a pass's stats (see STATS_COPIES).
+    pub fn sum<'a>(copies: impl Iterator<Item = &'a PassStats>) -> PassStats {
+        let mut total = PassStats::default();
+        let (mut td_sq, mut dev) = (0.0f64, 0.0f64);
+        for c in copies {
+            total.paths += c.paths;
+            total.zero_paths += c.zero_paths;
+            total.length_sum += c.length_sum;
+            total.rays += c.rays;
+            total.nan_paths += c.nan_paths;
+            total.td_count += c.td_count;
+            td_sq += f32::from_bits(c.td_sq_bits) as f64;
+            dev += f32::from_bits(c.dev_bits) as f64;
+        }
+        total.td_sq_bits = (td_sq as f32).to_bits();
+        total.dev_bits = (dev as f32).to_bits();
+        total
+    }
+
     /// Mean relative squared deviation of the pass's samples (see `dev_bits`).
     pub fn deviation(&self) -> f64 {
         f32::from_bits(self.dev_bits) as f64 / self.paths.max(1) as f64

@@ -845,10 +845,12 @@ fn volumes_learn_which_light_nee_picks() {
             let l = l as usize;
             assert!(l < n, "volume {v}: light {l}");
             assert_eq!(drawn.to_bits(), looked_up.to_bits(), "volume {v} light {l}");
-            assert_eq!(
-                drawn.to_bits(),
-                p[l].to_bits(),
-                "volume {v} light {l}: the table's"
+            // The table's probability, computed again on the host: GLSL's
+            // division need not round exactly (NVIDIA's is within 2 ulp).
+            assert!(
+                (drawn - p[l]).abs() <= 4.0 * f32::EPSILON * p[l],
+                "volume {v} light {l}: {drawn} against the table's {}",
+                p[l]
             );
             counts[l] += 1;
         }

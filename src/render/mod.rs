@@ -151,7 +151,11 @@ pub struct Renderer {
     accum: Buffer,
     /// The accumulation when the race in progress began.
     race_ref: Buffer,
+    /// Device-local pass stats (STATS_COPIES copies of MAX_BATCH slots):
+    /// a GPU's atomics on host-visible memory cross the bus one by one.
     stats: Buffer,
+    /// Where each submit copies `stats` for the host to sum.
+    stats_readback: Buffer,
     /// Trace dispatches' work counters, zeroed at each submit.
     work: Buffer,
     _samples: Buffer,
@@ -318,11 +322,10 @@ impl Renderer {
             samples_per_dispatch as u64 * pixels * size_of::<PathSample>() as u64,
         )?;
         let accum = Buffer::gpu_only(ctx, "accumulation", pixels * size_of::<Accum>() as u64)?;
-        let stats = Buffer::readback(
-            ctx,
-            "pass stats",
-            shaders::MAX_BATCH as u64 * size_of::<PassStats>() as u64,
-        )?;
+        let stats_bytes =
+            (shaders::STATS_COPIES * shaders::MAX_BATCH) as u64 * size_of::<PassStats>() as u64;
+        let stats = Buffer::gpu_only(ctx, "pass stats", stats_bytes)?;
+        let stats_readback = Buffer::readback(ctx, "pass stats (readback)", stats_bytes)?;
         // One counter per trace dispatch of a submit (at most one per pass).
         let work = Buffer::gpu_only(ctx, "work counters", shaders::MAX_BATCH as u64 * 4)?;
         let push = size_of::<PassParams>() as u32;
@@ -387,6 +390,7 @@ impl Renderer {
             accum,
             race_ref,
             stats,
+            stats_readback,
             work,
             _samples: samples,
             samples_per_dispatch,
@@ -410,8 +414,6 @@ impl Renderer {
         lap: Option<race::Lap>,
     ) -> Result<Vec<PassStats>, RenderError> {
         debug_assert!((1..=shaders::MAX_BATCH).contains(&count));
-        self.stats
-            .write(&[PassStats::default(); shaders::MAX_BATCH as usize]);
         let g = groups(self.settings.width, self.settings.height);
         let plain = lap.is_some_and(|l| l.entrant == race::Entrant::Plain)
             || self.stood_back.is_some_and(|from| first >= from);
@@ -429,10 +431,11 @@ impl Renderer {
         let pixels = settings.width as u64 * settings.height as u64;
         let cpu = self.ctx.info().kind == "CPU";
         let dispatches = &mut self.trace_dispatches;
-        let work = &self.work;
+        let (work, stats, stats_readback) = (&self.work, &self.stats, &self.stats_readback);
         self.ctx.submit(Some(&mut self.profiler), |rec| {
             // Each trace dispatch hands out its paths from a counter of its own.
             rec.fill(work, 0);
+            rec.fill(stats, 0);
             let mut work_slot = 0u32;
             // Samples traced but not yet accumulated: passes pending_first..
             // in samples-buffer slots 0.. . One accumulate dispatch takes
@@ -517,10 +520,18 @@ impl Renderer {
                 *dispatches += 1;
             }
             flush(rec, pending_first, pending);
+            rec.copy(stats, stats_readback);
         })?;
-        let slots = self.stats.read::<PassStats>();
+        let copies = self.stats_readback.read::<PassStats>();
         Ok((first..first + count)
-            .map(|i| slots[(i % shaders::MAX_BATCH) as usize])
+            .map(|i| {
+                PassStats::sum(
+                    copies
+                        .iter()
+                        .skip((i % shaders::MAX_BATCH) as usize)
+                        .step_by(shaders::MAX_BATCH as usize),
+                )
+            })
             .collect())
     }
 
