@@ -805,7 +805,7 @@ fn checkpoints_and_signals_leave_complete_outputs() {
     for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
         let dir = scratch(&format!("signal{signal}"));
         let (exr, json) = (dir.join("s.exr"), dir.join("s.json"));
-        let child = qtrace()
+        let mut child = qtrace()
             .arg("render")
             .arg(dir.join("cornell-box.toml"))
             .args(["--width", "32", "--height", "32", "--spp", "1000000"])
@@ -822,6 +822,13 @@ fn checkpoints_and_signals_leave_complete_outputs() {
         let start = std::time::Instant::now();
         while !json.exists() {
             assert!(start.elapsed().as_secs() < 120, "no checkpoint written");
+            // A render that ends early (no device, say) fails the test at
+            // once rather than after the wait.
+            if child.try_wait().unwrap().is_some() {
+                let mut stderr = String::new();
+                std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+                panic!("the render ended before its first checkpoint: {stderr}");
+            }
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
         let stats = common::read_json(&json);
