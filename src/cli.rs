@@ -645,6 +645,15 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
                 );
             }
         }
+        for r in s.runs.iter().filter(|r| r.guide_bytes > 0) {
+            let spp = bench::eval::spp_at_time(&r.checkpoints, s.equal_time_seconds);
+            if spp < bench::eval::LEARNING_SPP {
+                println!(
+                    "{}: at equal time ({:.3} s) {} had rendered about {spp:.0} spp, most of them passes that learn: equal time measures its guide's start-up here; a longer --spp-list or a larger image measures a render",
+                    s.name, s.equal_time_seconds, r.config
+                );
+            }
+        }
         println!("{}", reference_floor_line(s));
     }
     if extrapolated {

@@ -57,6 +57,16 @@ fn quick_bench_writes_the_report() {
     let output = run();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "bench failed: {stderr}");
+    // At --quick sizes a guide is still learning at `pt`'s time for 32 spp
+    // (it costs more per pass than `pt`), and the bench says so.
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    for guide in ["sarsa", "neural"] {
+        assert!(
+            stdout.contains(&format!("{guide} had rendered about"))
+                && stdout.contains("measures its guide's start-up"),
+            "{stdout}"
+        );
+    }
 
     for f in [
         "index.html",

@@ -268,6 +268,31 @@ fn worst_block(image: &Image, reference: &Image) -> [f64; 2] {
 /// Error at time `t` by log-log interpolation between checkpoints. Before
 /// the first one it is extrapolated as Monte Carlo error falls: MSE and
 /// relMSE as 1/time, MAPE as 1/sqrt(time) (`t_extrapolated` says so).
+/// Samples per pixel a run had rendered by time `t`: linear in time between
+/// its checkpoints, and before the first in proportion to it.
+pub fn spp_at_time(rows: &[CheckpointRow], t: f64) -> f64 {
+    let Some(first) = rows.first() else {
+        return 0.0;
+    };
+    if t <= first.seconds {
+        return first.spp as f64 * t / first.seconds.max(f64::MIN_POSITIVE);
+    }
+    for w in rows.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        if t <= b.seconds {
+            let f = (t - a.seconds) / (b.seconds - a.seconds).max(f64::MIN_POSITIVE);
+            return a.spp as f64 + f * (b.spp as f64 - a.spp as f64);
+        }
+    }
+    rows.last().map_or(0.0, |r| r.spp as f64)
+}
+
+/// Below this many samples per pixel at equal time, a guided run was still
+/// learning in most of its passes (every pass up to `thin_after`, 16 by
+/// default, then every other to twice that): equal time then weighs its
+/// start-up rather than a render.
+pub const LEARNING_SPP: f64 = 32.0;
+
 pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
     let first = &rows[0];
     if t_extrapolated(rows, t) {
@@ -841,6 +866,15 @@ mod tests {
         assert!((early.mape - 0.4f64.sqrt() * 2f64.sqrt()).abs() < 1e-12);
         assert!(t_extrapolated(&rows, 0.5));
         assert!((error_at_time(&rows, 4.0).rel_mse - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn samples_at_a_time_interpolate_between_checkpoints() {
+        let rows = [row(16, 1.0, 0.4), row(64, 4.0, 0.1)];
+        assert_eq!(spp_at_time(&rows, 0.5), 8.0);
+        assert_eq!(spp_at_time(&rows, 2.5), 40.0);
+        assert_eq!(spp_at_time(&rows, 9.0), 64.0);
+        assert_eq!(spp_at_time(&[], 1.0), 0.0);
     }
 
     #[test]
