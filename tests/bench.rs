@@ -161,14 +161,15 @@ fn quick_bench_writes_the_report() {
         assert!(["pt", "sarsa", "neural"].contains(&v), "{key}: {v}");
     }
     // The reference's own error, from its variance: refined until it is under
-    // a tenth of the smallest error measured against it, or 8x its samples.
+    // a tenth of the smallest error measured against it, or 8x its samples
+    // (more while a doubling is quick).
     let scene = &json["scenes"][0];
     let floor = scene["reference_rel_mse"].as_f64().unwrap();
     let smallest = scene["smallest_rel_mse"].as_f64().unwrap();
     let spp = scene["reference_spp"].as_u64().unwrap();
     assert!(floor > 0.0, "{floor}");
     assert!(
-        floor <= 0.1 * smallest || spp == 8 * 256,
+        floor <= 0.1 * smallest || spp >= 8 * 256,
         "reference at {spp} spp: {floor} against {smallest}"
     );
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();

@@ -6,6 +6,7 @@ use super::{learned, BenchError, Config};
 use crate::gpu::{GpuContext, PassTiming};
 use crate::guide::{Guide, GuideSources, SarsaGuide};
 use crate::image::{self, ErrorMetrics, Image};
+use crate::render::settings::MAX_SPP;
 use crate::render::{
     Checkpoint, Control, Method, Overrides, PassRecord, RenderSettings, Renderer, Run,
     SettingsError,
@@ -356,16 +357,48 @@ pub struct EvalProgress<'a> {
 
 /// The reference's own relMSE and its sample count, beside its cached image
 /// (none for a reference cached without them).
-fn read_floor(path: &Path) -> Option<(f64, u32)> {
+/// A cached reference's own relMSE, its samples per pixel and, when known,
+/// the seconds its rendering took.
+fn read_floor(path: &Path) -> Option<(f64, u32, Option<f64>)> {
     let text = std::fs::read_to_string(path).ok()?;
     let mut words = text.split_whitespace();
     let floor = words.next()?.parse().ok()?;
-    Some((floor, words.next()?.parse().ok()?))
+    let spp = words.next()?.parse().ok()?;
+    Some((floor, spp, words.next().and_then(|w| w.parse().ok())))
 }
 
-fn write_floor(path: &Path, floor: f64, spp: u32) -> Result<(), BenchError> {
-    std::fs::write(path, format!("{floor:e} {spp}\n"))
+fn write_floor(path: &Path, floor: f64, spp: u32, seconds: Option<f64>) -> Result<(), BenchError> {
+    let seconds = seconds.map_or(String::new(), |s| format!(" {s:e}"));
+    std::fs::write(path, format!("{floor:e} {spp}{seconds}\n"))
         .map_err(|e| BenchError::Io(path.to_path_buf(), e.to_string()))
+}
+
+/// A refinement that doubles a reference takes about as long as the
+/// reference took so far; past 8x `--reference-spp` it goes on only while
+/// that is under this (a fast GPU, a small image).
+pub const QUICK_DOUBLING_SECONDS: f64 = 60.0;
+
+/// The samples to add to a reference of `spp` whose own relMSE `floor` is
+/// not yet under a tenth of `smallest`, the error measured against it, or
+/// None when refining stops: up to `cap` (8x `--reference-spp`) by
+/// doubling, beyond it while a doubling is quick (`seconds`: the time the
+/// reference took so far), never past MAX_SPP.
+pub fn refinement(
+    floor: f64,
+    smallest: f64,
+    spp: u32,
+    cap: u32,
+    seconds: Option<f64>,
+) -> Option<u32> {
+    if floor <= 0.1 * smallest || spp >= MAX_SPP {
+        return None;
+    }
+    if spp < cap {
+        return Some(spp.min(cap - spp));
+    }
+    seconds
+        .is_some_and(|s| s <= QUICK_DOUBLING_SECONDS)
+        .then(|| spp.min(MAX_SPP - spp))
 }
 
 fn render_settings(
@@ -477,51 +510,64 @@ pub fn evaluate(
             plan.reference_spp,
             plan.seed.wrapping_add(7919),
         )?;
-        let (mut reference, reference_label, mut reference_spp, mut reference_rel_mse) =
-            match &plan.reference {
-                Some(r) => (Image::read_exr(r)?, r.display().to_string(), None, None),
-                None => {
-                    std::fs::create_dir_all(&plan.cache_dir)
-                        .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
-                    let key = scene_key(path, &scene, plan, ref_settings.max_depth);
-                    let cached = plan
-                        .cache_dir
-                        .join(format!("reference-{name}-{key:016x}.exr"));
-                    let floor_file = cached.with_extension("relmse");
-                    let cached_floor = read_floor(&floor_file);
-                    let (image, floor) = match Image::read_exr(&cached) {
-                        Ok(img) => {
-                            done += reference_passes;
-                            (img, cached_floor)
-                        }
-                        Err(_) => {
-                            let message =
-                                format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
-                            let start = done;
-                            let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
-                            let out = renderer.run(&mut |pr| {
-                                progress(&EvalProgress {
-                                    message: &message,
-                                    done: start + pr.passes_done as u64,
-                                    total,
-                                })
-                            })?;
-                            done += reference_passes;
-                            out.image.write_exr(&cached)?;
-                            let spp = out.stats.image_spp;
-                            let floor = image::expected_rel_mse(&out.image, &out.variance, spp);
-                            write_floor(&floor_file, floor, spp)?;
-                            (out.image, Some((floor, spp)))
-                        }
-                    };
-                    (
-                        image,
-                        cached.display().to_string(),
-                        Some(floor.map_or(plan.reference_spp, |f| f.1)),
-                        floor.map(|f| f.0),
-                    )
-                }
-            };
+        let (
+            mut reference,
+            reference_label,
+            mut reference_spp,
+            mut reference_rel_mse,
+            reference_seconds,
+        ) = match &plan.reference {
+            Some(r) => (
+                Image::read_exr(r)?,
+                r.display().to_string(),
+                None,
+                None,
+                None,
+            ),
+            None => {
+                std::fs::create_dir_all(&plan.cache_dir)
+                    .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
+                let key = scene_key(path, &scene, plan, ref_settings.max_depth);
+                let cached = plan
+                    .cache_dir
+                    .join(format!("reference-{name}-{key:016x}.exr"));
+                let floor_file = cached.with_extension("relmse");
+                let cached_floor = read_floor(&floor_file);
+                let (image, floor) = match Image::read_exr(&cached) {
+                    Ok(img) => {
+                        done += reference_passes;
+                        (img, cached_floor)
+                    }
+                    Err(_) => {
+                        let message =
+                            format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
+                        let start = done;
+                        let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
+                        let out = renderer.run(&mut |pr| {
+                            progress(&EvalProgress {
+                                message: &message,
+                                done: start + pr.passes_done as u64,
+                                total,
+                            })
+                        })?;
+                        done += reference_passes;
+                        out.image.write_exr(&cached)?;
+                        let spp = out.stats.image_spp;
+                        let floor = image::expected_rel_mse(&out.image, &out.variance, spp);
+                        let seconds = Some(out.stats.wall_seconds);
+                        write_floor(&floor_file, floor, spp, seconds)?;
+                        (out.image, Some((floor, spp, seconds)))
+                    }
+                };
+                (
+                    image,
+                    cached.display().to_string(),
+                    Some(floor.map_or(plan.reference_spp, |f| f.1)),
+                    floor.map(|f| f.0),
+                    floor.and_then(|f| f.2),
+                )
+            }
+        };
         if (reference.width, reference.height) != (plan.width as usize, plan.height as usize) {
             return Err(BenchError::Io(
                 PathBuf::from(&reference_label),
@@ -715,7 +761,8 @@ pub fn evaluate(
 
         // A reference rendered here is refined until its own error is under
         // a tenth of the smallest error measured against it (or it has 8x
-        // its samples); then every error is measured again.
+        // its samples and a doubling would be slow: `refinement`); then
+        // every error is measured again.
         if let (Some(first_floor), Some(first_spp), None) =
             (reference_rel_mse, reference_spp, plan.reference.as_ref())
         {
@@ -724,10 +771,9 @@ pub fn evaluate(
                     .filter_map(|r| r.checkpoints.last().map(|c| c.error.rel_mse))
                     .fold(f64::INFINITY, f64::min)
             };
-            let (mut floor, mut spp) = (first_floor, first_spp);
+            let (mut floor, mut spp, mut seconds) = (first_floor, first_spp, reference_seconds);
             let cap = plan.reference_spp.saturating_mul(8);
-            while floor > 0.1 * smallest(&runs) && spp < cap {
-                let more = spp.min(cap - spp);
+            while let Some(more) = refinement(floor, smallest(&runs), spp, cap, seconds) {
                 let settings = render_settings(
                     &scene,
                     plan,
@@ -752,6 +798,10 @@ pub fn evaluate(
                 }
                 // Each floor is a variance over a sample count: pool them.
                 floor = (n1 * n1 * floor + n2 * n2 * added) / ((n1 + n2) * (n1 + n2));
+                // A reference cached without its time: its own, estimated
+                // from this refinement's.
+                let took = out.stats.wall_seconds;
+                seconds = Some(seconds.unwrap_or(took * n1 / n2) + took);
                 spp += more;
                 for (run, kept) in runs.iter_mut().zip(&images) {
                     for (row, img) in run.checkpoints.iter_mut().zip(kept) {
@@ -762,7 +812,7 @@ pub fn evaluate(
             if spp != first_spp {
                 let cached = PathBuf::from(&reference_label);
                 reference.write_exr(&cached)?;
-                write_floor(&cached.with_extension("relmse"), floor, spp)?;
+                write_floor(&cached.with_extension("relmse"), floor, spp, seconds)?;
                 write_image(&reference, &dir, "reference", &plan.out)?;
                 if let Some(last) = images.first().and_then(|k| k.last()) {
                     crop_centre = worst_block(last, &reference);
@@ -866,6 +916,22 @@ mod tests {
         assert!((early.mape - 0.4f64.sqrt() * 2f64.sqrt()).abs() < 1e-12);
         assert!(t_extrapolated(&rows, 0.5));
         assert!((error_at_time(&rows, 4.0).rel_mse - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn references_double_to_8x_then_while_a_doubling_is_quick() {
+        // Under a tenth already: done.
+        assert_eq!(refinement(0.009, 0.1, 1024, 8192, None), None);
+        // Up to the cap by doubling, the last step to the cap.
+        assert_eq!(refinement(0.02, 0.1, 1024, 8192, None), Some(1024));
+        assert_eq!(refinement(0.02, 0.1, 6144, 8192, Some(900.0)), Some(2048));
+        // At the cap: on only while a doubling (as long as the reference
+        // took so far) is quick, and never past MAX_SPP.
+        assert_eq!(refinement(0.02, 0.1, 8192, 8192, None), None);
+        assert_eq!(refinement(0.02, 0.1, 8192, 8192, Some(600.0)), None);
+        assert_eq!(refinement(0.02, 0.1, 8192, 8192, Some(3.0)), Some(8192));
+        assert_eq!(refinement(0.02, 0.1, MAX_SPP - 5, 8192, Some(3.0)), Some(5));
+        assert_eq!(refinement(0.02, 0.1, MAX_SPP, 8192, Some(3.0)), None);
     }
 
     #[test]
