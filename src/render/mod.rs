@@ -370,7 +370,7 @@ impl Renderer {
             .transpose()?;
         ctx.submit(None, |rec| rec.fill(&accum, 0))?;
         let identity = state::Identity::of(scene, &settings);
-        Ok(Self {
+        let mut renderer = Self {
             ctx: ctx.clone(),
             params: pass_params(scene, &settings),
             settings,
@@ -399,7 +399,14 @@ impl Renderer {
             identity,
             guide,
             resumed: None,
-        })
+        };
+        // Plain path tracing's kernel, for races and standing back, made
+        // now: a driver that compiles a kernel when it is made (NVIDIA's)
+        // would otherwise compile it inside the render's clock.
+        if may_race {
+            renderer.plain = Some(renderer.plain_pipeline()?);
+        }
+        Ok(renderer)
     }
 
     /// Runs sample passes `first .. first + count` (count <= MAX_BATCH) in one
@@ -418,6 +425,7 @@ impl Renderer {
         let plain = lap.is_some_and(|l| l.entrant == race::Entrant::Plain)
             || self.stood_back.is_some_and(|from| first >= from);
         if plain && self.plain.is_none() {
+            // Made in `new` wherever the guide may race or stand back.
             self.plain = Some(self.plain_pipeline()?);
         }
         let plain = self.plain.as_ref().filter(|_| plain).map(|(p, s)| (p, s));
