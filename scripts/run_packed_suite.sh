@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Runs the suite packed by scripts/pack_suite.sh on this machine, with the
+# validation layer on, then a speed table of every method on three scenes.
+# Run it as root in a checkout of the commit the archive was built from: it
+# unpacks the Vulkan loader and validation layer into / when the machine
+# has no loader, and recreates the absolute paths the tests were built with:
+# the repository, by a symbolic link to this checkout where nothing is
+# there, and the qtrace binary, copied over whatever is at its path. Each
+# test binary gets at most SECONDS (default 120); the whole log goes to
+# $LOG (default suite.log).
+#
+#   scripts/run_packed_suite.sh suite.tgz [SECONDS]
+set -uo pipefail
+
+pack=$(realpath "$1")
+limit="${2:-120}"
+checkout=$(cd "$(dirname "$0")/.." && pwd)
+log=$(realpath -m "${LOG:-suite.log}")
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+tar xzf "$pack" -C "$work"
+. "$work/suite/paths"
+
+if ! ldconfig -p | grep -q libvulkan.so.1 ||
+    [ ! -e /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json ]; then
+    for deb in "$work"/suite/debs/*.deb; do dpkg -x "$deb" /; done
+    ldconfig
+fi
+# The paths the tests were built with: the repository (this checkout, by a
+# link, where nothing is there) and the qtrace binary.
+if [ ! -e "$built_repo" ]; then
+    mkdir -p "$(dirname "$built_repo")" && ln -s "$checkout" "$built_repo"
+elif [ "$(realpath "$built_repo")" != "$checkout" ]; then
+    echo "warning: the tests read $built_repo, not this checkout" | tee -a "$log"
+fi
+mkdir -p "$(dirname "$built_qtrace")" && cp "$work/suite/qtrace" "$built_qtrace"
+cd "$checkout"
+[ "$(git rev-parse HEAD 2>/dev/null)" = "$built_commit" ] ||
+    echo "warning: this checkout is not $built_commit, which the suite was built from" | tee -a "$log"
+
+"$built_qtrace" devices 2>&1 | tee -a "$log"
+failed=0
+for t in "$work"/suite/tests/*; do
+    name=$(basename "$t" | sed 's/-[0-9a-f]*$//')
+    echo "=== $name" >> "$log"
+    QTRACE_VALIDATION=1 timeout "$limit" "$t" >> "$log" 2>&1
+    rc=$?
+    [ $rc -eq 0 ] || failed=$((failed + 1))
+    echo "$name: exit $rc, $(grep -E "^test result" "$log" | tail -1)"
+done
+echo "=== speed" >> "$log"
+"$built_qtrace" bench --speed --methods pt,pt+nee,sarsa,sarsa+nee,neural,neural+nee --repeats 3 \
+    --peer none scenes/cornell-box.toml scenes/indirect-room.toml scenes/door-ajar.toml 2>&1 | tee -a "$log"
+echo "$failed test binaries failed; log: $log"
+[ $failed -eq 0 ]
