@@ -164,7 +164,8 @@ vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
 
 // Luminance a diffuse lobe reflects toward wo of the light a guide expects
 // from its n sectors, given as `irradiance` = (2 pi / n) sum_j Q_j
-// cos(theta_j). The other lobes' estimates are guide_reflect's (guide.glsl).
+// cos(theta_j). The other lobes' estimates are guide_reflect's (guide.glsl)
+// and, for a rough conductor, trace.comp's from the bounce's own direction.
 float bsdf_reflect(Bsdf bsdf, vec3 wo, float irradiance) {
     return luminance(bsdf.color) * INV_PI * irradiance;
 }

@@ -121,28 +121,25 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 // there: the target a transition that reached g learns (SPEC 4.2, 4.3:
 // (2 pi / n) sum_j Q_j f_s(w_j, wo) cos(theta_j)).
 // - Diffuse: exact, from the guide's irradiance-like sum.
-// - Rough conductor: one BSDF sample's estimate, Q of its sector times
-//   f cos / pdf, unbiased for Q constant over each sector. (A sum over all
-//   sectors would miss a lobe narrower than a sector and cost n reads.)
+// - Rough conductor: 0 here; trace.comp estimates it from the bounce's own
+//   direction (Q of its sector times f cos / pdf), where a sample of its
+//   own would cost a second lobe sample, evaluation and table read. (A sum
+//   over all sectors would miss a lobe narrower than a sector and cost n
+//   reads.)
 // - Mirror: its reflectance times Q of the mirrored direction's sector.
 // - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
 //   share sees the other side, of which the guide at g knows nothing, so it
 //   takes the cosine-weighted mean of g's Q instead. A rough estimate only
 //   steers sampling; the image stays unbiased.
-float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo, inout uint rng) {
+float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf_reflect(bsdf, wo, guide_irradiance(g));
     }
+    if (!bsdf_is_delta(bsdf)) {
+        return 0.0;
+    }
     uint a = grid_a();
     uint b = grid_b();
-    if (!bsdf_is_delta(bsdf)) {
-        vec2 square;
-        vec3 wi = bsdf_sample(bsdf, wo, rng_next2(rng), square);
-        float pdf = bsdf_pdf(bsdf, wo, wi);
-        return pdf > 0.0
-            ? luminance(bsdf_eval(bsdf, wo, wi)) / pdf * guide_sector_q(g, square_sector(square, a, b))
-            : 0.0;
-    }
     float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         return luminance(bsdf.color) * mirrored;

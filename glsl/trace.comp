@@ -285,7 +285,10 @@ bool scatter() {
     // a BSDF sample, at every vertex).
     float reflected = depth == 0u ? bsdf_reflect(bsdf, wo, guide_irradiance(here)) : 0.0;
 #else
-    float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo, rng) : 0.0;
+    // A glossy lobe's (0 here) is estimated from the bounce's own direction
+    // below.
+    bool glossy = !delta && !bsdf_is(bsdf, MATERIAL_DIFFUSE);
+    float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo) : 0.0;
 #endif
     if (depth == 0u) {
         path_estimate = reflected;
@@ -295,6 +298,8 @@ bool scatter() {
     if (depth >= params.max_depth) {
 #ifdef GUIDED
         if (learn) {
+            // (A glossy lobe here, where the path ends, learns 0 for what it
+            // would reflect: only paths max_depth long reach it.)
             land(0.0, 1.0, reflected, 0.0);
         }
 #endif
@@ -410,6 +415,19 @@ bool scatter() {
         weight = bsdf_eval(bsdf, wo, local) / pdf;
 #if defined(GUIDED) && !defined(FROZEN)
         mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
+        if (glossy) {
+            // What a glossy lobe reflects of the light the guide expects,
+            // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
+            // the mixture's own draw, Q of its sector times f cos / pdf
+            // (unbiased for Q constant over each sector). Q itself, not the
+            // sampling table's weight (prev_q), which with NEE leaves out
+            // NEE's share.
+            float estimate = luminance(weight) * guide_sector_q(here, sector);
+            land_reflected = estimate;
+            if (depth == 0u) {
+                path_estimate = estimate;
+            }
+        }
 #endif
     }
     throughput *= weight;
