@@ -266,9 +266,6 @@ fn worst_block(image: &Image, reference: &Image) -> [f64; 2] {
     best.1
 }
 
-/// Error at time `t` by log-log interpolation between checkpoints. Before
-/// the first one it is extrapolated as Monte Carlo error falls: MSE and
-/// relMSE as 1/time, MAPE as 1/sqrt(time) (`t_extrapolated` says so).
 /// Samples per pixel a run had rendered by time `t`: linear in time between
 /// its checkpoints, and before the first in proportion to it.
 pub fn spp_at_time(rows: &[CheckpointRow], t: f64) -> f64 {
@@ -294,6 +291,9 @@ pub fn spp_at_time(rows: &[CheckpointRow], t: f64) -> f64 {
 /// start-up rather than a render.
 pub const LEARNING_SPP: f64 = 32.0;
 
+/// Error at time `t` by log-log interpolation between checkpoints. Before
+/// the first one it is extrapolated as Monte Carlo error falls: MSE and
+/// relMSE as 1/time, MAPE as 1/sqrt(time) (`t_extrapolated` says so).
 pub fn error_at_time(rows: &[CheckpointRow], t: f64) -> ErrorMetrics {
     let first = &rows[0];
     if t_extrapolated(rows, t) {
@@ -355,10 +355,9 @@ pub struct EvalProgress<'a> {
     pub total: u64,
 }
 
-/// The reference's own relMSE and its sample count, beside its cached image
-/// (none for a reference cached without them).
 /// A cached reference's own relMSE, its samples per pixel and, when known,
-/// the seconds its rendering took.
+/// the seconds its rendering took, beside its image (none for a reference
+/// cached without them).
 fn read_floor(path: &Path) -> Option<(f64, u32, Option<f64>)> {
     let text = std::fs::read_to_string(path).ok()?;
     let mut words = text.split_whitespace();
