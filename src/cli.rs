@@ -592,6 +592,7 @@ fn reference_floor_line(s: &bench::eval::SceneReport) -> String {
 pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
     plan.validate().map_err(anyhow::Error::msg)?;
     check_scenes(&plan.scenes, &plan.configs, &plan.guides)?;
+    bench::charts::ensure_font().map_err(anyhow::Error::msg)?;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("{}: cannot create the report directory", plan.out.display()))?;
     let ctx = open_device(device)?;

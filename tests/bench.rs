@@ -400,6 +400,29 @@ fn bench_checks_guide_settings_first() {
     }
 }
 
+/// A font the charts cannot use fails the bench at once, in one line,
+/// before it renders anything (no reference in its cache).
+#[test]
+fn bench_checks_its_font_first() {
+    let dir = common::scratch("bench-font");
+    let output = common::qtrace()
+        .args(["bench", "scenes/cornell-box.toml", "--quick", "--out"])
+        .arg(dir.join("out"))
+        .env("QTRACE_CACHE", dir.join("cache"))
+        .env("QTRACE_FONT", dir.join("no-such-font.ttf"))
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("QTRACE_FONT=") && stderr.contains("not a TrueType font"),
+        "{stderr}"
+    );
+    assert!(!dir.join("cache").exists(), "it rendered before checking");
+}
+
 /// With several lights the report pictures which light NEE picks where
 /// (for both guides: Neural-Q's tables learn it too), with a legend naming
 /// each light's colour; without, it has no such picture.

@@ -15,13 +15,17 @@ const FONT_PATHS: &[&str] = &[
 ];
 
 /// Registers a font for chart text once; plotters draws no text without one.
-fn ensure_font() -> Result<(), String> {
+/// `QTRACE_FONT`, when set, is the only font tried. The bench calls this
+/// before it renders anything, so that a machine without a font learns so
+/// at once, not after the renders.
+pub fn ensure_font() -> Result<(), String> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let candidates: Vec<String> = std::env::var("QTRACE_FONT")
-            .into_iter()
-            .chain(FONT_PATHS.iter().map(|s| s.to_string()))
-            .collect();
+        let given = std::env::var("QTRACE_FONT").ok();
+        let candidates: Vec<String> = match &given {
+            Some(path) => vec![path.clone()],
+            None => FONT_PATHS.iter().map(|s| s.to_string()).collect(),
+        };
         for path in &candidates {
             if let Ok(bytes) = std::fs::read(path) {
                 // plotters keeps fonts for the whole run.
@@ -31,7 +35,12 @@ fn ensure_font() -> Result<(), String> {
                 }
             }
         }
-        Err("charts need a TrueType font: install fonts-dejavu-core or set QTRACE_FONT".into())
+        Err(match given {
+            Some(path) => format!("QTRACE_FONT={path}: not a TrueType font that can be read"),
+            None => {
+                "charts need a TrueType font: install fonts-dejavu-core or set QTRACE_FONT".into()
+            }
+        })
     })
     .clone()
 }

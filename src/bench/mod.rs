@@ -1,7 +1,7 @@
 //! Measurements: the speed table (samples/s, rays/s, GPU time per pass from
 //! timestamp queries) and the evaluation report of SPEC §6.
 
-mod charts;
+pub mod charts;
 pub mod eval;
 mod learned;
 pub mod peer;
