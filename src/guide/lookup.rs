@@ -12,7 +12,7 @@
 //! tree walk.
 
 use super::volumes::Volume;
-use super::volumes::{faces_same_way, nearest_where, within_box_distance};
+use super::volumes::{dmin2, faces_same_way, nearest_where, within_box_distance};
 use crate::scene::Scene;
 use crate::shaders::{Triangle, NO_VOLUME};
 use glam::{Vec2, Vec3};
@@ -221,37 +221,114 @@ fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> T
     }
     let [nu, nv] = grid_of(t, cell, offset);
     out.dims = [nu, nv];
+    let m = margin(cell, offset);
     for side in [n, -n] {
         // Query points sit one ray offset off the surface, on the shaded side.
         let origin = v0 + side * offset;
-        for iv in 0..nv {
-            for iu in 0..nu {
-                let (u0, u1) = (iu as f32 / nu as f32, (iu + 1) as f32 / nu as f32);
-                let (w0, w1) = (iv as f32 / nv as f32, (iv + 1) as f32 / nv as f32);
-                let region: Vec<Vec3> = clip_to_triangle([
-                    Vec2::new(u0, w0),
-                    Vec2::new(u1, w0),
-                    Vec2::new(u1, w1),
-                    Vec2::new(u0, w1),
-                ])
-                .iter()
-                .map(|uv| origin + uv.x * e1 + uv.y * e2)
-                .collect();
-                let found = candidates(volumes, &region, margin(cell, offset), |v| {
-                    faces_same_way(v, side)
-                });
-                match found.as_slice() {
-                    [] => out.cells.push([NO_VOLUME, 0]),
-                    [only] => out.cells.push([*only, 0]),
-                    list => {
-                        out.cells.push([out.items.len() as u32, list.len() as u32]);
-                        out.items.extend_from_slice(list);
-                    }
+        let grid = CellGrid {
+            origin,
+            e1,
+            e2,
+            dims: [nu, nv],
+        };
+        // The tree is searched once, for the whole grid; each half of a
+        // block of cells then searches its block's candidates only (see
+        // `candidates`), down to single cells.
+        let all = grid.block([0, 0], [nu, nv]);
+        let found = candidates(volumes, &all, m, |v| faces_same_way(v, side));
+        let mut cells = vec![Vec::new(); (nu * nv) as usize];
+        grid.split(volumes, &found, [0, 0], [nu, nv], m, &mut cells);
+        for found in &cells {
+            match found.as_slice() {
+                [] => out.cells.push([NO_VOLUME, 0]),
+                [only] => out.cells.push([*only, 0]),
+                list => {
+                    out.cells.push([out.items.len() as u32, list.len() as u32]);
+                    out.items.extend_from_slice(list);
                 }
             }
         }
     }
     out
+}
+
+/// A triangle side's grid of cells, `dims` along e1 and e2 from `origin`.
+struct CellGrid {
+    origin: Vec3,
+    e1: Vec3,
+    e2: Vec3,
+    dims: [u32; 2],
+}
+
+impl CellGrid {
+    fn point(&self, uv: Vec2) -> Vec3 {
+        self.origin + uv.x * self.e1 + uv.y * self.e2
+    }
+
+    fn quad(&self, lo: [u32; 2], hi: [u32; 2]) -> [Vec2; 4] {
+        let [nu, nv] = [self.dims[0] as f32, self.dims[1] as f32];
+        let (u0, u1) = (lo[0] as f32 / nu, hi[0] as f32 / nu);
+        let (w0, w1) = (lo[1] as f32 / nv, hi[1] as f32 / nv);
+        [
+            Vec2::new(u0, w0),
+            Vec2::new(u1, w0),
+            Vec2::new(u1, w1),
+            Vec2::new(u0, w1),
+        ]
+    }
+
+    /// The region of cells lo..hi: their whole parallelogram, which holds
+    /// every one of their own regions (clipped or not).
+    fn block(&self, lo: [u32; 2], hi: [u32; 2]) -> Vec<Vec3> {
+        self.quad(lo, hi).iter().map(|&uv| self.point(uv)).collect()
+    }
+
+    /// One cell's region: its part on the triangle (see clip_to_triangle).
+    fn cell(&self, iu: u32, iv: u32) -> Vec<Vec3> {
+        clip_to_triangle(self.quad([iu, iv], [iu + 1, iv + 1]))
+            .iter()
+            .map(|&uv| self.point(uv))
+            .collect()
+    }
+
+    /// Fills `cells` (row-major) for the block lo..hi from `found`, its
+    /// candidates, halving the longer side of the block at each step.
+    fn split(
+        &self,
+        volumes: &[Volume],
+        found: &[u32],
+        lo: [u32; 2],
+        hi: [u32; 2],
+        margin: f32,
+        cells: &mut [Vec<u32>],
+    ) {
+        if found.is_empty() {
+            return;
+        }
+        let [du, dv] = [hi[0] - lo[0], hi[1] - lo[1]];
+        if du == 1 && dv == 1 {
+            let region = self.cell(lo[0], lo[1]);
+            cells[(lo[0] + self.dims[0] * lo[1]) as usize] =
+                candidates_among(volumes, found, &region, margin);
+            return;
+        }
+        let halves = if du >= dv {
+            let mid = lo[0] + du / 2;
+            [(lo, [mid, hi[1]]), ([mid, lo[1]], hi)]
+        } else {
+            let mid = lo[1] + dv / 2;
+            [(lo, [hi[0], mid]), ([lo[0], mid], hi)]
+        };
+        for (a, b) in halves {
+            let region = self.block(a, b);
+            let mine = if (b[0] - a[0]) * (b[1] - a[1]) == 1 {
+                found.to_vec()
+            } else {
+                candidates_among(volumes, found, &region, margin)
+            };
+            self.split(volumes, &mine, a, b, margin, cells);
+        }
+    }
 }
 
 /// The part of the cell `quad` (barycentric corners, counter-clockwise) on
@@ -282,7 +359,8 @@ fn clip_to_triangle(quad: [Vec2; 4]) -> Vec<Vec2> {
 }
 
 /// Volumes `accept` lets through that can be nearest to some point within
-/// `margin` of the convex polygon `region`, nearest to its centre first.
+/// `margin` of the convex polygon `region`, nearest to its centre first;
+/// searched in the whole k-d tree.
 fn candidates(
     volumes: &[Volume],
     region: &[Vec3],
@@ -293,27 +371,67 @@ fn candidates(
     let Some(first) = nearest_where(volumes, centre, accept) else {
         return Vec::new();
     };
+    let (lo, hi, r2) = search_box(volumes, region, margin, first);
+    let mut found = Vec::new();
+    within_box_distance(volumes, lo, hi, r2, &mut |j| {
+        if accept(&volumes[j as usize]) {
+            found.push(j);
+        }
+    });
+    undominated(volumes, found, region, margin, centre)
+}
+
+/// As `candidates`, searched among `known`: the candidates of a region that
+/// holds this one. They hold all of this region's, since a volume nearest
+/// to some point here is nearest to that point of the larger region; the
+/// result may keep one that the whole tree would have shown dominated.
+fn candidates_among(volumes: &[Volume], known: &[u32], region: &[Vec3], margin: f32) -> Vec<u32> {
     let position = |i: u32| Vec3::from(volumes[i as usize].position);
-    // Every point of the region has a volume no farther than `first` is.
-    let p0 = position(first);
+    let centre = region.iter().copied().sum::<Vec3>() / region.len() as f32;
+    let Some(first) = known.iter().copied().min_by(|&a, &b| {
+        centre
+            .distance_squared(position(a))
+            .total_cmp(&centre.distance_squared(position(b)))
+    }) else {
+        return Vec::new();
+    };
+    let (lo, hi, r2) = search_box(volumes, region, margin, first);
+    let found = known
+        .iter()
+        .copied()
+        .filter(|&j| dmin2(lo, hi, position(j)) <= r2)
+        .collect();
+    undominated(volumes, found, region, margin, centre)
+}
+
+/// The box around `region` (grown by `margin`) and the squared distance
+/// from it within which a volume may be nearest somewhere in the region:
+/// every point of the region has a volume no farther than `first` is.
+fn search_box(volumes: &[Volume], region: &[Vec3], margin: f32, first: u32) -> (Vec3, Vec3, f32) {
+    let p0 = Vec3::from(volumes[first as usize].position);
     let bound = region.iter().map(|q| q.distance(p0)).fold(0.0f32, f32::max) + margin;
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for &q in region {
         lo = lo.min(q);
         hi = hi.max(q);
     }
-    let mut found = Vec::new();
-    within_box_distance(
-        volumes,
+    (
         lo - Vec3::splat(margin),
         hi + Vec3::splat(margin),
         bound * bound,
-        &mut |j| {
-            if accept(&volumes[j as usize]) {
-                found.push(j);
-            }
-        },
-    );
+    )
+}
+
+/// `found`, nearest to `centre` first, less each volume that another of
+/// them is nearer than at every point within `margin` of `region`.
+fn undominated(
+    volumes: &[Volume],
+    mut found: Vec<u32>,
+    region: &[Vec3],
+    margin: f32,
+    centre: Vec3,
+) -> Vec<u32> {
+    let position = |i: u32| Vec3::from(volumes[i as usize].position);
     found.sort_by(|&a, &b| {
         centre
             .distance_squared(position(a))

@@ -161,7 +161,7 @@ pub fn nearest_where(volumes: &[Volume], p: Vec3, accept: impl Fn(&Volume) -> bo
     best.map(|(_, i)| i)
 }
 
-fn dmin2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
+pub fn dmin2(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
     (lo - p).max(p - hi).max(Vec3::ZERO).length_squared()
 }
 
