@@ -64,31 +64,42 @@ impl VolumeLookup {
             cell *= 1.25;
         }
         let triangles = &scene.triangles;
-        // The triangles split into one contiguous share per core.
+        // Each core takes the next run of triangles as it gets free: a few
+        // large triangles (a Cornell box's walls) hold most of the cells.
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let chunk = triangles.len().div_ceil(threads).max(1);
-        let parts: Vec<Vec<TriangleCells>> = std::thread::scope(|s| {
-            let handles: Vec<_> = triangles
-                .chunks(chunk)
-                .map(|part| {
-                    s.spawn(move || {
-                        part.iter()
-                            .map(|t| triangle_cells(t, volumes, cell, offset))
-                            .collect::<Vec<_>>()
+        let run = (triangles.len() / (64 * threads)).clamp(1, 256);
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let mut parts: Vec<(usize, Vec<TriangleCells>)> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..threads)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut mine = Vec::new();
+                        loop {
+                            let start = next.fetch_add(run, std::sync::atomic::Ordering::Relaxed);
+                            if start >= triangles.len() {
+                                break mine;
+                            }
+                            let part = &triangles[start..(start + run).min(triangles.len())];
+                            let cells = part
+                                .iter()
+                                .map(|t| triangle_cells(t, volumes, cell, offset));
+                            mine.push((start, cells.collect::<Vec<_>>()));
+                        }
                     })
                 })
                 .collect();
             handles
                 .into_iter()
-                .map(|h| h.join().expect("lookup build thread panicked"))
+                .flat_map(|h| h.join().expect("lookup build thread panicked"))
                 .collect()
         });
+        parts.sort_unstable_by_key(|&(start, _)| start);
         let mut lookup = Self {
             triangles: Vec::with_capacity(triangles.len()),
             cells: Vec::new(),
             items: Vec::new(),
         };
-        for t in parts.into_iter().flatten() {
+        for t in parts.into_iter().flat_map(|(_, cells)| cells) {
             if let [[front, 0], [back, 0]] = t.cells[..] {
                 lookup.triangles.push([0, 0, front, back]);
                 continue;
