@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Packs the release qtrace binary and the test binaries, stripped, with the
-# Vulkan loader and validation layer packages, into one archive, to run the
-# suite on another x86-64 Linux machine (a GPU node, a machine without Rust)
-# with scripts/run_packed_suite.sh. The tests find the repository and the
+# Vulkan loader and validation layer packages and a font for the bench's
+# charts, into one archive, to run the suite on another x86-64 Linux
+# machine (a GPU node, a machine without Rust) with
+# scripts/run_packed_suite.sh. The tests find the repository and the
 # qtrace binary at the absolute paths they were built with; the archive
 # records them and the run script recreates them.
 #
@@ -39,6 +40,9 @@ strip -o "$stage/suite/qtrace" "$target/release/qtrace"
     echo "built_commit=$(git rev-parse HEAD)"
 } > "$stage/suite/paths"
 (cd "$stage/suite/debs" && apt-get download libvulkan1 vulkan-validationlayers >&2)
+# The bench's charts need a font, which a GPU node may lack.
+font=/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf
+[ -e "$font" ] && cp "$font" "$stage/suite/"
 mkdir -p "$(dirname "$out")"
 tar czf "$out" -C "$stage" suite
 echo "$out: $(ls "$stage/suite/tests" | wc -l) test binaries, $(du -h "$out" | cut -f1)"

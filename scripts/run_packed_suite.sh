@@ -7,7 +7,8 @@
 # the repository, by a symbolic link to this checkout where nothing is
 # there, and the qtrace binary, copied over whatever is at its path. Each
 # test binary gets at most SECONDS (default 120); the whole log goes to
-# $LOG (default suite.log).
+# $LOG (default suite.log). With EQUAL_TIME=DIR it then runs the bench at
+# 1024x1024 and 1024 spp on the indirectly lit room, its report in DIR.
 #
 #   scripts/run_packed_suite.sh suite.tgz [SECONDS]
 set -uo pipefail
@@ -25,6 +26,10 @@ if ! ldconfig -p | grep -q libvulkan.so.1 ||
     [ ! -e /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json ]; then
     for deb in "$work"/suite/debs/*.deb; do dpkg -x "$deb" /; done
     ldconfig
+fi
+if [ -z "${QTRACE_FONT:-}" ] && [ ! -e /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] &&
+    [ -e "$work/suite/DejaVuSans.ttf" ]; then
+    export QTRACE_FONT="$work/suite/DejaVuSans.ttf"
 fi
 # The paths the tests were built with: the repository (this checkout, by a
 # link, where nothing is there) and the qtrace binary.
@@ -51,5 +56,13 @@ done
 echo "=== speed" >> "$log"
 "$built_qtrace" bench --speed --methods pt,pt+nee,sarsa,sarsa+nee,neural,neural+nee --repeats 3 \
     --peer none scenes/cornell-box.toml scenes/indirect-room.toml scenes/door-ajar.toml 2>&1 | tee -a "$log"
+if [ -n "${EQUAL_TIME:-}" ]; then
+    # On a fast GPU the bench's default size is over before the guides learn
+    # (README, "On a GPU"): equal time at 1024x1024 and 1024 spp instead.
+    echo "=== equal time" >> "$log"
+    "$built_qtrace" bench --methods pt,pt+nee,sarsa,sarsa+nee,neural,neural+nee \
+        --width 1024 --height 1024 --spp-list 4,16,64,256,1024 --reference-spp 4096 \
+        --out "${EQUAL_TIME}" scenes/indirect-room.toml 2>&1 | tee -a "$log"
+fi
 echo "$failed test binaries failed; log: $log"
 [ $failed -eq 0 ]

@@ -15,13 +15,13 @@ const FONT_PATHS: &[&str] = &[
 ];
 
 /// Registers a font for chart text once; plotters draws no text without one.
-/// `QTRACE_FONT`, when set, is the only font tried. The bench calls this
+/// `QTRACE_FONT`, when set and not empty, is the only font tried. The bench calls this
 /// before it renders anything, so that a machine without a font learns so
 /// at once, not after the renders.
 pub fn ensure_font() -> Result<(), String> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let given = std::env::var("QTRACE_FONT").ok();
+        let given = std::env::var("QTRACE_FONT").ok().filter(|p| !p.is_empty());
         let candidates: Vec<String> = match &given {
             Some(path) => vec![path.clone()],
             None => FONT_PATHS.iter().map(|s| s.to_string()).collect(),
