@@ -235,7 +235,39 @@ pub struct MlpBatch {
 #[cfg(test)]
 mod tests {
     use super::spirv;
+    use super::PassStats;
     use crate::gpu::Reads;
+
+    /// A pass's stats are the sum of its copies: counts add, and the float
+    /// totals add as floats.
+    #[test]
+    fn pass_stats_sum_their_copies() {
+        let copy = |paths: u32, td: f32, dev: f32| PassStats {
+            paths,
+            zero_paths: 1,
+            length_sum: 2 * paths,
+            rays: 3 * paths,
+            nan_paths: 0,
+            td_count: 5,
+            td_sq_bits: td.to_bits(),
+            dev_bits: dev.to_bits(),
+        };
+        let copies = [copy(10, 0.5, 1.0), copy(0, 0.0, 0.0), copy(7, 0.25, 2.5)];
+        let total = PassStats::sum(copies.iter());
+        assert_eq!(
+            (
+                total.paths,
+                total.zero_paths,
+                total.length_sum,
+                total.rays,
+                total.td_count
+            ),
+            (17, 3, 34, 51, 15)
+        );
+        assert_eq!(f32::from_bits(total.td_sq_bits), 0.75);
+        assert_eq!(f32::from_bits(total.dev_bits), 3.5);
+        assert_eq!(PassStats::sum([].iter()), PassStats::default());
+    }
 
     /// Each trace kernel has a storage-read twin of its own; texel reads and
     /// kernels without a twin map to themselves.

@@ -918,6 +918,21 @@ mod tests {
     }
 
     #[test]
+    fn a_reference_floor_keeps_its_time_and_older_files_still_read() {
+        let dir = std::env::temp_dir().join(format!("qtrace-floor-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("r.relmse");
+        write_floor(&path, 2.5e-4, 4096, Some(12.5)).unwrap();
+        assert_eq!(read_floor(&path), Some((2.5e-4, 4096, Some(12.5))));
+        write_floor(&path, 1e-3, 1024, None).unwrap();
+        assert_eq!(read_floor(&path), Some((1e-3, 1024, None)));
+        // As the bench wrote them before it kept the time.
+        std::fs::write(&path, "3e-4 2048\n").unwrap();
+        assert_eq!(read_floor(&path), Some((3e-4, 2048, None)));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn references_double_to_8x_then_while_a_doubling_is_quick() {
         // Under a tenth already: done.
         assert_eq!(refinement(0.009, 0.1, 1024, 8192, None), None);
