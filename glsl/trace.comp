@@ -415,7 +415,7 @@ bool scatter() {
         weight = bsdf_eval(bsdf, wo, local) / pdf;
 #if defined(GUIDED) && !defined(FROZEN)
         mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
-        if (glossy) {
+        if (glossy && (learn || depth == 0u)) {
             // What a glossy lobe reflects of the light the guide expects,
             // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
             // the mixture's own draw, Q of its sector times f cos / pdf

@@ -42,7 +42,9 @@ strip -o "$stage/suite/qtrace" "$target/release/qtrace"
 (cd "$stage/suite/debs" && apt-get download libvulkan1 vulkan-validationlayers >&2)
 # The bench's charts need a font, which a GPU node may lack.
 font=/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf
-[ -e "$font" ] && cp "$font" "$stage/suite/"
+if [ -e "$font" ]; then
+    cp "$font" "$stage/suite/"
+fi
 mkdir -p "$(dirname "$out")"
 tar czf "$out" -C "$stage" suite
 echo "$out: $(ls "$stage/suite/tests" | wc -l) test binaries, $(du -h "$out" | cut -f1)"

@@ -331,13 +331,13 @@ impl CellGrid {
             [(lo, [hi[0], mid]), ([lo[0], mid], hi)]
         };
         for (a, b) in halves {
-            let region = self.block(a, b);
-            let mine = if (b[0] - a[0]) * (b[1] - a[1]) == 1 {
-                found.to_vec()
+            // A single cell searches `found` itself, for its own region.
+            if (b[0] - a[0]) * (b[1] - a[1]) == 1 {
+                self.split(volumes, found, a, b, margin, cells);
             } else {
-                candidates_among(volumes, found, &region, margin)
-            };
-            self.split(volumes, &mine, a, b, margin, cells);
+                let mine = candidates_among(volumes, found, &self.block(a, b), margin);
+                self.split(volumes, &mine, a, b, margin, cells);
+            }
         }
     }
 }
