@@ -111,6 +111,17 @@ bool learn;
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
 float path_estimate;
+// A transition that lands on a delta vertex (a mirror, glass) learns where
+// the path next reaches one that is not (or ends): its target is what
+// arrives there times the delta bounces' weights, one sample of what the
+// delta vertex sends back. The guide's own estimate there (guide_reflect)
+// knows nothing of what lies behind glass. `chaining` while such a
+// transition waits; a path that ends on the way learns nothing from it.
+bool chaining;
+GuideVertex chain_from;
+uint chain_sector;
+float chain_q;
+float chain_weight;
 // The share of BSDF sampling learns from the radiance L a sampled direction
 // brought, squared (mixture_gradient). The path's own estimate of it is
 // known once the path ends: what it gathered after the sample, per unit of
@@ -155,6 +166,7 @@ void begin_path(uint sample_index) {
     prev_q = 0.0;
     guided_roulette = false;
     path_estimate = 0.0;
+    chaining = false;
 #ifndef FROZEN
     share_mix0 = 0.0;
     share_mix1 = 0.0;
@@ -175,6 +187,7 @@ float land_le;
 float land_mis_weight;
 float land_reflected;
 float land_direct;
+float land_scale;
 
 #ifndef FROZEN
 void keep_share_sample(GuideVertex g, float mix) {
@@ -208,13 +221,28 @@ void learn_share_samples() {
 #endif
 
 void land(float le, float mis_weight, float reflected, float direct) {
-    land_from = prev_vertex;
-    land_sector = prev_sector;
-    land_q = prev_q;
-    land_le = le;
+    land_from = chaining ? chain_from : prev_vertex;
+    land_sector = chaining ? chain_sector : prev_sector;
+    land_q = chaining ? chain_q : prev_q;
+    land_scale = chaining ? chain_weight : 1.0;
+    chaining = false;
+    land_le = le * land_scale;
     land_mis_weight = mis_weight;
-    land_reflected = reflected;
-    land_direct = direct;
+    land_reflected = reflected * land_scale;
+    land_direct = direct * land_scale;
+}
+
+// The path's ray landed on a delta vertex, from a vertex the guide covers
+// or through delta vertices from one: the transition waits (see chaining).
+void pass_through_delta() {
+    if (!chaining) {
+        chain_from = prev_vertex;
+        chain_sector = prev_sector;
+        chain_q = prev_q;
+        chain_weight = 1.0;
+        chaining = true;
+    }
+    land_from = guide_none();
 }
 #endif
 
@@ -360,7 +388,11 @@ bool scatter() {
     }
 #ifdef GUIDED
     if (learn) {
-        land(0.0, 1.0, reflected, direct_lum);
+        if (delta && (chaining || guide_covers(prev_vertex))) {
+            pass_through_delta();
+        } else {
+            land(0.0, 1.0, reflected, direct_lum);
+        }
     }
 #endif
     // The bounce: a delta lobe's one direction (no MIS for what it hits,
@@ -383,7 +415,11 @@ bool scatter() {
         // the throughput it had then.
         prev_q /= max(luminance(weight), 1e-6);
 #else
-        if (guide_covers(here)) {
+        if (chaining) {
+            // As in FROZEN: the waiting transition's Q stands for the path.
+            prev_q /= max(luminance(weight), 1e-6);
+            chain_weight *= luminance(weight);
+        } else if (guide_covers(here)) {
             prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
             prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
             guided_roulette = true;
@@ -423,7 +459,7 @@ bool scatter() {
             // sampling table's weight (prev_q), which with NEE leaves out
             // NEE's share.
             float estimate = luminance(weight) * guide_sector_q(here, sector);
-            land_reflected = estimate;
+            land_reflected = estimate * land_scale;
             if (depth == 0u) {
                 path_estimate = estimate;
             }
