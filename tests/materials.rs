@@ -6,8 +6,9 @@ mod common;
 
 use glam::{Vec2, Vec3};
 use qtrace::bsdf::{Bsdf, Sampling, Surface};
-use qtrace::guide::{GuideSettings, NeuralSettings, SarsaSettings};
+use qtrace::guide::{Common, GuideSettings, NeuralSettings, SarsaSettings};
 use qtrace::render::{Method, Overrides};
+use qtrace::sampling;
 use qtrace::Scene;
 use std::path::Path;
 
@@ -282,4 +283,111 @@ fn neural_converges_to_pt_on_glossy_and_glass_scenes() {
             },
         );
     }
+}
+
+/// A box [x0, x1] × [y0, y1] × [z0, z1] with faces outward, whose vertices
+/// follow `first - 1` earlier ones.
+fn box_faces(lo: Vec3, hi: Vec3, first: u32) -> String {
+    let mut obj = String::new();
+    for z in [lo.z, hi.z] {
+        for y in [lo.y, hi.y] {
+            for x in [lo.x, hi.x] {
+                obj += &format!("v {x} {y} {z}\n");
+            }
+        }
+    }
+    // As cube(): vertex (x, y, z) is first + (x high) + 2 (y high) + 4 (z high).
+    for face in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+    ] {
+        let [a, b, c, d] = face.map(|i| i + first);
+        obj += &format!("f {a} {b} {c} {d}\n");
+    }
+    obj
+}
+
+/// Light reaches the floor under a glass slab only through it: a light
+/// (Le 10, facing down) above the slab, whose light passes two smooth
+/// interfaces (about 0.92 of it straight down). The guide at the floor learns
+/// that: a transition into glass takes its target from where the path next
+/// reaches a surface that is not delta (here the light), not from the
+/// guide's estimate at the glass, which sees only the floor from outside.
+#[test]
+fn the_guide_learns_light_that_arrives_through_glass() {
+    let dir = common::scratch("through-glass");
+    let mut obj = String::from("v -5 0 -5\nv -5 0 5\nv 5 0 5\nv 5 0 -5\nusemtl floor\nf 1 2 3 4\n");
+    obj += "v -1 2 -1\nv 1 2 -1\nv 1 2 1\nv -1 2 1\nusemtl light\nf 5 6 7 8\n";
+    obj += "usemtl glass\n";
+    obj += &box_faces(Vec3::new(-2.0, 1.0, -2.0), Vec3::new(2.0, 1.5, 2.0), 9);
+    let mtl = "newmtl floor\nKd 0.5 0.5 0.5\nnewmtl light\nKd 0\nKe 10 10 10\nnewmtl glass\nNi 1.5\nd 0\n";
+    let scene = write_scene(&dir, &obj, mtl, Vec3::new(0.0, 4.0, 6.0), 40.0, 0.0);
+    let guide = GuideSettings::Sarsa(SarsaSettings {
+        volumes: Some(512),
+        common: Common {
+            stand_back: Some(false),
+            ..Default::default()
+        },
+        ..Default::default()
+    });
+    let renderer = common::run_renderer(
+        &common::gpu(),
+        &scene,
+        Overrides {
+            method: Some(Method::Sarsa),
+            spp: Some(128),
+            width: Some(64),
+            height: Some(64),
+            seed: Some(402),
+            guide: Some(guide),
+            ..Default::default()
+        },
+    );
+    let sarsa = renderer
+        .guide()
+        .and_then(|g| g.sarsa())
+        .expect("a Sarsa guide");
+    let q = sarsa.download_q().unwrap();
+    let [a, b] = sarsa.settings.common.grid;
+    let n = (a * b) as usize;
+    // The four sectors about the zenith (within about 14 degrees of it),
+    // which from within 0.5 of the light's middle see only the light (2 by
+    // 2, 2 above) through the slab.
+    let up: Vec<usize> = (0..n as u32)
+        .filter(|&k| sampling::sector_cos(k, a, b) > 0.97)
+        .map(|k| k as usize)
+        .collect();
+    assert_eq!(up.len(), 4, "sectors about the zenith");
+    let under: Vec<usize> = (0..sarsa.volumes.len())
+        .filter(|&v| {
+            let volume = &sarsa.volumes[v];
+            let [x, y, z] = volume.position;
+            volume.normal[1] > 0.9 && y.abs() < 0.1 && x.abs() < 0.5 && z.abs() < 0.5
+        })
+        .collect();
+    assert!(!under.is_empty(), "no volume on the floor under the light");
+    // Sectors no path took still hold the initial Q.
+    let initial = sarsa.settings.common.initial_q;
+    let learned: Vec<f32> = under
+        .iter()
+        .flat_map(|&v| up.iter().map(move |&k| v * n + k))
+        .map(|i| q[i])
+        .filter(|&x| x != initial)
+        .collect();
+    assert!(
+        learned.len() >= 4,
+        "{} sectors learned: {learned:?}",
+        learned.len()
+    );
+    let mean = learned.iter().sum::<f32>() / learned.len() as f32;
+    assert!(
+        mean > 6.0,
+        "Q toward the light through the glass, {} sectors of {} volumes under it: {learned:?} (Le 10)",
+        learned.len(),
+        under.len()
+    );
 }
