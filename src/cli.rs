@@ -616,15 +616,15 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
         b.finish_and_clear();
     }
     println!(
-        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10} {:>11}",
-        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s", "later half"
+        "{:<20} {:<12} {:>8} {:>12} {:>14} {:>10} {:>11} {:>9}",
+        "scene", "method", "zero %", "relMSE", "relMSE@time", "Mrays/s", "later half", "vs plain"
     );
     let mut extrapolated = false;
     for s in &report.scenes {
         for r in &s.runs {
             extrapolated |= r.equal_time_extrapolated;
             println!(
-                "{:<20} {:<12} {:>8.2} {:>12.5} {:>13.5}{} {:>10.3} {:>11}",
+                "{:<20} {:<12} {:>8.2} {:>12.5} {:>13.5}{} {:>10.3} {:>11} {:>9}",
                 s.name,
                 r.config,
                 100.0 * r.zero_contribution_fraction,
@@ -633,7 +633,8 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
                 if r.equal_time_extrapolated { "*" } else { " " },
                 r.rays_per_second / 1e6,
                 r.later_half_cost
-                    .map_or("-".to_string(), |c| format!("{c:.2}x"))
+                    .map_or("-".to_string(), |c| format!("{c:.2}x")),
+                r.over_plain.map_or("-".to_string(), |c| format!("{c:.2}x"))
             );
         }
         for r in s.runs.iter() {

@@ -150,6 +150,13 @@ fn quick_bench_writes_the_report() {
         let i = column(&h, name);
         assert!(rows.iter().all(|r| number(r, i) >= 0.0));
     }
+    // Each guide against `pt` at `pt`'s time; none for `pt` itself.
+    let (cfg, over) = (column(&h, "config"), column(&h, "over_plain"));
+    for r in &rows {
+        assert_eq!(r[cfg] == "pt", r[over].is_empty(), "{r:?}");
+        assert!(r[over].is_empty() || number(r, over) > 0.0, "{r:?}");
+    }
+    assert!(stdout.contains("vs plain"), "{stdout}");
     let json = common::read_json(out.join("results.json"));
     let summary = &json["scenes"][0]["summary"];
     for key in [

@@ -139,6 +139,10 @@ pub struct RunReport {
     /// Its later half of samples' time over the scene's first method's
     /// (see `later_half_cost`).
     pub later_half_cost: Option<f64>,
+    /// For a guided run, its relMSE at the time its plain counterpart (`pt`,
+    /// with NEE as it has) took for all its samples, over that counterpart's
+    /// relMSE: the equal-time figure a guide is judged by (see `over_plain`).
+    pub over_plain: Option<f64>,
     pub learned: Option<LearnedPictures>,
 }
 
@@ -345,6 +349,18 @@ pub fn later_half_cost(rows: &[CheckpointRow], base: &[CheckpointRow]) -> Option
     };
     let (run, plain) = (span(rows)?, span(base)?);
     (n >= 2 && plain > 0.0).then(|| run / plain)
+}
+
+/// The relMSE of `rows` at the time `plain` took for all its samples, over
+/// the relMSE `plain` ended with: a guide against plain path tracing at
+/// plain path tracing's time (under 1 the guide wins), each with its own
+/// NEE. The scene's equal time is the fastest run's, `pt`'s where it runs,
+/// which for a method with NEE falls early, while its guide still learns.
+/// None without checkpoints or with an exact plain image.
+pub fn over_plain(rows: &[CheckpointRow], plain: &[CheckpointRow]) -> Option<f64> {
+    let last = plain.last()?;
+    (!rows.is_empty() && last.error.rel_mse > 0.0)
+        .then(|| error_at_time(rows, last.seconds).rel_mse / last.error.rel_mse)
 }
 
 /// What the evaluation is doing, for a progress bar.
@@ -754,6 +770,7 @@ pub fn evaluate(
                 },
                 equal_time_extrapolated: false,
                 later_half_cost: None,
+                over_plain: None,
                 learned,
             });
         }
@@ -834,6 +851,25 @@ pub fn evaluate(
             r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
             r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
             r.later_half_cost = later_half_cost(&r.checkpoints, &first);
+        }
+        let plain: Vec<Option<Vec<CheckpointRow>>> = plan
+            .configs
+            .iter()
+            .map(|c| {
+                let label = Config {
+                    method: Method::Pt,
+                    nee: c.nee,
+                }
+                .label();
+                runs.iter()
+                    .find(|r| r.config == label)
+                    .map(|r| r.checkpoints.clone())
+            })
+            .collect();
+        for ((r, c), p) in runs.iter_mut().zip(&plan.configs).zip(plain) {
+            if c.method != Method::Pt {
+                r.over_plain = p.and_then(|p| over_plain(&r.checkpoints, &p));
+            }
         }
         let best = |key: &dyn Fn(&RunReport) -> f64| {
             runs.iter()
@@ -946,6 +982,19 @@ mod tests {
         assert_eq!(refinement(0.02, 0.1, 8192, 8192, Some(3.0)), Some(8192));
         assert_eq!(refinement(0.02, 0.1, MAX_SPP - 5, 8192, Some(3.0)), Some(5));
         assert_eq!(refinement(0.02, 0.1, MAX_SPP, 8192, Some(3.0)), None);
+    }
+
+    #[test]
+    fn a_guide_is_measured_at_its_plain_counterparts_time() {
+        // Plain: relMSE 0.1 after 4 s. The guide's relMSE at 4 s lies
+        // between its checkpoints (log-log): 0.06 at 2 s, 0.015 at 8 s.
+        let plain = [row(16, 1.0, 0.4), row(64, 4.0, 0.1)];
+        let guided = [row(16, 2.0, 0.06), row(64, 8.0, 0.015)];
+        let r = over_plain(&guided, &plain).unwrap();
+        assert!((r - 0.3).abs() < 1e-9, "{r}");
+        assert!((over_plain(&plain, &plain).unwrap() - 1.0).abs() < 1e-12);
+        assert_eq!(over_plain(&guided, &[]), None);
+        assert_eq!(over_plain(&[], &plain), None);
     }
 
     #[test]

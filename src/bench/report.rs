@@ -28,7 +28,7 @@ fn write_csv(report: &Report, out: &Path) -> Result<(), BenchError> {
     let mut equal = String::from("scene,config,equal_time_seconds,mse,rel_mse,mape\n");
     let mut gpu = String::from("scene,config,pass_name,count,total_ms,median_ms,min_ms,max_ms\n");
     let mut summary = String::from(
-        "scene,config,spp,wall_seconds,samples_per_second,rays_per_second,zero_contribution_fraction,mean_path_length,final_rel_mse,equal_time_rel_mse,guide_bytes\n",
+        "scene,config,spp,wall_seconds,samples_per_second,rays_per_second,zero_contribution_fraction,mean_path_length,final_rel_mse,equal_time_rel_mse,guide_bytes,over_plain\n",
     );
     for s in &report.scenes {
         for r in &s.runs {
@@ -75,7 +75,7 @@ fn write_csv(report: &Report, out: &Path) -> Result<(), BenchError> {
             let last = r.checkpoints.last();
             let _ = writeln!(
                 summary,
-                "{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{}",
                 s.name,
                 r.config,
                 last.map_or(0, |c| c.spp),
@@ -86,7 +86,8 @@ fn write_csv(report: &Report, out: &Path) -> Result<(), BenchError> {
                 r.mean_path_length,
                 last.map_or(f64::NAN, |c| c.error.rel_mse),
                 e.rel_mse,
-                r.guide_bytes
+                r.guide_bytes,
+                opt(r.over_plain)
             );
         }
     }
@@ -306,7 +307,7 @@ fn write_html(
             )
         );
         h += "<table><tr><th>method</th><th>zero-contribution</th><th>mean path length</th><th>Mrays/s</th><th>samples/s</th>\
-              <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>time of the later half of samples, over the first method's</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
+              <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>time of the later half of samples, over the first method's</th><th>relMSE at plain path tracing's time (with NEE as it has) over its</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
         for r in &s.runs {
             let last = r.checkpoints.last();
             let win = |cond: bool, text: String| {
@@ -332,7 +333,7 @@ fn write_html(
             };
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.1} MiB</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{:.1} MiB</td><td>{}</td></tr>",
                 method,
                 win(r.config == s.summary.fewest_zero_contribution, format!("{:.1}%", 100.0 * r.zero_contribution_fraction)),
                 r.mean_path_length,
@@ -343,6 +344,7 @@ fn write_html(
                 win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}{}", r.error_at_equal_time.rel_mse, if r.equal_time_extrapolated { "*" } else { "" })),
                 r.error_at_equal_time.mape,
                 r.later_half_cost.map_or("-".to_string(), |c| format!("{c:.2}×")),
+                r.over_plain.map_or("-".to_string(), |c| format!("{c:.2}×")),
                 r.guide_bytes as f64 / (1024.0 * 1024.0),
                 esc(&gpu.join(", "))
             );
