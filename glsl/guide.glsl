@@ -129,8 +129,11 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 // - Mirror: its reflectance times Q of the mirrored direction's sector.
 // - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
 //   share sees the other side, of which the guide at g knows nothing, so it
-//   takes the cosine-weighted mean of g's Q instead. A rough estimate only
-//   steers sampling; the image stays unbiased.
+//   takes the cosine-weighted mean of g's Q instead.
+//   A transition into a delta vertex learns from the path beyond it instead
+//   (trace.comp, chaining); these two serve where it cannot: at the maximum
+//   depth, and as the roulette's scale at a camera ray's first hit. A rough
+//   estimate only steers sampling; the image stays unbiased.
 float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf_reflect(bsdf, wo, guide_irradiance(g));
