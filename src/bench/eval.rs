@@ -852,23 +852,17 @@ pub fn evaluate(
             r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
             r.later_half_cost = later_half_cost(&r.checkpoints, &first);
         }
-        let plain: Vec<Option<Vec<CheckpointRow>>> = plan
-            .configs
-            .iter()
-            .map(|c| {
-                let label = Config {
-                    method: Method::Pt,
-                    nee: c.nee,
-                }
-                .label();
-                runs.iter()
-                    .find(|r| r.config == label)
-                    .map(|r| r.checkpoints.clone())
-            })
-            .collect();
-        for ((r, c), p) in runs.iter_mut().zip(&plan.configs).zip(plain) {
+        for (i, c) in plan.configs.iter().enumerate() {
+            let label = Config {
+                method: Method::Pt,
+                nee: c.nee,
+            }
+            .label();
             if c.method != Method::Pt {
-                r.over_plain = p.and_then(|p| over_plain(&r.checkpoints, &p));
+                runs[i].over_plain = runs
+                    .iter()
+                    .find(|r| r.config == label)
+                    .and_then(|p| over_plain(&runs[i].checkpoints, &p.checkpoints));
             }
         }
         let best = |key: &dyn Fn(&RunReport) -> f64| {
