@@ -23,21 +23,27 @@ layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 struct Bsdf {
     uint kind;   // MATERIAL_*
     vec3 color;  // Kd, Ks or Tf
-    float alpha; // conductor: GGX alpha, 0 for a mirror
+    float alpha; // conductor: alpha, 0 for a mirror
     float eta;   // dielectric: index beyond the surface / index on the path's side
+    uint flags;  // conductor: MATERIAL_BECKMANN, MATERIAL_FRESNEL
+    vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k
+    vec3 ior_k;
 };
 
 // The BSDF of material m for a path arriving on the side the triangle's
 // normal faces (front) or on the other.
 Bsdf bsdf_of(Material m, bool front) {
-    uint kind = uint(m.color.w);
+    uint code = uint(m.color.w);
+    uint kind = code & (MATERIAL_ONE_SIDED - 1u);
     float p = m.emission.w;
     float alpha = kind == MATERIAL_CONDUCTOR && p > 0.0 ? max(p, MIN_ALPHA) : 0.0;
-    return Bsdf(kind, m.color.rgb, alpha, front ? p : 1.0 / p);
+    vec3 color = (code & MATERIAL_ONE_SIDED) != 0u && !front ? vec3(0.0) : m.color.rgb;
+    return Bsdf(kind, color, alpha, front ? p : 1.0 / p, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL),
+                m.eta.rgb, m.k.rgb);
 }
 
 Bsdf bsdf_diffuse(vec3 albedo) {
-    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0);
+    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0));
 }
 
 // Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
@@ -65,6 +71,57 @@ float ggx_g1(float alpha, vec3 w) {
     return 2.0 * w.z / (w.z + sqrt(max(alpha * alpha * (1.0 - z2) + z2, 0.0)));
 }
 
+// Beckmann's normal distribution.
+float beckmann_d(float alpha, vec3 h) {
+    float a2 = alpha * alpha;
+    float z2 = h.z * h.z;
+    return exp(-dot(h.xy, h.xy) / (a2 * z2)) / (PI * a2 * z2 * z2);
+}
+
+// Smith's masking of Beckmann, in the rational fit Mitsuba uses.
+float beckmann_g1(float alpha, vec3 w) {
+    float tan2 = dot(w.xy, w.xy) * alpha * alpha / (w.z * w.z);
+    float a = inversesqrt(max(tan2, 1e-30));
+    float g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.577 * a + 2.346 * a * a);
+    return a >= 1.6 ? 1.0 : g;
+}
+
+bool bsdf_beckmann(Bsdf bsdf) {
+    return (bsdf.flags & MATERIAL_BECKMANN) != 0u;
+}
+
+float microfacet_d(Bsdf bsdf, vec3 h) {
+    return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) : ggx_d(bsdf.alpha, h);
+}
+
+float microfacet_g1(Bsdf bsdf, vec3 w) {
+    return bsdf_beckmann(bsdf) ? beckmann_g1(bsdf.alpha, w) : ggx_g1(bsdf.alpha, w);
+}
+
+// Fresnel reflectance of a conductor of complex index eta + i k for
+// cos_i > 0 (exact, unpolarised).
+vec3 fresnel_conductor(float cos_i, vec3 eta, vec3 k) {
+    float c2 = cos_i * cos_i;
+    float s2 = 1.0 - c2;
+    vec3 t1 = eta * eta - k * k - s2;
+    vec3 a2b2 = sqrt(max(t1 * t1 + 4.0 * k * k * eta * eta, 0.0));
+    vec3 a = sqrt(max(0.5 * (a2b2 + t1), 0.0));
+    vec3 t2 = a2b2 + c2;
+    vec3 t3 = 2.0 * cos_i * a;
+    vec3 rs = (t2 - t3) / (t2 + t3);
+    vec3 t4 = a2b2 * c2 + s2 * s2;
+    vec3 t5 = t3 * s2;
+    vec3 rp = rs * (t4 - t5) / (t4 + t5);
+    return 0.5 * (rs + rp);
+}
+
+// A conductor's reflectance at cos between the path and the microfacet
+// normal: Ks, times the Fresnel term where it has one.
+vec3 conductor_reflectance(Bsdf bsdf, float cos) {
+    return (bsdf.flags & MATERIAL_FRESNEL) != 0u ? bsdf.color * fresnel_conductor(cos, bsdf.ior_eta, bsdf.ior_k)
+                                                 : bsdf.color;
+}
+
 // f_s(wo, wi) cos(theta_i); zero for delta lobes.
 vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z <= 0.0 || wo.z <= 0.0) {
@@ -75,15 +132,17 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
-        return bsdf.color * (ggx_d(bsdf.alpha, h) * ggx_g1(bsdf.alpha, wo) * ggx_g1(bsdf.alpha, wi) / (4.0 * wo.z));
+        return conductor_reflectance(bsdf, dot(wo, h)) *
+               (microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi) / (4.0 * wo.z));
     }
     return vec3(0.0);
 }
 
 // Solid-angle pdf of bsdf_sample choosing wi; zero for delta lobes. A
 // diffuse lobe samples the cosine, or the hemisphere uniformly with
-// FLAG_UNIFORM (`--sampling uniform`); a rough conductor its visible
-// normals: D_wo(h) / (4 wo.h) with D_wo(h) = G1(wo) (wo.h) D(h) / wo.z.
+// FLAG_UNIFORM (`--sampling uniform`); a GGX conductor its visible normals:
+// D_wo(h) / (4 wo.h) with D_wo(h) = G1(wo) (wo.h) D(h) / wo.z; a Beckmann
+// conductor all its normals: D(h) h.z / (4 wo.h).
 float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
@@ -93,7 +152,8 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
-        return ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
+        return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) * h.z / (4.0 * dot(wo, h))
+                                   : ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
     }
     return 0.0;
 }
@@ -104,6 +164,17 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
 // which samplers built on the concentric map know without inverting it
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf_beckmann(bsdf)) {
+        float tan2 = -bsdf.alpha * bsdf.alpha * log(max(1.0 - u.x, 1e-30));
+        float c = inversesqrt(1.0 + tan2);
+        float s = sqrt(max(1.0 - c * c, 0.0));
+        float phi = 2.0 * PI * u.y;
+        vec3 m = vec3(s * cos(phi), s * sin(phi), c);
+        // Below the horizon (pdf 0) where wo does not see m.
+        vec3 wi = dot(wo, m) > 0.0 ? 2.0 * dot(wo, m) * m - wo : vec3(0.0, 0.0, -1.0);
+        square = hemisphere_to_square(wi);
+        return wi;
+    }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         // Visible normals by spherical caps (Dupuy & Benyoub 2023).
         float alpha = bsdf.alpha;
@@ -158,7 +229,7 @@ vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
         weight = bsdf.color / (bsdf.eta * bsdf.eta);
         return vec3(-wo.xy / bsdf.eta, -cos_t);
     }
-    weight = bsdf.color;
+    weight = conductor_reflectance(bsdf, wo.z);
     return mirror;
 }
 

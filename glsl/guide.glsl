@@ -145,7 +145,7 @@ float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     uint b = grid_b();
     float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
-        return luminance(bsdf.color) * mirrored;
+        return luminance(conductor_reflectance(bsdf, wo.z)) * mirrored;
     }
     float cos_t;
     float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);

@@ -35,13 +35,14 @@ void main() {
         uint sector = hemisphere_sector(w, uint(q.z), uint(q.w));
         probe_out[i] = vec4(w, float(sector));
     } else if (params.selector == PROBE_BSDF) {
-        // in[4i], in[4i+1] = a Material; in[4i+2] = (wo, front side? 1 : 0);
-        // in[4i+3] = three uniform numbers. out[i] = (wi, pdf), out[count + i]
+        // in[6i..6i+4] = a Material; in[6i+4] = (wo, front side? 1 : 0);
+        // in[6i+5] = three uniform numbers. out[i] = (wi, pdf), out[count + i]
         // = (f cos at wi, reflected estimate of irradiance 1), or for a delta
         // lobe (wi, 0) and (its weight, 0).
-        Material m = Material(probe_in[4u * i], probe_in[4u * i + 1u]);
-        vec4 side = probe_in[4u * i + 2u];
-        vec3 u = probe_in[4u * i + 3u].xyz;
+        uint b = 6u * i;
+        Material m = Material(probe_in[b], probe_in[b + 1u], probe_in[b + 2u], probe_in[b + 3u]);
+        vec4 side = probe_in[b + 4u];
+        vec3 u = probe_in[b + 5u].xyz;
         Bsdf bsdf = bsdf_of(m, side.w > 0.5);
         vec3 wo = side.xyz;
         if (bsdf_is_delta(bsdf)) {

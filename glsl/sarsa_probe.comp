@@ -29,13 +29,13 @@ void main() {
         uint v = nearest_volume(t, load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
         probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
     } else if (params.selector == PROBE_GUIDE_SAMPLE) {
-        // in[0], in[1] = a Material, in[2] = (wo, front side? 1 : 0),
-        // in[3 + i] = (volume bits, u1, u2, u3); out = (local direction, pdf)
+        // in[0..4] = a Material, in[4] = (wo, front side? 1 : 0),
+        // in[5 + i] = (volume bits, u1, u2, u3); out = (local direction, pdf)
         // of the mixture with that material's BSDF
-        vec4 q = probe_in[3u + i];
+        vec4 q = probe_in[5u + i];
         GuideVertex g = guide_vertex(floatBitsToUint(q.x));
-        Bsdf bsdf = bsdf_of(Material(probe_in[0], probe_in[1]), probe_in[2].w > 0.5);
-        vec3 wo = probe_in[2].xyz;
+        Bsdf bsdf = bsdf_of(Material(probe_in[0], probe_in[1], probe_in[2], probe_in[3]), probe_in[4].w > 0.5);
+        vec3 wo = probe_in[4].xyz;
         uint sector;
         float p_sector;
         vec3 w = mixture_sample(g, bsdf, wo, q.yzw, sector, p_sector);

@@ -7,7 +7,8 @@
 // The scene's buffers, as raw uvec4 words (WORDS in shared.h).
 WORDS(node_texels, B_NODES)         // 8 per BvhNode
 WORDS(triangle_texels, B_TRIANGLES) // 3 per Triangle
-WORDS(material_texels, B_MATERIALS) // 2 per Material
+WORDS(material_texels, B_MATERIALS) // 4 per Material
+WORDS(normal_texels, B_NORMALS)     // 1 per triangle, with shading normals
 
 Triangle load_triangle(uint i) {
     uvec4 a = FETCH(triangle_texels, int(3u * i));
@@ -18,8 +19,37 @@ Triangle load_triangle(uint i) {
 }
 
 Material load_material(uint i) {
-    return Material(uintBitsToFloat(FETCH(material_texels, int(2u * i))),
-                    uintBitsToFloat(FETCH(material_texels, int(2u * i + 1u))));
+    return Material(uintBitsToFloat(FETCH(material_texels, int(4u * i))),
+                    uintBitsToFloat(FETCH(material_texels, int(4u * i + 1u))),
+                    uintBitsToFloat(FETCH(material_texels, int(4u * i + 2u))),
+                    uintBitsToFloat(FETCH(material_texels, int(4u * i + 3u))));
+}
+
+// A normal packed by pack_normal (src/scene/mod.rs): the octahedral map's
+// point as two 16-bit signed fractions.
+vec3 unpack_normal(uint p) {
+    vec2 e = unpackSnorm2x16(p);
+    vec3 v = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    float t = max(-v.z, 0.0);
+    v.xy += mix(vec2(t), vec2(-t), greaterThanEqual(v.xy, vec2(0.0)));
+    return normalize(v);
+}
+
+// The shading normal of triangle i at point p on it: its corners' normals
+// interpolated by p's barycentric coordinates.
+vec3 shading_normal(uint i, Triangle tri, vec3 p) {
+    vec3 d = p - tri.v0;
+    float d00 = dot(tri.e1, tri.e1);
+    float d01 = dot(tri.e1, tri.e2);
+    float d11 = dot(tri.e2, tri.e2);
+    float d20 = dot(d, tri.e1);
+    float d21 = dot(d, tri.e2);
+    float inv = 1.0 / (d00 * d11 - d01 * d01);
+    float v = clamp((d11 * d20 - d01 * d21) * inv, 0.0, 1.0);
+    float w = clamp((d00 * d21 - d01 * d20) * inv, 0.0, 1.0);
+    uvec4 q = FETCH(normal_texels, int(i));
+    vec3 n = (1.0 - v - w) * unpack_normal(q.x) + v * unpack_normal(q.y) + w * unpack_normal(q.z);
+    return normalize(n);
 }
 
 struct Hit {

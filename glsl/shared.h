@@ -91,6 +91,9 @@
 #define B_LIGHT_MEAN 42
 #define B_LIGHT_SEEN 43
 #define B_LIGHT_POWER 44
+// Shading normals at each triangle's corners, three packed normals a texel
+// (pack_normal in src/scene/mod.rs), where SPEC_SHADING_NORMALS says so.
+#define B_NORMALS 45
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -112,6 +115,11 @@
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128
+// How a camera ray's point in its pixel is drawn (PixelFilter in
+// src/scene/mod.rs): uniformly (neither flag), from a tent of radius
+// cam_forward.w, or from a Gaussian of standard deviation cam_forward.w.
+#define FLAG_FILTER_TENT 256
+#define FLAG_FILTER_GAUSSIAN 512
 // Scenes with several lights (src/guide/sarsa.rs, guided_light_power) of
 // at most this many emitting triangles get it.
 #define MAX_GUIDED_LIGHTS 16
@@ -213,17 +221,29 @@ struct Triangle {
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
 #define MATERIAL_DIELECTRIC 2
+// Added to the kind: the material is black on the side its triangle's
+// normal does not face (Mitsuba's BSDFs outside `twosided`).
+#define MATERIAL_ONE_SIDED 8
+// Added to a conductor's kind: Beckmann's distribution instead of GGX's,
+// and a Fresnel term of complex index eta + i k.
+#define MATERIAL_BECKMANN 16
+#define MATERIAL_FRESNEL 32
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define SPEC_NON_DIFFUSE 4
 // Specialization constant of Sarsa's trace kernels: the guide picks the
 // light for NEE (FLAG_GUIDE_LIGHTS), so the code is left out where not.
 #define SPEC_GUIDE_LIGHTS 5
+// Specialization constant of the trace kernels: the scene has shading
+// normals (B_NORMALS), so the code that reads them is built in.
+#define SPEC_SHADING_NORMALS 6
 
 struct Material {
-    vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind
+    vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)
     vec4 emission;     // rgb: radiance, emitted on the front side only;
-                       // w: GGX alpha (conductor; 0 is a mirror) or Ni (dielectric)
+                       // w: alpha (conductor; 0 is a mirror) or Ni (dielectric)
+    vec4 eta;          // rgb: a conductor's eta (with MATERIAL_FRESNEL); w: unused
+    vec4 k;            // rgb: a conductor's k (with MATERIAL_FRESNEL); w: unused
 };
 
 // Emissive triangle for next-event estimation; chosen by `cdf` (inclusive).
@@ -270,9 +290,9 @@ struct PassStats {
 // Push constants shared by every pass of a render.
 struct PassParams {
     vec4 cam_pos;      // xyz, w = ray offset epsilon
-    vec4 cam_right;    // r * tan(fov/2) * aspect
-    vec4 cam_up;       // u * tan(fov/2)
-    vec4 cam_forward;  // f
+    vec4 cam_right;    // r * tan(horizontal fov / 2)
+    vec4 cam_up;       // u * tan(vertical fov / 2)
+    vec4 cam_forward;  // f, w = the pixel filter's radius or deviation
     vec4 environment;  // rgb radiance of misses
     uint width;
     uint height;

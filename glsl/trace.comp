@@ -29,6 +29,10 @@ layout(push_constant) uniform Push { PassParams params; };
 #endif
 
 WORDS(light_texels, B_LIGHTS) // 1 per Light
+
+// Whether the scene has shading normals (B_NORMALS): without, the kernel
+// is built without the code that reads them.
+layout(constant_id = SPEC_SHADING_NORMALS) const bool SHADING_NORMALS = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -143,14 +147,51 @@ float share_radiance1;
 uint td_count;
 float td_sq_sum;
 
-// Starts sample `sample_index` of this pixel: a camera ray through a
-// uniformly jittered point of the pixel (box filter).
+// A point of the pixel, as an offset from its corner, drawn from the
+// scene's pixel filter (FLAG_FILTER_*): the image converges to the one a
+// renderer that splats each sample with that filter makes.
+vec2 filter_offset(vec2 u) {
+    float r = params.cam_forward.w;
+    if ((params.flags & FLAG_FILTER_TENT) != 0u) {
+        vec2 t = mix(sqrt(2.0 * u) - 1.0, 1.0 - sqrt(2.0 - 2.0 * u), step(0.5, u));
+        return 0.5 + r * t;
+    }
+    if ((params.flags & FLAG_FILTER_GAUSSIAN) != 0u) {
+        // Box-Muller; Mitsuba cuts its Gaussian at 4 deviations, where
+        // less than 1e-3 of its weight lies beyond.
+        float l = r * sqrt(-2.0 * log(max(1.0 - u.x, 1e-30)));
+        return 0.5 + l * vec2(cos(2.0 * PI * u.y), sin(2.0 * PI * u.y));
+    }
+    return u;
+}
+
+// A point of the image for this pixel, in pixels. A splatting renderer's
+// pixel at the border gathers only samples inside the image, so its filter
+// is cut at the border: draws that land outside are drawn again (a box
+// filter's never do).
+vec2 image_point() {
+    vec2 size = vec2(float(params.width), float(params.height));
+    vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
+    if ((params.flags & (FLAG_FILTER_TENT | FLAG_FILTER_GAUSSIAN)) == 0u) {
+        return p;
+    }
+    for (uint i = 0u; i < 16u && (any(lessThan(p, vec2(0.0))) || any(greaterThanEqual(p, size))); i++) {
+        vec2 again = vec2(pixel) + filter_offset(rng_next2(rng));
+        bvec2 out_lo = lessThan(p, vec2(0.0));
+        bvec2 out_hi = greaterThanEqual(p, size);
+        p = mix(p, again, bvec2(out_lo.x || out_hi.x, out_lo.y || out_hi.y));
+    }
+    return clamp(p, vec2(0.0), size);
+}
+
+// Starts sample `sample_index` of this pixel: a camera ray through a point
+// of the pixel drawn from the pixel filter.
 void begin_path(uint sample_index) {
     rng = rng_init(pixel.y * params.width + pixel.x, sample_index, params.seed);
-    vec2 jitter = rng_next2(rng);
+    vec2 point = image_point();
     vec2 ndc = vec2(
-        2.0 * (float(pixel.x) + jitter.x) / float(params.width) - 1.0,
-        1.0 - 2.0 * (float(pixel.y) + jitter.y) / float(params.height));
+        2.0 * point.x / float(params.width) - 1.0,
+        1.0 - 2.0 * point.y / float(params.height));
     origin = params.cam_pos.xyz;
     dir = normalize(params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz);
     radiance = vec3(0.0);
@@ -291,20 +332,29 @@ bool scatter() {
     }
 
     // Shade in the frame of the normal facing the ray (materials are
-    // two-sided; a dielectric knows which side it is hit on).
-    vec3 ns = cos_out > 0.0 ? n : -n;
+    // two-sided; a dielectric knows which side it is hit on). With shading
+    // normals, that frame's and the side's normal is the interpolated one,
+    // as in Mitsuba; rays still leave off the geometric surface (ng).
+    vec3 ng = cos_out > 0.0 ? n : -n;
     vec3 surface_point = origin + hit.t * dir;
-    vec3 position = surface_point + ns * eps;
-    Bsdf bsdf = bsdf_of(mat, cos_out > 0.0);
+    vec3 position = surface_point + ng * eps;
+    bool front = cos_out > 0.0;
+    vec3 ns = ng;
+    if (SHADING_NORMALS) {
+        vec3 sn = shading_normal(hit.triangle, tri, surface_point);
+        front = dot(sn, dir) < 0.0;
+        ns = front ? sn : -sn;
+    }
+    Bsdf bsdf = bsdf_of(mat, front);
     bool delta = bsdf_is_delta(bsdf);
     vec3 t;
     vec3 b;
     make_frame(ns, t, b);
-    vec3 wo = vec3(-dot(dir, t), -dot(dir, b), abs(cos_out));
+    vec3 wo = vec3(-dot(dir, t), -dot(dir, b), SHADING_NORMALS ? -dot(dir, ns) : abs(cos_out));
 #ifdef GUIDED
     // A delta vertex is never guided: unless it learns, the guide's lookup
     // there (a network inference, for neural) would only tune the roulette.
-    GuideVertex here = delta && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ns, cos_out > 0.0);
+    GuideVertex here = delta && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ng, cos_out > 0.0);
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn).
 #ifdef FROZEN
@@ -361,7 +411,10 @@ bool scatter() {
         float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
         if (cos_x > 0.0 && cos_y > 0.0) {
             rays += 1u;
-            if (!occluded(position, wi, dist * (1.0 - 1e-4) - eps)) {
+            // A direction the shading normal allows may lie below the
+            // geometric surface: the shadow ray then leaves from beneath.
+            vec3 from = SHADING_NORMALS && dot(wi, ng) < 0.0 ? surface_point - ng * eps : position;
+            if (!occluded(from, wi, dist * (1.0 - 1e-4) - eps)) {
                 float light_pdf = area_pdf * dist2 / cos_y;
                 vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
 #ifdef GUIDED
@@ -469,7 +522,7 @@ bool scatter() {
     throughput *= weight;
     prev_bsdf_pdf = pdf;
     dir = normalize(local.x * t + local.y * b + local.z * ns);
-    origin = surface_point + (local.z > 0.0 ? eps : -eps) * ns;
+    origin = surface_point + ((SHADING_NORMALS ? dot(dir, ng) > 0.0 : local.z > 0.0) ? eps : -eps) * ng;
 
     if (depth + 1u >= RR_START_DEPTH) {
         float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);

@@ -128,6 +128,7 @@ pub const EXIT_SIGTERM: i32 = 143;
 
 pub fn render(
     scene_path: &Path,
+    defines: &[(String, String)],
     overrides: Overrides,
     guides: &GuideSources,
     out: &RenderOutputs,
@@ -146,7 +147,7 @@ pub fn render(
     if let Some(p) = &out.stats {
         check_output(p, "json")?;
     }
-    let scene = Scene::load(scene_path)?;
+    let scene = Scene::load_defined(scene_path, defines)?;
     let bad = || format!("{}: bad render settings", scene_path.display());
     let method = overrides.method.unwrap_or(Method::Pt).name();
     guides
@@ -436,10 +437,12 @@ pub fn inspect_summary(scene: &Scene) -> String {
             scene.bvh_depth,
         ),
         format!(
-            "camera       at {:?} looking {:?}, fov_y {}°",
+            "camera       at {:?} looking {:?}, fov {}° ({:?} axis), filter {:?}",
             c.position.to_array(),
             c.forward.to_array(),
-            c.fov_y_degrees
+            c.fov_degrees,
+            c.fov_axis,
+            scene.filter
         ),
         format!("scene extent {:.3} (bounding-box diagonal)", scene.extent),
     ];
@@ -451,8 +454,8 @@ pub fn inspect_summary(scene: &Scene) -> String {
     lines.join("\n") + "\n"
 }
 
-pub fn inspect(path: &Path) -> Result<()> {
-    let scene = Scene::load(path)?;
+pub fn inspect(path: &Path, defines: &[(String, String)]) -> Result<()> {
+    let scene = Scene::load_defined(path, defines)?;
     // The guide tables are checked here too, so a typo shows at once.
     RenderSettings::resolve(&scene, &Overrides::default())
         .with_context(|| format!("{}: bad render settings", path.display()))?;

@@ -255,7 +255,7 @@ pub enum Outcome {
 /// Loads a scene whose files are `files` (the TOML as `scene.toml`) and
 /// resolves its default render settings, catching any panic.
 pub fn load(toml: &[u8], files: &HashMap<String, Vec<u8>>, max_triangles: usize) -> Outcome {
-    let read = |path: &Path| -> std::io::Result<String> {
+    let read = |path: &Path| -> std::io::Result<Vec<u8>> {
         let name = path.file_name().map(|n| n.to_string_lossy().to_string());
         let bytes = match name.as_deref() {
             Some("scene.toml") if path.parent() == Some(Path::new("mem")) => toml,
@@ -265,12 +265,12 @@ pub fn load(toml: &[u8], files: &HashMap<String, Vec<u8>>, max_triangles: usize)
             },
             _ => return Err(std::io::ErrorKind::NotFound.into()),
         };
-        String::from_utf8(bytes.to_vec())
-            .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8"))
+        Ok(bytes.to_vec())
     };
     let loader = Loader {
         read: &read,
         max_triangles,
+        defines: &[],
     };
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let scene =

@@ -44,6 +44,18 @@ impl DeviceArgs {
     }
 }
 
+/// Mitsuba's `-D name=value`: a parameter of an XML scene (its `$name`).
+fn parse_define(text: &str) -> Result<(String, String), String> {
+    match text.split_once('=') {
+        Some((k, v))
+            if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') =>
+        {
+            Ok((k.to_string(), v.to_string()))
+        }
+        _ => Err(format!("'{text}' is not NAME=VALUE")),
+    }
+}
+
 #[derive(clap::Args, Clone)]
 struct RenderArgs {
     /// Path-tracing method.
@@ -121,8 +133,11 @@ impl RenderArgs {
 enum Command {
     /// Render a scene to OpenEXR (and optionally PNG and stats JSON).
     Render {
-        /// Scene file (TOML).
+        /// Scene file: qtrace TOML, or Mitsuba 3 XML (.xml).
         scene: PathBuf,
+        /// A parameter of an XML scene, as Mitsuba's -D (repeatable).
+        #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
+        define: Vec<(String, String)>,
         #[command(flatten)]
         args: RenderArgs,
         /// Linear float RGB OpenEXR output.
@@ -172,8 +187,11 @@ enum Command {
     Devices,
     /// Triangles, lights, BVH statistics of a scene.
     Inspect {
-        /// Scene file (TOML).
+        /// Scene file: qtrace TOML, or Mitsuba 3 XML (.xml).
         scene: PathBuf,
+        /// A parameter of an XML scene, as Mitsuba's -D (repeatable).
+        #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
+        define: Vec<(String, String)>,
     },
     /// Compare methods: images, error vs spp and vs time, per-pass statistics,
     /// pictures of what was learned, charts, CSV/JSON and an HTML page
@@ -236,6 +254,7 @@ fn run(cli: Cli) -> Result<()> {
     match &cli.command {
         Command::Render {
             scene,
+            define,
             args,
             output,
             png,
@@ -246,6 +265,7 @@ fn run(cli: Cli) -> Result<()> {
             device,
         } => cli::render(
             scene,
+            define,
             args.overrides(),
             &args.guides.sources(),
             &RenderOutputs {
@@ -270,7 +290,7 @@ fn run(cli: Cli) -> Result<()> {
             stats,
         } => cli::merge(parts, output, stats.as_deref()),
         Command::Devices => cli::devices(),
-        Command::Inspect { scene } => cli::inspect(scene),
+        Command::Inspect { scene, define } => cli::inspect(scene, define),
         Command::Bench {
             scenes,
             methods,

@@ -69,6 +69,8 @@ pub struct Triangle {
 pub struct Material {
     pub color: [f32; 4],
     pub emission: [f32; 4],
+    pub eta: [f32; 4],
+    pub k: [f32; 4],
 }
 
 #[repr(C)]

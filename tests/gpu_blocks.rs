@@ -6,7 +6,7 @@ mod common;
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
-use qtrace::bsdf::{Bsdf, Surface};
+use qtrace::bsdf::{ComplexIor, Distribution, Surface};
 use qtrace::render::{probe, Sampling};
 use qtrace::sampling;
 use qtrace::scene::Material;
@@ -140,6 +140,12 @@ fn gpu_hemisphere_map_matches_cpu_and_inverts() {
     }
 }
 
+/// A metal's complex index of refraction (copper's, roughly).
+const METAL: ComplexIor = ComplexIor {
+    eta: Vec3::new(0.2, 0.92, 1.1),
+    k: Vec3::new(3.9, 2.45, 2.14),
+};
+
 /// The GPU BSDF (glsl/bsdf.glsl) against its CPU twin (src/bsdf.rs): every
 /// kind of surface, seen from either side, from directions all over the
 /// hemisphere, with either diffuse sampler.
@@ -152,21 +158,33 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         Surface::Diffuse {
             albedo: Vec3::new(0.7, 0.5, 0.2),
         },
+        Surface::conductor(Vec3::new(0.9, 0.6, 0.3), 0.0),
+        Surface::conductor(Vec3::ONE, 0.04),
+        Surface::conductor(Vec3::new(0.9, 0.6, 0.3), 0.36),
+        Surface::conductor(Vec3::ONE, 1.0),
         Surface::Conductor {
-            reflectance: Vec3::new(0.9, 0.6, 0.3),
+            reflectance: Vec3::new(0.9, 0.8, 0.7),
+            alpha: 0.05,
+            distribution: Distribution::Beckmann,
+            fresnel: Some(METAL),
+        },
+        Surface::Conductor {
+            reflectance: Vec3::ONE,
+            alpha: 0.4,
+            distribution: Distribution::Beckmann,
+            fresnel: None,
+        },
+        Surface::Conductor {
+            reflectance: Vec3::ONE,
+            alpha: 0.3,
+            distribution: Distribution::Ggx,
+            fresnel: Some(METAL),
+        },
+        Surface::Conductor {
+            reflectance: Vec3::splat(0.8),
             alpha: 0.0,
-        },
-        Surface::Conductor {
-            reflectance: Vec3::ONE,
-            alpha: 0.04,
-        },
-        Surface::Conductor {
-            reflectance: Vec3::new(0.9, 0.6, 0.3),
-            alpha: 0.36,
-        },
-        Surface::Conductor {
-            reflectance: Vec3::ONE,
-            alpha: 1.0,
+            distribution: Distribution::Ggx,
+            fresnel: Some(METAL),
         },
         Surface::Dielectric {
             ior: 1.5,
@@ -186,6 +204,8 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                     name: "probe".into(),
                     surface,
                     emission: Vec3::ZERO,
+                    // Mitsuba's BSDFs outside `twosided` are black from behind.
+                    one_sided: rng.next() < 0.25,
                 },
                 front: rng.next() < 0.5,
                 wo: Vec3::new(r * phi.cos(), r * phi.sin(), z),
@@ -197,7 +217,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         let out = probe::bsdf_samples(&ctx, &scene, sampling, &queries).unwrap();
         common::assert_no_validation_errors(&ctx);
         for (q, g) in queries.iter().zip(&out) {
-            let cpu = Bsdf::new(q.material.surface, q.front, sampling);
+            let cpu = q.material.bsdf(q.front, sampling);
             let what = format!(
                 "{sampling:?} {:?} front {} wo {} u {}",
                 q.material.surface, q.front, q.wo, q.u

@@ -142,10 +142,7 @@ fn every_bsdf_returns_its_albedo_in_a_furnace() {
         0.6,
     ));
     for (pr, theta) in [(0.2, 0.0), (0.5, 60.0), (1.0, 30.0), (0.7, 80.0)] {
-        let surface = Surface::Conductor {
-            reflectance: Vec3::ONE,
-            alpha: pr * pr,
-        };
+        let surface = Surface::conductor(Vec3::ONE, pr * pr);
         cases.push((
             format!("GGX Pr {pr} at {theta}°"),
             quad(10.0),

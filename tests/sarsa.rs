@@ -231,18 +231,12 @@ fn guided_sampler_matches_its_pdf() {
     for (surface, wo, share) in [
         (Surface::Diffuse { albedo: Vec3::ONE }, Vec3::Z, eps),
         (
-            Surface::Conductor {
-                reflectance: Vec3::ONE,
-                alpha: 0.3,
-            },
+            Surface::conductor(Vec3::ONE, 0.3),
             wo,
             1.0 - (1.0 - eps) * 0.3,
         ),
         (
-            Surface::Conductor {
-                reflectance: Vec3::ONE,
-                alpha: 0.8,
-            },
+            Surface::conductor(Vec3::ONE, 0.8),
             wo,
             1.0 - (1.0 - eps) * 0.8,
         ),
@@ -251,6 +245,7 @@ fn guided_sampler_matches_its_pdf() {
             name: "probe".into(),
             surface,
             emission: Vec3::ZERO,
+            one_sided: false,
         };
         let samples =
             probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms)

@@ -14,7 +14,7 @@ pub use stats::{PassRecord, RenderStats};
 use crate::gpu::{self, Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass, Profiler};
 use crate::guide::Guide;
 use crate::image::Image;
-use crate::scene::Scene;
+use crate::scene::{PixelFilter, Scene};
 use crate::shaders::{self, spirv, Accum, PassParams, PassStats, PathSample};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -36,6 +36,8 @@ pub struct GpuScene {
     pub triangles: Buffer,
     pub materials: Buffer,
     pub lights: Buffer,
+    /// Shading normals; one unused texel where the scene has none.
+    pub normals: Buffer,
 }
 
 impl GpuScene {
@@ -46,16 +48,22 @@ impl GpuScene {
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
             lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
+            normals: if scene.normals.is_empty() {
+                Buffer::gpu_only_with(ctx, "shading normals", &[[0u32; 4]])?
+            } else {
+                Buffer::gpu_only_with(ctx, "shading normals", &scene.normals)?
+            },
         })
     }
 
     /// Bindings every kernel that traces rays uses.
-    pub fn bindings(&self) -> [(u32, &Buffer); 4] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 5] {
         [
             (shaders::B_NODES, &self.nodes),
             (shaders::B_TRIANGLES, &self.triangles),
             (shaders::B_MATERIALS, &self.materials),
             (shaders::B_LIGHTS, &self.lights),
+            (shaders::B_NORMALS, &self.normals),
         ]
     }
 }
@@ -63,9 +71,13 @@ impl GpuScene {
 /// Push constants describing the camera and scene for every pass of a render.
 pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
     let c = &scene.camera;
-    let t = (c.fov_y_degrees.to_radians() * 0.5).tan();
-    let aspect = s.width as f32 / s.height as f32;
-    let mut flags = 0;
+    let (tx, ty) = c.tan_half_fov(s.width, s.height);
+    let (filter_flag, filter_size) = match scene.filter {
+        PixelFilter::Box => (0, 0.0),
+        PixelFilter::Tent { radius } => (shaders::FLAG_FILTER_TENT, radius),
+        PixelFilter::Gaussian { stddev } => (shaders::FLAG_FILTER_GAUSSIAN, stddev),
+    };
+    let mut flags = filter_flag;
     if s.nee {
         flags |= shaders::FLAG_NEE;
     }
@@ -74,9 +86,9 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
     }
     PassParams {
         cam_pos: c.position.extend(scene.ray_offset()).into(),
-        cam_right: (c.right * t * aspect).extend(0.0).into(),
-        cam_up: (c.up * t).extend(0.0).into(),
-        cam_forward: c.forward.extend(0.0).into(),
+        cam_right: (c.right * tx).extend(0.0).into(),
+        cam_up: (c.up * ty).extend(0.0).into(),
+        cam_forward: c.forward.extend(filter_size).into(),
         environment: scene.environment.extend(0.0).into(),
         width: s.width,
         height: s.height,
@@ -336,6 +348,7 @@ impl Renderer {
         constants.resize(shaders::SPEC_NON_DIFFUSE as usize, 0);
         constants.push(scene.has_non_diffuse() as u32);
         constants.push(guide.as_ref().is_some_and(|g| g.chooses_lights()) as u32);
+        constants.push(!scene.normals.is_empty() as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

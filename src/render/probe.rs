@@ -169,13 +169,15 @@ pub fn nearest_volumes(
         .collect())
 }
 
-/// A shading point as the probes read it: the material's two texels, then
+/// A shading point as the probes read it: the material's four texels, then
 /// (wo, 1 on the front side or 0).
-fn shading_texels(material: &crate::scene::Material, wo: Vec3, front: bool) -> [Vec4; 3] {
+fn shading_texels(material: &crate::scene::Material, wo: Vec3, front: bool) -> [Vec4; 5] {
     let m = material.gpu();
     [
         Vec4::from(m.color),
         Vec4::from(m.emission),
+        Vec4::from(m.eta),
+        Vec4::from(m.k),
         wo.extend(if front { 1.0 } else { 0.0 }),
     ]
 }
@@ -387,8 +389,8 @@ pub fn bsdf_samples(
     let input: Vec<Vec4> = queries
         .iter()
         .flat_map(|q| {
-            let [color, emission, side] = shading_texels(&q.material, q.wo, q.front);
-            [color, emission, side, q.u.extend(0.0)]
+            let [color, emission, eta, k, side] = shading_texels(&q.material, q.wo, q.front);
+            [color, emission, eta, k, side, q.u.extend(0.0)]
         })
         .collect();
     let n = queries.len();

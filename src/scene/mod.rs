@@ -3,10 +3,12 @@
 
 pub mod bvh;
 pub mod file;
+mod mitsuba;
 pub mod obj;
+pub mod ply;
 pub mod procedural;
 
-use crate::bsdf::{luminance, Surface};
+use crate::bsdf::{luminance, Distribution, Surface};
 use crate::shaders;
 use file::{CameraDesc, RenderDefaults, SceneFile};
 use glam::Vec3;
@@ -22,6 +24,13 @@ pub enum SceneError {
     },
     #[error("{path}:{line}: {message}")]
     Toml {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    /// A problem at a line of an XML scene (or a file it includes).
+    #[error("{path}:{line}: {message}")]
+    At {
         path: PathBuf,
         line: usize,
         message: String,
@@ -42,6 +51,9 @@ pub struct Material {
     pub name: String,
     pub surface: Surface,
     pub emission: Vec3,
+    /// Black on the side the triangle's normal does not face (Mitsuba's
+    /// BSDFs outside `twosided`); MTL materials reflect on both sides.
+    pub one_sided: bool,
 }
 
 impl Material {
@@ -50,27 +62,90 @@ impl Material {
             name: name.into(),
             surface: Surface::Diffuse { albedo },
             emission: Vec3::ZERO,
+            one_sided: false,
         }
+    }
+
+    /// Its BSDF for a path arriving on the front side or the back (the CPU
+    /// twin of `bsdf_of` in glsl/bsdf.glsl).
+    pub fn bsdf(&self, front: bool, sampling: crate::bsdf::Sampling) -> crate::bsdf::Bsdf {
+        let mut bsdf = crate::bsdf::Bsdf::new(self.surface, front, sampling);
+        if self.one_sided && !front {
+            bsdf.color = Vec3::ZERO;
+        }
+        bsdf
     }
 
     /// The material as the kernels read it (`Material` of shared.h).
     pub fn gpu(&self) -> shaders::Material {
         let (color, parameter) = self.surface.color_and_parameter();
+        let mut code = self.surface.kind();
+        if self.one_sided {
+            code |= shaders::MATERIAL_ONE_SIDED;
+        }
+        let (mut eta, mut k) = (Vec3::ZERO, Vec3::ZERO);
+        if let Surface::Conductor {
+            distribution,
+            fresnel,
+            ..
+        } = self.surface
+        {
+            if distribution == Distribution::Beckmann {
+                code |= shaders::MATERIAL_BECKMANN;
+            }
+            if let Some(ior) = fresnel {
+                code |= shaders::MATERIAL_FRESNEL;
+                (eta, k) = (ior.eta, ior.k);
+            }
+        }
         shaders::Material {
-            color: color.extend(self.surface.kind() as f32).into(),
+            color: color.extend(code as f32).into(),
             emission: self.emission.extend(parameter).into(),
+            eta: eta.extend(0.0).into(),
+            k: k.extend(0.0).into(),
         }
     }
 }
 
-/// Pinhole camera in the right-handed look-at convention of SPEC §3.
+/// Which extent of the image a camera's field of view spans (Mitsuba's
+/// `fov_axis`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FovAxis {
+    X,
+    Y,
+    Diagonal,
+    /// The shorter side of the image.
+    Smaller,
+    /// The longer side of the image.
+    Larger,
+}
+
+/// How a sample's point in its pixel is drawn: from the reconstruction
+/// filter, which converges to the image a renderer that splats with that
+/// filter makes. Offsets are from the pixel's centre, in pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PixelFilter {
+    /// Uniform over the pixel (qtrace's own scenes).
+    Box,
+    Tent {
+        radius: f32,
+    },
+    Gaussian {
+        stddev: f32,
+    },
+}
+
+/// Pinhole camera. A TOML scene's follows the right-handed look-at
+/// convention (docs/scenes.md); an XML scene's, its sensor's to_world.
 #[derive(Clone, Copy, Debug)]
 pub struct Camera {
     pub position: Vec3,
     pub forward: Vec3,
+    /// The image's right and up, unit vectors.
     pub right: Vec3,
     pub up: Vec3,
-    pub fov_y_degrees: f32,
+    pub fov_degrees: f32,
+    pub fov_axis: FovAxis,
 }
 
 impl Camera {
@@ -101,17 +176,39 @@ impl Camera {
             forward,
             right,
             up: right.cross(forward),
-            fov_y_degrees: d.fov_y,
+            fov_degrees: d.fov_y,
+            fov_axis: FovAxis::Y,
         })
     }
 
-    /// Direction through image point (x, y) in pixels (fractional), SPEC §3.
-    pub fn ray_direction(&self, x: f32, y: f32, width: u32, height: u32) -> Vec3 {
-        let t = (self.fov_y_degrees.to_radians() * 0.5).tan();
+    /// Tangents of half the horizontal and vertical fields of view of a
+    /// `width` × `height` image.
+    pub fn tan_half_fov(&self, width: u32, height: u32) -> (f32, f32) {
         let aspect = width as f32 / height as f32;
+        let t = (self.fov_degrees.to_radians() * 0.5).tan();
+        let axis = match self.fov_axis {
+            FovAxis::Smaller if width < height => FovAxis::X,
+            FovAxis::Larger if width > height => FovAxis::X,
+            FovAxis::Smaller | FovAxis::Larger => FovAxis::Y,
+            a => a,
+        };
+        match axis {
+            FovAxis::X => (t, t / aspect),
+            FovAxis::Diagonal => {
+                let ty = t / (1.0 + aspect * aspect).sqrt();
+                (ty * aspect, ty)
+            }
+            _ => (t * aspect, t),
+        }
+    }
+
+    /// Direction through image point (x, y) in pixels (fractional); row 0
+    /// is the top of the image.
+    pub fn ray_direction(&self, x: f32, y: f32, width: u32, height: u32) -> Vec3 {
+        let (tx, ty) = self.tan_half_fov(width, height);
         let sx = 2.0 * x / width as f32 - 1.0;
         let sy = 1.0 - 2.0 * y / height as f32;
-        (self.forward + sx * t * aspect * self.right + sy * t * self.up).normalize()
+        (self.forward + sx * tx * self.right + sy * ty * self.up).normalize()
     }
 }
 
@@ -122,6 +219,7 @@ pub struct Scene {
     /// of one render carry it, so `merge` refuses parts of another scene.
     pub fingerprint: u64,
     pub camera: Camera,
+    pub filter: PixelFilter,
     pub defaults: RenderDefaults,
     /// The `[sarsa]` and `[neural]` tables, as written; render settings
     /// check and read them.
@@ -129,6 +227,10 @@ pub struct Scene {
     pub environment: Vec3,
     pub materials: Vec<Material>,
     pub triangles: Vec<shaders::Triangle>,
+    /// Shading normals at each triangle's corners, packed by
+    /// [`pack_normal`] (the fourth word unused), in the triangles' order;
+    /// empty where every triangle is shaded flat.
+    pub normals: Vec<[u32; 4]>,
     pub lights: Vec<shaders::Light>,
     pub nodes: Vec<shaders::BvhNode>,
     pub bvh_depth: u32,
@@ -196,89 +298,100 @@ impl Scene {
         self.bounds
     }
 
-    /// Loads and validates a scene file and everything it names.
+    /// Loads and validates a scene file and everything it names: qtrace's
+    /// TOML, or Mitsuba 3's XML for a `.xml` file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SceneError> {
         Self::load_with(path.as_ref(), &Loader::default())
     }
 
+    /// [`Scene::load`] with Mitsuba's `-D name=value` parameters for an XML scene.
+    pub fn load_defined(
+        path: impl AsRef<Path>,
+        defines: &[(String, String)],
+    ) -> Result<Self, SceneError> {
+        let loader = Loader {
+            defines,
+            ..Loader::default()
+        };
+        Self::load_with(path.as_ref(), &loader)
+    }
+
     /// [`Scene::load`], reading files and bounding the scene's size as `loader` says.
     pub fn load_with(path: &Path, loader: &Loader<'_>) -> Result<Self, SceneError> {
-        // Every file read goes into the scene's fingerprint.
+        // Every file read, and every -D, goes into the scene's fingerprint.
         let fingerprint = std::cell::Cell::new(0xcbf2_9ce4_8422_2325u64);
-        let hashing = |p: &Path| {
-            let text = (loader.read)(p)?;
+        let hash = |bytes: &[u8]| {
             let mut h = fingerprint.get();
-            for &b in text.as_bytes() {
+            for &b in bytes {
                 h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
             }
             fingerprint.set(h);
-            Ok(text)
+        };
+        for (k, v) in loader.defines {
+            hash(format!("-D {k}={v}\n").as_bytes());
+        }
+        let hashing = |p: &Path| {
+            let bytes = (loader.read)(p)?;
+            hash(&bytes);
+            Ok(bytes)
         };
         let loader = &Loader {
             read: &hashing,
             max_triangles: loader.max_triangles,
+            defines: loader.defines,
         };
-        let text = (loader.read)(path).map_err(|source| SceneError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let file: SceneFile = toml::from_str(&text).map_err(|e| toml_error(path, &text, e))?;
+        let xml = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("xml"));
+        let parts = if xml {
+            mitsuba::read(path, loader, loader.defines)?
+        } else {
+            if !loader.defines.is_empty() {
+                return Err(SceneError::Invalid {
+                    path: path.to_path_buf(),
+                    message: "-D parameters are for Mitsuba XML scenes".into(),
+                });
+            }
+            read_toml(path, loader)?
+        };
+        Self::assemble(path, parts, fingerprint.get(), loader.max_triangles)
+    }
+
+    /// Checks what a reader made and builds the BVH and the light list.
+    fn assemble(
+        path: &Path,
+        parts: Parts,
+        fingerprint: u64,
+        max_triangles: usize,
+    ) -> Result<Self, SceneError> {
         let invalid = |message: String| SceneError::Invalid {
             path: path.to_path_buf(),
             message,
         };
-        let camera = Camera::from_desc(&file.camera).map_err(invalid)?;
-        let environment = check_color(path, "environment", file.environment.unwrap_or([0.0; 3]))?;
-
-        let mut materials: Vec<Material> = Vec::new();
-        let mut positions: Vec<[Vec3; 3]> = Vec::new();
-        let mut material_of: Vec<u32> = Vec::new();
-        // Where each triangle came from (index into `sources`), for error messages.
-        let mut sources: Vec<(PathBuf, String)> = Vec::new();
-        let mut source_of: Vec<u32> = Vec::new();
-
-        if let Some(mesh) = &file.mesh {
-            let obj_path = path.parent().unwrap_or(Path::new(".")).join(mesh);
-            let mut geometry = Geometry {
-                positions: &mut positions,
-                material_of: &mut material_of,
-                sources: &mut sources,
-                source_of: &mut source_of,
-            };
-            load_obj(&obj_path, loader, &mut materials, &mut geometry)?;
-        }
-        for p in &file.procedural {
-            procedural::validate(p).map_err(invalid)?;
-            let count = procedural::triangle_count(p) as usize;
-            if positions.len().saturating_add(count) > loader.max_triangles {
-                return Err(invalid(format!(
-                    "the scene would have more than {} triangles, the most a scene may have",
-                    loader.max_triangles
-                )));
-            }
-            let g = procedural::generate(p);
-            let m = materials.len() as u32;
-            materials.push(Material::diffuse(
-                &g.name,
-                check_color(path, "procedural albedo", g.albedo.into())?,
-            ));
-            sources.push((path.to_path_buf(), format!("procedural {}", g.name)));
-            let src = sources.len() as u32 - 1;
-            for t in g.triangles {
-                positions.push(t);
-                material_of.push(m);
-                source_of.push(src);
-            }
-        }
-        if file.mesh.is_none() && file.procedural.is_empty() {
-            return Err(invalid(
-                "the scene names no mesh and no procedural geometry".into(),
-            ));
-        }
+        let Parts {
+            camera,
+            filter,
+            defaults,
+            guide_tables,
+            environment,
+            materials,
+            geometry,
+        } = parts;
+        let Geometry {
+            positions,
+            normals,
+            material_of,
+            sources,
+            source_of,
+        } = geometry;
         if positions.is_empty() {
             return Err(invalid("the scene has no triangles".into()));
         }
-
+        if positions.len() > max_triangles {
+            return Err(invalid(format!(
+                "the scene has more than {max_triangles} triangles, the most a scene may have"
+            )));
+        }
         // Bounds, for the relative zero-area test and the ray offset.
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         for (i, t) in positions.iter().enumerate() {
@@ -332,15 +445,29 @@ impl Scene {
             })
             .collect();
         let lights = build_lights(&mut triangles, &materials);
+        let normals = if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
+            // Flat everywhere: the kernels shade with the faces' normals.
+            Vec::new()
+        } else {
+            bvh.order
+                .iter()
+                .map(|&i| {
+                    let [a, b, c] = normals[i as usize].map(pack_normal);
+                    [a, b, c, 0]
+                })
+                .collect()
+        };
         Ok(Self {
             path: path.to_path_buf(),
-            fingerprint: fingerprint.get(),
+            fingerprint,
             camera,
-            defaults: file.render,
-            guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
+            filter,
+            defaults,
+            guide_tables,
             environment,
             materials,
             triangles,
+            normals,
             lights,
             nodes: bvh.nodes,
             bvh_depth: bvh.depth,
@@ -361,6 +488,79 @@ impl Scene {
         }
         best
     }
+}
+
+/// What a scene reader hands on: everything before the checks and the BVH.
+struct Parts {
+    camera: Camera,
+    filter: PixelFilter,
+    defaults: RenderDefaults,
+    guide_tables: [(&'static str, toml::Table); 2],
+    environment: Vec3,
+    materials: Vec<Material>,
+    geometry: Geometry,
+}
+
+/// A qtrace TOML scene and the OBJ/MTL it names.
+fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
+    let text = loader.text(path).map_err(|source| SceneError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let file: SceneFile = toml::from_str(&text).map_err(|e| toml_error(path, &text, e))?;
+    let invalid = |message: String| SceneError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let camera = Camera::from_desc(&file.camera).map_err(invalid)?;
+    let environment = check_color(path, "environment", file.environment.unwrap_or([0.0; 3]))?;
+
+    let mut materials: Vec<Material> = Vec::new();
+    let mut geometry = Geometry::default();
+    if let Some(mesh) = &file.mesh {
+        let obj_path = path.parent().unwrap_or(Path::new(".")).join(mesh);
+        load_obj(&obj_path, loader, &mut materials, &mut geometry)?;
+    }
+    for p in &file.procedural {
+        procedural::validate(p).map_err(invalid)?;
+        let count = procedural::triangle_count(p) as usize;
+        if geometry.positions.len().saturating_add(count) > loader.max_triangles {
+            return Err(invalid(format!(
+                "the scene would have more than {} triangles, the most a scene may have",
+                loader.max_triangles
+            )));
+        }
+        let g = procedural::generate(p);
+        let m = materials.len() as u32;
+        materials.push(Material::diffuse(
+            &g.name,
+            check_color(path, "procedural albedo", g.albedo.into())?,
+        ));
+        geometry
+            .sources
+            .push((path.to_path_buf(), format!("procedural {}", g.name)));
+        let src = geometry.sources.len() as u32 - 1;
+        for t in g.triangles {
+            geometry.positions.push(t);
+            geometry.material_of.push(m);
+            geometry.source_of.push(src);
+        }
+    }
+    if file.mesh.is_none() && file.procedural.is_empty() {
+        return Err(invalid(
+            "the scene names no mesh and no procedural geometry".into(),
+        ));
+    }
+
+    Ok(Parts {
+        camera,
+        filter: PixelFilter::Box,
+        defaults: file.render,
+        guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
+        environment,
+        materials,
+        geometry,
+    })
 }
 
 /// Distance along the ray (o, d) to triangle `t` (Möller-Trumbore, as the
@@ -415,31 +615,120 @@ fn build_lights(
     lights
 }
 
-/// Triangle lists being filled, with where each triangle came from.
-struct Geometry<'a> {
-    positions: &'a mut Vec<[Vec3; 3]>,
-    material_of: &'a mut Vec<u32>,
-    sources: &'a mut Vec<(PathBuf, String)>,
-    source_of: &'a mut Vec<u32>,
+/// Triangles with their materials, and where each came from (an index
+/// into `sources`), for error messages.
+#[derive(Default)]
+struct Geometry {
+    positions: Vec<[Vec3; 3]>,
+    /// Shading normals at each triangle's corners; empty while every
+    /// triangle is shaded flat (then faces' normals fill in for them).
+    normals: Vec<[Vec3; 3]>,
+    material_of: Vec<u32>,
+    sources: Vec<(PathBuf, String)>,
+    source_of: Vec<u32>,
+}
+
+/// A triangle's own normal at each corner: flat shading.
+fn face_normals(t: &[Vec3; 3]) -> [Vec3; 3] {
+    [(t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero(); 3]
+}
+
+impl Geometry {
+    /// Adds the triangles of one shape, with its shading normals if it has
+    /// them; `source` names it in error messages.
+    fn add(
+        &mut self,
+        source: (PathBuf, String),
+        triangles: Vec<[Vec3; 3]>,
+        normals: Option<Vec<[Vec3; 3]>>,
+        material: u32,
+    ) {
+        if normals.is_some() && self.normals.is_empty() {
+            self.normals = self.positions.iter().map(face_normals).collect();
+        }
+        match normals {
+            Some(n) => self.normals.extend(n),
+            None if !self.normals.is_empty() => {
+                self.normals.extend(triangles.iter().map(face_normals))
+            }
+            None => {}
+        }
+        self.sources.push(source);
+        let src = self.sources.len() as u32 - 1;
+        self.material_of
+            .extend(std::iter::repeat_n(material, triangles.len()));
+        self.source_of
+            .extend(std::iter::repeat_n(src, triangles.len()));
+        self.positions.extend(triangles);
+    }
+}
+
+/// A unit normal in 32 bits: the octahedral map's point as two 16-bit
+/// signed fractions, x in the low half (GLSL's unpackSnorm2x16).
+pub fn pack_normal(n: Vec3) -> u32 {
+    let n = n / (n.x.abs() + n.y.abs() + n.z.abs()).max(1e-30);
+    let (x, y) = if n.z >= 0.0 {
+        (n.x, n.y)
+    } else {
+        (
+            (1.0 - n.y.abs()) * n.x.signum(),
+            (1.0 - n.x.abs()) * n.y.signum(),
+        )
+    };
+    let q = |v: f32| ((v.clamp(-1.0, 1.0) * 32767.0).round() as i16) as u16 as u32;
+    q(x) | (q(y) << 16)
+}
+
+/// The unit normal [`pack_normal`] packed (the CPU twin of the trace
+/// kernel's `unpack_normal`).
+pub fn unpack_normal(p: u32) -> Vec3 {
+    let f = |v: u32| ((v as u16 as i16) as f32 / 32767.0).clamp(-1.0, 1.0);
+    let (x, y) = (f(p & 0xffff), f(p >> 16));
+    let z = 1.0 - x.abs() - y.abs();
+    let t = (-z).max(0.0);
+    let x = x + if x >= 0.0 { -t } else { t };
+    let y = y + if y >= 0.0 { -t } else { t };
+    Vec3::new(x, y, z).normalize()
 }
 
 /// How a scene's files are read, and how many triangles it may have.
 pub struct Loader<'a> {
-    pub read: &'a dyn Fn(&Path) -> std::io::Result<String>,
+    /// A file's bytes.
+    pub read: &'a dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
     pub max_triangles: usize,
+    /// An XML scene's `-D name=value` parameters.
+    pub defines: &'a [(String, String)],
 }
+
+/// The most bounces a render of an XML scene whose integrator says
+/// `max_depth -1` (unlimited) takes: beyond it Russian roulette has ended
+/// all but a vanishing share of paths.
+pub const MITSUBA_UNLIMITED_DEPTH: u32 = 1024;
 
 /// Most triangles a scene may have: about 3 GiB of host memory while it
 /// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and
 /// the renderer says so.
 pub const MAX_TRIANGLES: usize = 1 << 24;
 
+impl Loader<'_> {
+    /// A text file's contents; not UTF-8 is an error.
+    pub fn text(&self, path: &Path) -> std::io::Result<String> {
+        String::from_utf8((self.read)(path)?).map_err(|_| {
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                "the file is not UTF-8 text",
+            )
+        })
+    }
+}
+
 impl Default for Loader<'_> {
     /// The file system, and [`MAX_TRIANGLES`].
     fn default() -> Self {
         Self {
-            read: &|path| std::fs::read_to_string(path),
+            read: &|path| std::fs::read(path),
             max_triangles: MAX_TRIANGLES,
+            defines: &[],
         }
     }
 }
@@ -504,10 +793,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     } else if metallic == 1.0 {
         let roughness = m.roughness.unwrap_or(0.0);
         ignored.extend(m.diffuse.map(|_| "Kd"));
-        Surface::Conductor {
-            reflectance: unit("Ks", m.specular, 1.0)?,
-            alpha: roughness * roughness,
-        }
+        Surface::conductor(unit("Ks", m.specular, 1.0)?, roughness * roughness)
     } else {
         ignored.extend(m.specular.map(|_| "Ks"));
         ignored.extend(m.roughness.map(|_| "Pr"));
@@ -537,9 +823,9 @@ fn load_obj(
     obj_path: &Path,
     loader: &Loader<'_>,
     materials: &mut Vec<Material>,
-    out: &mut Geometry<'_>,
+    out: &mut Geometry,
 ) -> Result<(), SceneError> {
-    let text = (loader.read)(obj_path).map_err(|source| SceneError::Read {
+    let text = loader.text(obj_path).map_err(|source| SceneError::Read {
         path: obj_path.to_path_buf(),
         source: match source.kind() {
             std::io::ErrorKind::NotFound => {
@@ -551,7 +837,8 @@ fn load_obj(
     let dir = obj_path.parent().unwrap_or(Path::new("."));
     let budget = loader.max_triangles.saturating_sub(out.positions.len());
     let parsed = obj::parse_obj(&text, budget, &mut |name| {
-        (loader.read)(&dir.join(name))
+        loader
+            .text(&dir.join(name))
             .map_err(|e| format!("cannot read the MTL file '{name}' that mtllib names: {e}"))
     })
     .map_err(|e| match &e.mtl {
@@ -584,6 +871,7 @@ fn load_obj(
                 &format!("Ke of material '{}'", m.name),
                 m.emission.unwrap_or([0.0; 3]),
             )?,
+            one_sided: false,
         });
     }
     // Faces without a material get a neutral grey.
@@ -610,11 +898,11 @@ mod tests {
     /// Loads a one-triangle scene lit by its environment whose material
     /// is `mtl`.
     fn load(mtl: &str) -> Result<Scene, SceneError> {
-        let read = |p: &Path| -> std::io::Result<String> {
+        let read = |p: &Path| -> std::io::Result<Vec<u8>> {
             Ok(match p.file_name().unwrap().to_str().unwrap() {
                 "s.toml" => "mesh = \"s.obj\"\nenvironment = [1, 1, 1]\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov_y = 40\n".into(),
                 "s.obj" => "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n".into(),
-                _ => format!("newmtl m\n{mtl}"),
+                _ => format!("newmtl m\n{mtl}").into_bytes(),
             })
         };
         Scene::load_with(
@@ -622,6 +910,7 @@ mod tests {
             &Loader {
                 read: &read,
                 max_triangles: 10,
+                defines: &[],
             },
         )
     }
@@ -631,18 +920,9 @@ mod tests {
         let surface = |mtl: &str| load(mtl).unwrap().materials[0].surface;
         assert_eq!(
             surface("Pm 1\nKs 0.9 0.8 0.7\nPr 0.5\nKd 0.1 0.1 0.1\n"),
-            Surface::Conductor {
-                reflectance: Vec3::new(0.9, 0.8, 0.7),
-                alpha: 0.25
-            }
+            Surface::conductor(Vec3::new(0.9, 0.8, 0.7), 0.25)
         );
-        assert_eq!(
-            surface("Pm 1\n"),
-            Surface::Conductor {
-                reflectance: Vec3::ONE,
-                alpha: 0.0
-            }
-        );
+        assert_eq!(surface("Pm 1\n"), Surface::conductor(Vec3::ONE, 0.0));
         assert_eq!(
             surface("Ni 1.5\nd 0\nTf 1 0.9 0.8\n"),
             Surface::Dielectric {

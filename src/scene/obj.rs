@@ -37,12 +37,21 @@ pub struct ObjGroup {
     /// unknown name).
     pub material: Vec<Option<usize>>,
     pub triangles: Vec<[Vec3; 3]>,
+    /// Each triangle's corners: indices into the file's positions, and
+    /// into its `vn` normals (NO_NORMAL where a corner has none).
+    pub corners: Vec<[u32; 3]>,
+    pub normal_corners: Vec<[u32; 3]>,
 }
+
+/// A face corner without a `vn` normal.
+pub const NO_NORMAL: u32 = u32::MAX;
 
 /// What an OBJ file (with its MTL files) holds.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Obj {
     pub groups: Vec<ObjGroup>,
+    /// The file's `vn` normals, as written.
+    pub normals: Vec<Vec3>,
     pub materials: Vec<MtlMaterial>,
     /// `usemtl` names no MTL defines (their faces get the default material).
     pub unknown_materials: Vec<String>,
@@ -147,9 +156,10 @@ pub fn parse_mtl(text: &str) -> Result<Vec<MtlMaterial>, (usize, String)> {
 }
 
 /// One `f` corner: the position index (1-based, or negative from the end)
-/// before any `/vt/vn`.
-fn corner(word: &str, positions: usize) -> Result<usize, String> {
-    let v = word.split('/').next().unwrap_or("");
+/// and the `vn` index after `/vt/`, if any.
+fn corner(word: &str, positions: usize, normals: usize) -> Result<(usize, u32), String> {
+    let mut parts = word.split('/');
+    let v = parts.next().unwrap_or("");
     let i: i64 = v
         .parse()
         .map_err(|_| format!("face corner '{word}' has no vertex index"))?;
@@ -159,7 +169,22 @@ fn corner(word: &str, positions: usize) -> Result<usize, String> {
             "face corner '{word}' names vertex {i}, but {positions} are defined so far"
         ));
     }
-    Ok(index as usize)
+    let normal = match parts.nth(1).filter(|n| !n.is_empty()) {
+        None => NO_NORMAL,
+        Some(n) => {
+            let k: i64 = n
+                .parse()
+                .map_err(|_| format!("face corner '{word}': '{n}' is not a normal index"))?;
+            let at = if k > 0 { k - 1 } else { normals as i64 + k };
+            if k == 0 || at < 0 || at >= normals as i64 {
+                return Err(format!(
+                    "face corner '{word}' names normal {k}, but {normals} are defined so far"
+                ));
+            }
+            at as u32
+        }
+    };
+    Ok((index as usize, normal))
 }
 
 /// Parses an OBJ file's text, refusing more than `max_triangles` triangles
@@ -178,7 +203,7 @@ pub fn parse_obj(
         name: "unnamed".into(),
         ..Default::default()
     };
-    let mut corners: Vec<usize> = Vec::new();
+    let mut corners: Vec<(usize, u32)> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let fail = |message: String| ParseError {
             mtl: None,
@@ -197,10 +222,18 @@ pub fn parse_obj(
                 }
                 positions.push(Vec3::from(p));
             }
+            "vn" => {
+                let mut n = [0.0f32; 3];
+                for (k, c) in n.iter_mut().enumerate() {
+                    *c = number(words.next(), &format!("normal coordinate {}", k + 1))
+                        .map_err(fail)?;
+                }
+                obj.normals.push(Vec3::from(n));
+            }
             "f" => {
                 corners.clear();
                 for w in words {
-                    corners.push(corner(w, positions.len()).map_err(fail)?);
+                    corners.push(corner(w, positions.len(), obj.normals.len()).map_err(fail)?);
                 }
                 if corners.len() < 3 {
                     return Err(fail(format!(
@@ -216,8 +249,10 @@ pub fn parse_obj(
                 }
                 // A fan, as every OBJ reader triangulates a convex polygon.
                 for k in 1..corners.len() - 1 {
-                    let t = [corners[0], corners[k], corners[k + 1]].map(|c| positions[c]);
-                    group.triangles.push(t);
+                    let c = [corners[0], corners[k], corners[k + 1]];
+                    group.triangles.push(c.map(|(p, _)| positions[p]));
+                    group.corners.push(c.map(|(p, _)| p as u32));
+                    group.normal_corners.push(c.map(|(_, n)| n));
                     group.material.push(current);
                 }
             }
@@ -257,8 +292,8 @@ pub fn parse_obj(
                     obj.materials.extend(parsed);
                 }
             }
-            // Texture coordinates, normals, smoothing groups, lines, points,
-            // curves: nothing a renderer of flat triangles needs.
+            // Texture coordinates, smoothing groups, lines, points, curves:
+            // nothing the renderer uses.
             _ => {}
         }
     }
@@ -278,7 +313,8 @@ mod tests {
 
     #[test]
     fn faces_are_fans_with_relative_and_slashed_indices() {
-        let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\no quad\nf 1/1/1 2//2 3/3 -1\n";
+        let text =
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nvn 0 0 1\no quad\nf 1/1/1 2//2 3/3 -1\n";
         let obj = parse_obj(text, 100, &mut no_mtl).unwrap();
         assert_eq!(obj.groups.len(), 1);
         let g = &obj.groups[0];
@@ -289,6 +325,24 @@ mod tests {
             [Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0), Vec3::Y]
         );
         assert_eq!(g.material, vec![None, None]);
+        assert_eq!(g.corners, vec![[0, 1, 2], [0, 2, 3]]);
+        assert_eq!(
+            g.normal_corners,
+            vec![[0, 1, NO_NORMAL], [0, NO_NORMAL, NO_NORMAL]]
+        );
+    }
+
+    #[test]
+    fn normals_come_from_vn_by_corner() {
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 1 0\nf 1//1 2//2 3/7/-1\nf 1 2 3\n";
+        let obj = parse_obj(text, 100, &mut no_mtl).unwrap();
+        assert_eq!(obj.normals, vec![Vec3::Z, Vec3::Y]);
+        assert_eq!(
+            obj.groups[0].normal_corners,
+            vec![[0, 1, 1], [NO_NORMAL; 3]]
+        );
+        let e = parse_obj("v 0 0 0\nf 1//1 1 1\n", 100, &mut no_mtl).unwrap_err();
+        assert!(e.to_string().contains("names normal 1"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,894 @@
+//! Mitsuba 3's XML scene format: the subset that published scenes use,
+//! read into qtrace's triangles, materials, camera and render defaults.
+//! Every plugin and parameter means what Mitsuba 3's documentation says;
+//! anything qtrace cannot render as Mitsuba would is an error naming the
+//! file and line, never a silently different image.
+
+mod shapes;
+mod xml;
+
+use super::file::RenderDefaults;
+use super::{obj, ply};
+use super::{Camera, FovAxis, Geometry, Loader, Material, Parts, PixelFilter, SceneError};
+use crate::bsdf::{ComplexIor, Distribution, Surface};
+use glam::{Mat4, Vec3};
+use std::collections::HashMap;
+use std::path::Path;
+use xml::{plugin_name, Element, Props};
+
+/// Reads the scene of `path`; `defines` are the command line's `-D name=value`.
+pub(super) fn read(
+    path: &Path,
+    loader: &Loader<'_>,
+    defines: &[(String, String)],
+) -> Result<Parts, SceneError> {
+    let elements = xml::read_scene(path, loader, defines)?;
+    let mut b = Builder {
+        loader,
+        bsdfs: HashMap::new(),
+        materials: Vec::new(),
+        geometry: Geometry::default(),
+        camera: None,
+        defaults: RenderDefaults::default(),
+        filter: PixelFilter::Gaussian { stddev: 0.5 },
+        max_depth: None,
+    };
+    for el in &elements {
+        b.top_level(el)?;
+    }
+    let Some(camera) = b.camera else {
+        return Err(SceneError::Invalid {
+            path: path.to_path_buf(),
+            message: "the scene has no <sensor>".into(),
+        });
+    };
+    b.defaults.max_depth = b.max_depth;
+    Ok(Parts {
+        camera,
+        defaults: b.defaults,
+        guide_tables: [
+            ("sarsa", toml::Table::new()),
+            ("neural", toml::Table::new()),
+        ],
+        environment: Vec3::ZERO,
+        materials: b.materials,
+        geometry: b.geometry,
+        filter: b.filter,
+    })
+}
+
+/// A shape's triangles in world space, and its shading normals at their
+/// corners if it has them.
+type Mesh = (Vec<[Vec3; 3]>, Option<Vec<[Vec3; 3]>>);
+
+/// A BSDF as a shape uses it: the surface, and whether its back is black
+/// (Mitsuba's BSDFs reflect on the front only unless wrapped in `twosided`).
+#[derive(Clone, Debug)]
+struct BsdfDesc {
+    name: String,
+    surface: Surface,
+    one_sided: bool,
+    /// `null`: the shape is invisible to paths.
+    null: bool,
+}
+
+struct Builder<'a, 'l> {
+    loader: &'a Loader<'l>,
+    /// BSDFs with an id, and the material a shape without an emitter shares.
+    bsdfs: HashMap<String, (BsdfDesc, Option<u32>)>,
+    materials: Vec<Material>,
+    geometry: Geometry,
+    camera: Option<Camera>,
+    defaults: RenderDefaults,
+    filter: PixelFilter,
+    max_depth: Option<u32>,
+}
+
+impl Builder<'_, '_> {
+    fn top_level(&mut self, el: &Element) -> Result<(), SceneError> {
+        match el.tag.as_str() {
+            "integrator" => self.integrator(el),
+            "sensor" => self.sensor(el),
+            "bsdf" => {
+                let id = el
+                    .attr("id")
+                    .ok_or_else(|| el.error("a top-level <bsdf> needs an id"))?;
+                let desc = bsdf(el)?;
+                self.bsdfs.insert(id.to_string(), (desc, None));
+                Ok(())
+            }
+            "shape" => self.shape(el),
+            "emitter" => Err(el.error(format!(
+                "{} is not supported yet: qtrace lights a scene with area emitters on shapes",
+                plugin_name(el)
+            ))),
+            "texture" => Err(el.error("textures are not supported yet")),
+            "medium" | "phase" => Err(el.error(format!(
+                "{}: participating media are not supported",
+                plugin_name(el)
+            ))),
+            other => Err(el.error(format!(
+                "<{other}> is not supported at the top level of a scene (see docs/mitsuba.md)"
+            ))),
+        }
+    }
+
+    fn integrator(&mut self, el: &Element) -> Result<(), SceneError> {
+        let kind = el.plugin()?;
+        if kind != "path" {
+            log::warn!(
+                "{}:{}: integrator '{kind}': qtrace renders the scene with its own method (--method) instead",
+                el.file.display(),
+                el.line
+            );
+            return Ok(());
+        }
+        let p = Props::new(el);
+        if let Some(d) = p.integer("max_depth")? {
+            self.max_depth = Some(match d {
+                -1 => super::MITSUBA_UNLIMITED_DEPTH,
+                d if d >= 1 && d <= 1 + crate::render::settings::MAX_DEPTH as i64 => (d - 1) as u32,
+                d => {
+                    return Err(el.error(format!(
+                        "max_depth {d} must be -1 (unlimited) or 1..={}",
+                        crate::render::settings::MAX_DEPTH + 1
+                    )))
+                }
+            });
+        }
+        // Where Russian roulette starts changes noise, not the image.
+        p.ignore("rr_depth");
+        if p.boolean("hide_emitters")? == Some(true) {
+            return Err(el.error("hide_emitters is not supported"));
+        }
+        p.finish()
+    }
+
+    fn sensor(&mut self, el: &Element) -> Result<(), SceneError> {
+        if self.camera.is_some() {
+            return Err(el.error("a second <sensor>: qtrace renders one camera"));
+        }
+        if el.plugin()? != "perspective" {
+            return Err(el.error(format!(
+                "{} is not supported; qtrace has the 'perspective' sensor",
+                plugin_name(el)
+            )));
+        }
+        let p = Props::new(el);
+        let axis = match p.string("fov_axis")?.unwrap_or("x") {
+            "x" => FovAxis::X,
+            "y" => FovAxis::Y,
+            "diagonal" => FovAxis::Diagonal,
+            "smaller" => FovAxis::Smaller,
+            "larger" => FovAxis::Larger,
+            other => {
+                return Err(el.error(format!(
+                    "fov_axis '{other}' is not x, y, diagonal, smaller or larger"
+                )))
+            }
+        };
+        let (fov, axis) = match (p.float("fov")?, p.string("focal_length")?) {
+            (Some(_), Some(_)) => return Err(el.error("give fov or focal_length, not both")),
+            (Some(f), None) => (f, axis),
+            (None, focal) => {
+                // A focal length on 35 mm film sets the diagonal field of view.
+                let text = focal.unwrap_or("50mm");
+                let mm = text
+                    .trim()
+                    .strip_suffix("mm")
+                    .and_then(xml::parse_f32)
+                    .filter(|v| *v > 0.0)
+                    .ok_or_else(|| {
+                        el.error(format!("focal_length '{text}' is not a length like 50mm"))
+                    })?;
+                let diagonal = (36.0f32 * 36.0 + 24.0 * 24.0).sqrt();
+                (
+                    2.0 * (diagonal / (2.0 * mm)).atan().to_degrees(),
+                    FovAxis::Diagonal,
+                )
+            }
+        };
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
+        }
+        let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
+        // Clipping planes keep the scene in front of the camera whole.
+        p.ignore("near_clip");
+        p.ignore("far_clip");
+        for sampler in p.nested("sampler") {
+            self.sampler(sampler)?;
+        }
+        for film in p.nested("film") {
+            self.film(film)?;
+        }
+        p.finish()?;
+        let frame = |v: Vec3| to_world.transform_vector3(v).try_normalize();
+        let (Some(left), Some(up), Some(forward)) =
+            (frame(Vec3::X), frame(Vec3::Y), frame(Vec3::Z))
+        else {
+            return Err(el.error("the sensor's to_world is singular"));
+        };
+        self.camera = Some(Camera {
+            position: to_world.transform_point3(Vec3::ZERO),
+            forward,
+            right: -left,
+            up,
+            fov_degrees: fov,
+            fov_axis: axis,
+        });
+        Ok(())
+    }
+
+    fn sampler(&mut self, el: &Element) -> Result<(), SceneError> {
+        match el.plugin()? {
+            "independent" | "stratified" | "multijitter" | "orthogonal" | "ldsampler" => {}
+            other => return Err(el.error(format!("sampler '{other}' is not a Mitsuba 3 sampler"))),
+        }
+        let p = Props::new(el);
+        if let Some(n) = p.integer("sample_count")? {
+            if n < 1 || n > crate::render::settings::MAX_SPP as i64 {
+                return Err(el.error(format!(
+                    "sample_count {n} must lie in 1..={}",
+                    crate::render::settings::MAX_SPP
+                )));
+            }
+            self.defaults.spp = Some(n as u32);
+        }
+        // Every sequence converges to the same image; qtrace draws its own.
+        for k in ["seed", "jitter", "scramble_seed", "dimension"] {
+            p.ignore(k);
+        }
+        p.finish()
+    }
+
+    fn film(&mut self, el: &Element) -> Result<(), SceneError> {
+        if el.plugin()? != "hdrfilm" {
+            return Err(el.error(format!(
+                "{} is not supported; qtrace has 'hdrfilm'",
+                plugin_name(el)
+            )));
+        }
+        let p = Props::new(el);
+        let size = |name: &str, default: u32| -> Result<u32, SceneError> {
+            match p.integer(name)? {
+                None => Ok(default),
+                Some(v) if v >= 1 && v <= crate::render::settings::MAX_RESOLUTION as i64 => {
+                    Ok(v as u32)
+                }
+                Some(v) => Err(el.error(format!(
+                    "film {name} {v} must lie in 1..={}",
+                    crate::render::settings::MAX_RESOLUTION
+                ))),
+            }
+        };
+        self.defaults.width = Some(size("width", 768)?);
+        self.defaults.height = Some(size("height", 576)?);
+        // What the file holds, not what the image shows.
+        for k in [
+            "file_format",
+            "pixel_format",
+            "component_format",
+            "banner",
+            "sample_border",
+        ] {
+            p.ignore(k);
+        }
+        for f in p.nested("rfilter") {
+            let fp = Props::new(f);
+            self.filter = match f.plugin()? {
+                "box" => PixelFilter::Box,
+                "tent" => PixelFilter::Tent {
+                    radius: positive(f, "radius", fp.float_or("radius", 1.0)?)?,
+                },
+                "gaussian" => PixelFilter::Gaussian {
+                    stddev: positive(f, "stddev", fp.float_or("stddev", 0.5)?)?,
+                },
+                other => {
+                    return Err(f.error(format!(
+                        "rfilter '{other}' is not supported; qtrace has box, tent and gaussian"
+                    )))
+                }
+            };
+            fp.finish()?;
+        }
+        p.finish()
+    }
+
+    fn shape(&mut self, el: &Element) -> Result<(), SceneError> {
+        let kind = el.plugin()?;
+        let p = Props::new(el);
+        let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
+        let flip = p.boolean("flip_normals")?.unwrap_or(false);
+        let face_normals = p.boolean("face_normals")?.unwrap_or(false);
+        let (triangles, normals) = match kind {
+            "rectangle" => (shapes::rectangle(to_world), None),
+            "cube" => (shapes::cube(to_world), None),
+            "disk" => (shapes::disk(to_world), None),
+            "sphere" => {
+                let center = p.point("center")?.unwrap_or(Vec3::ZERO);
+                let radius = p.float_or("radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(el.error(format!("sphere radius {radius} must be positive")));
+                }
+                let (t, n) = shapes::sphere(to_world, center, radius);
+                (t, Some(n))
+            }
+            "obj" => {
+                let name = p
+                    .string("filename")?
+                    .ok_or_else(|| el.error("shape 'obj' needs a filename"))?;
+                p.boolean("flip_tex_coords")?;
+                self.obj(el, name, to_world, face_normals)?
+            }
+            "ply" => {
+                let name = p
+                    .string("filename")?
+                    .ok_or_else(|| el.error("shape 'ply' needs a filename"))?;
+                p.boolean("flip_tex_coords")?;
+                self.ply(el, name, to_world, face_normals)?
+            }
+            "serialized" => {
+                return Err(el.error(format!("shape '{kind}' is not supported yet")));
+            }
+            other => {
+                return Err(el.error(format!(
+                    "shape '{other}' is not supported; qtrace has obj, rectangle, cube, disk and sphere"
+                )))
+            }
+        };
+        let (triangles, normals) = if flip {
+            (
+                triangles.into_iter().map(|[a, b, c]| [a, c, b]).collect(),
+                normals.map(|n| n.into_iter().map(|[a, b, c]| [-a, -c, -b]).collect()),
+            )
+        } else {
+            (triangles, normals)
+        };
+
+        let mut emission = None;
+        for e in p.nested("emitter") {
+            if e.plugin()? != "area" {
+                return Err(e.error(format!(
+                    "{} inside a shape: a shape emits with 'area'",
+                    plugin_name(e)
+                )));
+            }
+            if emission.is_some() {
+                return Err(e.error("a shape has one area emitter"));
+            }
+            let ep = Props::new(e);
+            let radiance = ep
+                .color("radiance")?
+                .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?;
+            if radiance.min_element() < 0.0 {
+                return Err(e.error("the area emitter's radiance is negative"));
+            }
+            ep.finish()?;
+            emission = Some(radiance);
+        }
+        let mut desc = None;
+        let mut shared = None;
+        for b in p.nested("bsdf") {
+            if desc.is_some() {
+                return Err(b.error("a shape has one BSDF"));
+            }
+            desc = Some(bsdf(b)?);
+        }
+        for r in p.nested("ref") {
+            if desc.is_some() {
+                return Err(r.error("a shape has one BSDF"));
+            }
+            let id = r.required("id")?;
+            let Some((d, m)) = self.bsdfs.get(id) else {
+                return Err(r.error(format!(
+                    "no BSDF has the id '{id}' (a BSDF must come before the shapes that use it)"
+                )));
+            };
+            desc = Some(d.clone());
+            shared = Some((id.to_string(), *m));
+        }
+        p.finish()?;
+        // Mitsuba's default: a one-sided diffuse surface of reflectance 0.5.
+        let desc = desc.unwrap_or(BsdfDesc {
+            name: "default diffuse".into(),
+            surface: Surface::Diffuse {
+                albedo: Vec3::splat(0.5),
+            },
+            one_sided: true,
+            null: false,
+        });
+        let label = format!(
+            "shape '{}' ({kind}) at line {}",
+            el.attr("id").unwrap_or("unnamed"),
+            el.line
+        );
+        if desc.null && emission.is_none() {
+            return Err(el.error(
+                "a shape with bsdf 'null' is not supported: Mitsuba's path integrator lets \
+                 paths through it yet blocks shadow rays with it",
+            ));
+        }
+        if let Some(le) = emission {
+            // qtrace's paths end at an emitter: exact for a black BSDF.
+            let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
+            if desc.null || !black {
+                log::warn!(
+                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's {}",
+                    el.file.display(),
+                    el.line,
+                    desc.name,
+                    if desc.null {
+                        "pass through it"
+                    } else {
+                        "also reflect from it"
+                    }
+                );
+            }
+            let m = self.materials.len() as u32;
+            self.materials.push(Material {
+                name: label.clone(),
+                surface: desc.surface,
+                emission: le,
+                one_sided: desc.one_sided,
+            });
+            self.add(el, &label, triangles, normals, m);
+            return Ok(());
+        }
+        let m = match shared {
+            Some((_, Some(m))) => m,
+            _ => {
+                let m = self.materials.len() as u32;
+                self.materials.push(Material {
+                    name: desc.name.clone(),
+                    surface: desc.surface,
+                    emission: Vec3::ZERO,
+                    one_sided: desc.one_sided,
+                });
+                if let Some((id, None)) = &shared {
+                    if let Some(entry) = self.bsdfs.get_mut(id) {
+                        entry.1 = Some(m);
+                    }
+                }
+                m
+            }
+        };
+        self.add(el, &label, triangles, normals, m);
+        Ok(())
+    }
+
+    fn add(
+        &mut self,
+        el: &Element,
+        label: &str,
+        triangles: Vec<[Vec3; 3]>,
+        normals: Option<Vec<[Vec3; 3]>>,
+        material: u32,
+    ) {
+        let source = (el.file.as_ref().clone(), label.to_string());
+        self.geometry.add(source, triangles, normals, material);
+    }
+
+    /// An OBJ mesh in world space, with Mitsuba's shading normals unless
+    /// `face_normals`: the file's `vn` where its faces give them, else each
+    /// vertex's faces' normals weighted by their angles there.
+    fn obj(
+        &self,
+        el: &Element,
+        name: &str,
+        to_world: Mat4,
+        face_normals: bool,
+    ) -> Result<Mesh, SceneError> {
+        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
+        let text = self
+            .loader
+            .text(&path)
+            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
+        let budget = self
+            .loader
+            .max_triangles
+            .saturating_sub(self.geometry.positions.len());
+        // The XML gives the materials; an OBJ's own MTL is not read.
+        let parsed = obj::parse_obj(&text, budget, &mut |_| Ok(String::new())).map_err(|e| {
+            SceneError::Obj {
+                path: path.clone(),
+                message: e.to_string(),
+            }
+        })?;
+        let mut triangles = Vec::new();
+        let mut corners = Vec::new();
+        let mut normal_corners = Vec::new();
+        for g in parsed.groups {
+            triangles.extend(
+                g.triangles
+                    .into_iter()
+                    .map(|t| t.map(|v| to_world.transform_point3(v))),
+            );
+            corners.extend(g.corners);
+            normal_corners.extend(g.normal_corners);
+        }
+        if face_normals {
+            return Ok((triangles, None));
+        }
+        let normal_matrix = glam::Mat3::from_mat4(to_world).inverse().transpose();
+        let file_normals: Vec<Vec3> = parsed
+            .normals
+            .iter()
+            .map(|n| (normal_matrix * *n).normalize_or_zero())
+            .collect();
+        let smooth = smooth_normals(&triangles, &corners);
+        let normals = normal_corners
+            .iter()
+            .zip(smooth)
+            .map(|(nc, smooth)| {
+                if nc.iter().all(|&i| i != obj::NO_NORMAL) {
+                    nc.map(|i| file_normals[i as usize])
+                } else {
+                    smooth
+                }
+            })
+            .collect();
+        Ok((triangles, Some(normals)))
+    }
+}
+
+impl Builder<'_, '_> {
+    /// A PLY mesh in world space, with Mitsuba's shading normals unless
+    /// `face_normals`: the file's where it has them, else computed.
+    fn ply(
+        &self,
+        el: &Element,
+        name: &str,
+        to_world: Mat4,
+        face_normals: bool,
+    ) -> Result<Mesh, SceneError> {
+        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
+        let bytes = (self.loader.read)(&path)
+            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
+        let budget = self
+            .loader
+            .max_triangles
+            .saturating_sub(self.geometry.positions.len());
+        let mesh = ply::parse_ply(&bytes, budget).map_err(|message| SceneError::Invalid {
+            path: path.clone(),
+            message: format!(
+                "malformed PLY: {message} (the shape at {}:{})",
+                el.file.display(),
+                el.line
+            ),
+        })?;
+        let positions: Vec<Vec3> = mesh
+            .positions
+            .iter()
+            .map(|p| to_world.transform_point3(*p))
+            .collect();
+        let triangles: Vec<[Vec3; 3]> = mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| positions[i as usize]))
+            .collect();
+        if face_normals {
+            return Ok((triangles, None));
+        }
+        let normals = match &mesh.normals {
+            Some(n) => {
+                let m = glam::Mat3::from_mat4(to_world).inverse().transpose();
+                let world: Vec<Vec3> = n.iter().map(|v| (m * *v).normalize_or_zero()).collect();
+                mesh.triangles
+                    .iter()
+                    .map(|t| t.map(|i| world[i as usize]))
+                    .collect()
+            }
+            None => smooth_normals(&triangles, &mesh.triangles),
+        };
+        Ok((triangles, Some(normals)))
+    }
+}
+
+/// Mitsuba's normals for a mesh without its own: at each vertex the sum of
+/// its faces' normals, each weighted by the face's angle there (Thürmer and
+/// Wüthrich), normalized. `corners` names each triangle's vertices.
+fn smooth_normals(triangles: &[[Vec3; 3]], corners: &[[u32; 3]]) -> Vec<[Vec3; 3]> {
+    let count = corners
+        .iter()
+        .flatten()
+        .map(|&i| i as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let mut sum = vec![Vec3::ZERO; count];
+    for (t, c) in triangles.iter().zip(corners) {
+        let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+        for j in 0..3 {
+            let d0 = (t[(j + 1) % 3] - t[j]).normalize_or_zero();
+            let d1 = (t[(j + 2) % 3] - t[j]).normalize_or_zero();
+            let angle = d0.dot(d1).clamp(-1.0, 1.0).acos();
+            sum[c[j] as usize] += n * angle;
+        }
+    }
+    corners
+        .iter()
+        .zip(triangles)
+        .map(|(c, t)| {
+            let face = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+            c.map(|i| sum[i as usize].try_normalize().unwrap_or(face))
+        })
+        .collect()
+}
+
+fn positive(el: &Element, name: &str, v: f32) -> Result<f32, SceneError> {
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(el.error(format!("{name} {v} must be positive")))
+    }
+}
+
+/// A colour that may not exceed 1 (it would create energy).
+fn reflectance(el: &Element, p: &Props, name: &str, default: f32) -> Result<Vec3, SceneError> {
+    let c = p.color(name)?.unwrap_or(Vec3::splat(default));
+    if c.min_element() < 0.0 || c.max_element() > 1.0 {
+        return Err(el.error(format!("{} {name} {c} must lie in [0, 1]", plugin_name(el))));
+    }
+    Ok(c)
+}
+
+/// Mitsuba 3's named conductors as its RGB variants see them: η and k per
+/// channel, read from Mitsuba 3.9.1 (`mi.traverse` of each `material`).
+#[rustfmt::skip]
+#[allow(clippy::excessive_precision)] // as Mitsuba printed them
+const CONDUCTOR_TABLE: &[(&str, [f32; 3], [f32; 3])] = &[
+    ("none", [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+    ("a-C", [2.944046, 2.227136, 1.968162], [0.887465, 0.799299, 0.815290]),
+    ("Ag", [0.155276, 0.116728, 0.138388], [4.828354, 3.122222, 2.146901]),
+    ("Al", [1.657501, 0.880405, 0.521244], [9.223811, 6.269502, 4.837004]),
+    ("AlAs", [3.605296, 3.232938, 2.216319], [0.000679, 0.000000, 0.007513]),
+    ("AlAs_palik", [3.605296, 3.232938, 2.216319], [0.000679, 0.000000, 0.007513]),
+    ("AlSb", [0.000000, 4.139375, 4.669254], [0.000000, 0.094009, 1.300570]),
+    ("AlSb_palik", [0.000000, 4.139375, 4.669254], [0.000000, 0.094009, 1.300570]),
+    ("Au", [0.143036, 0.375307, 1.442045], [3.982997, 2.385556, 1.603359]),
+    ("Be", [4.185012, 3.185029, 2.784061], [3.835466, 3.010122, 2.868994]),
+    ("Be_palik", [4.185012, 3.185029, 2.784061], [3.835466, 3.010122, 2.868994]),
+    ("Cr", [4.369668, 2.916505, 1.654905], [5.206547, 4.231306, 3.754699]),
+    ("CsI", [2.144900, 1.702319, 1.662427], [0.000000, 0.000000, 0.000000]),
+    ("CsI_palik", [2.144900, 1.702319, 1.662427], [0.000000, 0.000000, 0.000000]),
+    ("Cu", [0.201005, 0.923750, 1.102215], [3.913262, 2.453045, 2.142090]),
+    ("Cu_palik", [0.213229, 0.919715, 1.102411], [3.921873, 2.457332, 2.136584]),
+    ("Cu2O", [3.551773, 2.949870, 2.751875], [0.114207, 0.193897, 0.606134]),
+    ("Cu2O_palik", [3.551773, 2.949870, 2.751875], [0.114207, 0.193897, 0.606134]),
+    ("CuO", [3.247541, 2.447805, 2.210220], [0.521090, 0.570031, 0.722179]),
+    ("CuO_palik", [3.247541, 2.447805, 2.210220], [0.521090, 0.570031, 0.722179]),
+    ("d-C", [2.708720, 2.318826, 2.228898], [0.000000, 0.000000, 0.000000]),
+    ("d-C_palik", [2.708720, 2.318826, 2.228898], [0.000000, 0.000000, 0.000000]),
+    ("Hg", [2.398939, 1.440028, 0.909570], [6.327587, 4.371925, 3.421764]),
+    ("Hg_palik", [2.398939, 1.440028, 0.909570], [6.327587, 4.371925, 3.421764]),
+    ("HgTe", [4.779040, 3.231196, 2.659901], [1.631613, 1.580810, 1.729287]),
+    ("HgTe_palik", [4.779040, 3.231196, 2.659901], [1.631613, 1.580810, 1.729287]),
+    ("Ir", [3.086300, 2.082191, 1.617915], [5.592153, 4.067088, 3.267312]),
+    ("Ir_palik", [3.086300, 2.082191, 1.617915], [5.592153, 4.067088, 3.267312]),
+    ("K", [0.064043, 0.046410, 0.038185], [2.104200, 1.348940, 0.913126]),
+    ("K_palik", [0.064043, 0.046410, 0.038185], [2.104200, 1.348940, 0.913126]),
+    ("Li", [0.265791, 0.195618, 0.220949], [3.540155, 2.311123, 1.668607]),
+    ("Li_palik", [0.265791, 0.195618, 0.220949], [3.540155, 2.311123, 1.668607]),
+    ("MgO", [2.089584, 1.650723, 1.594879], [0.000000, 0.000000, 0.000000]),
+    ("MgO_palik", [2.089584, 1.650723, 1.594879], [0.000000, 0.000000, 0.000000]),
+    ("Mo", [4.483974, 3.525131, 2.776310], [4.111437, 3.420827, 3.150607]),
+    ("Mo_palik", [4.483974, 3.525131, 2.776310], [4.111437, 3.420827, 3.150607]),
+    ("Na_palik", [0.060269, 0.056141, 0.061988], [3.179273, 2.112490, 1.579041]),
+    ("Nb", [3.420074, 2.790093, 2.395629], [3.441395, 2.737666, 2.579746]),
+    ("Nb_palik", [3.420074, 2.790093, 2.395629], [3.441395, 2.737666, 2.579746]),
+    ("Ni_palik", [2.367305, 1.663373, 1.467078], [4.498812, 3.050153, 2.345439]),
+    ("Rh", [2.585793, 1.860216, 1.554263], [6.782260, 4.702987, 3.976073]),
+    ("Rh_palik", [2.585793, 1.860216, 1.554263], [6.782260, 4.702987, 3.976073]),
+    ("Se", [4.058311, 2.842935, 2.820853], [0.754050, 0.638444, 0.521808]),
+    ("Se_palik", [4.058311, 2.842935, 2.820853], [0.754050, 0.638444, 0.521808]),
+    ("SiC", [3.172342, 2.525972, 2.479371], [0.000001, 0.000000, 0.000010]),
+    ("SiC_palik", [3.172342, 2.525972, 2.479371], [0.000001, 0.000000, 0.000010]),
+    ("SnTe", [4.524250, 1.981645, 1.281591], [0.000000, 0.000000, 0.000000]),
+    ("SnTe_palik", [4.524250, 1.981645, 1.281591], [0.000000, 0.000000, 0.000000]),
+    ("Ta", [2.062721, 2.392939, 2.627929], [2.408360, 1.741486, 1.947028]),
+    ("Ta_palik", [2.062721, 2.392939, 2.627929], [2.408360, 1.741486, 1.947028]),
+    ("Te", [7.390234, 4.482105, 2.637106], [3.256022, 3.527059, 3.292054]),
+    ("Te_palik", [7.390234, 4.482105, 2.637106], [3.256022, 3.527059, 3.292054]),
+    ("ThF4", [1.830714, 1.442229, 1.387648], [0.000000, 0.000000, 0.000000]),
+    ("ThF4_palik", [1.830714, 1.442229, 1.387648], [0.000000, 0.000000, 0.000000]),
+    ("TiC", [3.700528, 2.837422, 2.582287], [3.265635, 2.351589, 2.172791]),
+    ("TiC_palik", [3.700528, 2.837422, 2.582287], [3.265635, 2.351589, 2.172791]),
+    ("TiN", [1.648450, 1.150516, 1.379823], [3.368328, 1.943498, 1.102068]),
+    ("TiN_palik", [1.648450, 1.150516, 1.379823], [3.368328, 1.943498, 1.102068]),
+    ("TiO2", [3.456610, 2.801736, 2.905175], [0.000105, 0.000000, 0.000653]),
+    ("TiO2_palik", [3.456610, 2.801736, 2.905175], [0.000105, 0.000000, 0.000653]),
+    ("VC", [3.657566, 2.752736, 2.532672], [3.068301, 2.198687, 1.963193]),
+    ("VC_palik", [3.657566, 2.752736, 2.532672], [3.068301, 2.198687, 1.963193]),
+    ("V_palik", [4.277582, 3.512949, 2.761071], [3.491301, 2.889455, 3.111522]),
+    ("VN", [2.865602, 2.119189, 1.940091], [3.032243, 2.056116, 1.616306]),
+    ("VN_palik", [2.865602, 2.119189, 1.940091], [3.032243, 2.056116, 1.616306]),
+    ("W", [4.370817, 3.300246, 2.998407], [3.500641, 2.604874, 2.273233]),
+];
+
+/// Mitsuba's named indices of refraction.
+const IOR_TABLE: &[(&str, f32)] = &[
+    ("vacuum", 1.0),
+    ("helium", 1.000036),
+    ("hydrogen", 1.000132),
+    ("air", 1.000277),
+    ("carbon dioxide", 1.00045),
+    ("water", 1.3330),
+    ("acetone", 1.36),
+    ("ethanol", 1.361),
+    ("carbon tetrachloride", 1.461),
+    ("glycerol", 1.4729),
+    ("benzene", 1.501),
+    ("silicone oil", 1.52045),
+    ("bromine", 1.661),
+    ("water ice", 1.31),
+    ("fused quartz", 1.458),
+    ("pyrex", 1.470),
+    ("acrylic glass", 1.49),
+    ("polypropylene", 1.49),
+    ("bk7", 1.5046),
+    ("sodium chloride", 1.544),
+    ("amber", 1.55),
+    ("pet", 1.5750),
+    ("diamond", 2.419),
+];
+
+/// An index of refraction given as a number or a name from Mitsuba's table.
+fn ior(el: &Element, p: &Props, name: &str, default: &str) -> Result<f32, SceneError> {
+    let text = match p.number_or_string(name)? {
+        Some(Ok(v)) => return positive(el, name, v),
+        Some(Err(s)) => s,
+        None => default,
+    };
+    if let Some(v) = xml::parse_f32(text) {
+        return positive(el, name, v);
+    }
+    IOR_TABLE
+        .iter()
+        .find(|(n, _)| *n == text)
+        .map(|(_, v)| *v)
+        .ok_or_else(|| {
+            el.error(format!(
+                "{name} '{text}' is not a number or a material of Mitsuba's IOR table"
+            ))
+        })
+}
+
+/// A `<bsdf>` element as qtrace renders it.
+fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
+    let kind = el.plugin()?;
+    let p = Props::new(el);
+    let name = el.attr("id").unwrap_or(kind).to_string();
+    let one = |surface: Surface| BsdfDesc {
+        name: name.clone(),
+        surface,
+        one_sided: true,
+        null: false,
+    };
+    let desc = match kind {
+        "twosided" => {
+            let inner = p.nested("bsdf");
+            match inner[..] {
+                [b] => {
+                    let mut d = bsdf(b)?;
+                    d.one_sided = false;
+                    d.name = name.clone();
+                    d
+                }
+                [_, b] => {
+                    return Err(b.error(
+                        "twosided with two different BSDFs is not supported; give one",
+                    ))
+                }
+                _ => return Err(el.error("twosided needs one nested <bsdf>")),
+            }
+        }
+        "diffuse" => one(Surface::Diffuse {
+            albedo: reflectance(el, &p, "reflectance", 0.5)?,
+        }),
+        "conductor" | "roughconductor" => {
+            let material = p.string("material")?;
+            let (eta, k) = (p.color("eta")?, p.color("k")?);
+            // Mitsuba's default, and material "none", is η 0, k 1: a
+            // Fresnel term of 1 at every angle.
+            let fresnel = match (material, eta, k) {
+                (None | Some("none"), None, None) => None,
+                (Some(name), None, None) => {
+                    let Some((_, eta, k)) = CONDUCTOR_TABLE.iter().find(|(n, _, _)| *n == name) else {
+                        return Err(el.error(format!(
+                            "{kind} material '{name}' is not one of Mitsuba's conductors"
+                        )));
+                    };
+                    Some(ComplexIor {
+                        eta: Vec3::from(*eta),
+                        k: Vec3::from(*k),
+                    })
+                }
+                (Some(name), _, _) => {
+                    return Err(el.error(format!(
+                        "{kind}: give material '{name}' or eta and k, not both"
+                    )))
+                }
+                (None, eta, k) => {
+                    let eta = eta.unwrap_or(Vec3::ZERO);
+                    let k = k.unwrap_or(Vec3::ONE);
+                    if eta.min_element() < 0.0 || k.min_element() < 0.0 {
+                        return Err(el.error(format!("{kind}: eta and k must be non-negative")));
+                    }
+                    Some(ComplexIor { eta, k })
+                }
+            };
+            let reflectance = reflectance(el, &p, "specular_reflectance", 1.0)?;
+            let (alpha, distribution) = if kind == "roughconductor" {
+                let distribution = match p.string("distribution")?.unwrap_or("beckmann") {
+                    "beckmann" => Distribution::Beckmann,
+                    "ggx" => Distribution::Ggx,
+                    other => {
+                        return Err(el.error(format!(
+                            "distribution '{other}' is not beckmann or ggx"
+                        )))
+                    }
+                };
+                // Sampling visible normals or all of them changes noise only.
+                p.ignore("sample_visible");
+                let (u, v) = (p.float("alpha_u")?, p.float("alpha_v")?);
+                let a = match (p.float("alpha")?, u, v) {
+                    (Some(a), None, None) => a,
+                    (None, None, None) => 0.1,
+                    (None, Some(u), Some(v)) if u == v => u,
+                    _ => {
+                        return Err(el.error(
+                            "anisotropic roughness (alpha_u, alpha_v) is not supported yet",
+                        ))
+                    }
+                };
+                if !(a > 0.0 && a <= 1.0) {
+                    return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
+                }
+                (a, distribution)
+            } else {
+                (0.0, Distribution::Ggx)
+            };
+            one(Surface::Conductor {
+                reflectance,
+                alpha,
+                distribution,
+                fresnel,
+            })
+        }
+        "dielectric" => {
+            let int = ior(el, &p, "int_ior", "bk7")?;
+            let ext = ior(el, &p, "ext_ior", "air")?;
+            let reflect = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
+            if reflect != Vec3::ONE {
+                return Err(el.error(
+                    "a dielectric's specular_reflectance other than 1 is not supported yet",
+                ));
+            }
+            let transmittance = reflectance(el, &p, "specular_transmittance", 1.0)?;
+            let mut d = one(Surface::Dielectric {
+                ior: int / ext,
+                transmittance,
+            });
+            d.one_sided = false;
+            d
+        }
+        "null" => BsdfDesc {
+            name: name.clone(),
+            surface: Surface::Diffuse { albedo: Vec3::ZERO },
+            one_sided: false,
+            null: true,
+        },
+        "thindielectric" | "roughdielectric" | "plastic" | "roughplastic" => {
+            return Err(el.error(format!("bsdf '{kind}' is not supported yet")))
+        }
+        "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
+        | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
+        | "circular" => {
+            return Err(el.error(format!(
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, twosided and null"
+            )))
+        }
+        other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
+    };
+    p.finish()?;
+    Ok(desc)
+}

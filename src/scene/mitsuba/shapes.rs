@@ -1,0 +1,179 @@
+//! Mitsuba's built-in shapes as triangles in world space. The curved ones
+//! are tessellated finely and scaled so that their area is the true shape's
+//! (an emitter's power, a sphere's silhouette stay right).
+
+use glam::{Mat3, Mat4, Vec3};
+use std::f32::consts::PI;
+
+/// Segments around a disk or a sphere's equator.
+const SEGMENTS: u32 = 128;
+/// Rings from a sphere's pole to pole.
+const RINGS: u32 = 64;
+
+/// Triangles of an analytic shape, wound so that their normal is Mitsuba's:
+/// the shape's normal transformed as a normal, which keeps its side even
+/// where `to_world` mirrors.
+fn placed(to_world: Mat4, triangles: Vec<[Vec3; 3]>) -> Vec<[Vec3; 3]> {
+    let mirrors = Mat3::from_mat4(to_world).determinant() < 0.0;
+    triangles
+        .into_iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|v| to_world.transform_point3(v));
+            if mirrors {
+                [a, c, b]
+            } else {
+                [a, b, c]
+            }
+        })
+        .collect()
+}
+
+/// Normals at `local`'s corners (a unit sphere's points are their own
+/// normals), transformed as normals and wound as [`placed`] winds.
+fn placed_normals(to_world: Mat4, local: &[[Vec3; 3]]) -> Vec<[Vec3; 3]> {
+    let m = Mat3::from_mat4(to_world);
+    let normal_matrix = m.inverse().transpose();
+    let mirrors = m.determinant() < 0.0;
+    local
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|n| (normal_matrix * n).normalize());
+            if mirrors {
+                [a, c, b]
+            } else {
+                [a, b, c]
+            }
+        })
+        .collect()
+}
+
+/// [-1, 1]² in the plane z = 0, facing +z.
+pub fn rectangle(to_world: Mat4) -> Vec<[Vec3; 3]> {
+    let p = |x: f32, y: f32| Vec3::new(x, y, 0.0);
+    placed(
+        to_world,
+        vec![
+            [p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0)],
+            [p(-1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)],
+        ],
+    )
+}
+
+/// [-1, 1]³, its faces facing out. A mesh in Mitsuba: the winding, not
+/// the transformed normal, says which side is out.
+pub fn cube(to_world: Mat4) -> Vec<[Vec3; 3]> {
+    let mut out = Vec::with_capacity(12);
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            let mut n = Vec3::ZERO;
+            n[axis] = sign;
+            // u × v = n, so (c, c+u, c+u+v) winds counter-clockwise seen from outside.
+            let mut u = Vec3::ZERO;
+            u[(axis + 1) % 3] = 1.0;
+            let v = n.cross(u);
+            let corner = |a: f32, b: f32| to_world.transform_point3(n + a * u + b * v);
+            out.push([corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0)]);
+            out.push([corner(-1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]);
+        }
+    }
+    out
+}
+
+/// The unit disk in the plane z = 0, facing +z.
+pub fn disk(to_world: Mat4) -> Vec<[Vec3; 3]> {
+    let n = SEGMENTS as f32;
+    // The polygon's area n/2 sin(2 pi / n) r² made pi r².
+    let r = (PI / (0.5 * n * (2.0 * PI / n).sin())).sqrt();
+    let rim = |i: u32| {
+        let phi = 2.0 * PI * i as f32 / n;
+        Vec3::new(r * phi.cos(), r * phi.sin(), 0.0)
+    };
+    let triangles = (0..SEGMENTS)
+        .map(|i| [Vec3::ZERO, rim(i), rim(i + 1)])
+        .collect();
+    placed(to_world, triangles)
+}
+
+/// A sphere, its faces facing out, and its normals at their corners.
+pub fn sphere(to_world: Mat4, center: Vec3, radius: f32) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>) {
+    let point = |ring: u32, seg: u32| {
+        let theta = PI * ring as f32 / RINGS as f32;
+        let phi = 2.0 * PI * (seg % SEGMENTS) as f32 / SEGMENTS as f32;
+        Vec3::new(
+            theta.sin() * phi.cos(),
+            theta.sin() * phi.sin(),
+            theta.cos(),
+        )
+    };
+    let mut unit = Vec::with_capacity((2 * SEGMENTS * (RINGS - 1)) as usize);
+    for ring in 0..RINGS {
+        for seg in 0..SEGMENTS {
+            let (a, b) = (point(ring, seg), point(ring, seg + 1));
+            let (c, d) = (point(ring + 1, seg), point(ring + 1, seg + 1));
+            // Counter-clockwise seen from outside; the poles' rings have one.
+            if ring > 0 {
+                unit.push([a, c, b]);
+            }
+            if ring + 1 < RINGS {
+                unit.push([b, c, d]);
+            }
+        }
+    }
+    let area: f32 = unit
+        .iter()
+        .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+        .sum();
+    let scale = radius * (4.0 * PI / area).sqrt();
+    let local = Mat4::from_translation(center) * Mat4::from_scale(Vec3::splat(scale));
+    let normals = placed_normals(to_world, &unit);
+    (placed(to_world * local, unit), normals)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn area(t: &[[Vec3; 3]]) -> f32 {
+        t.iter()
+            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+            .sum()
+    }
+
+    fn normal(t: &[Vec3; 3]) -> Vec3 {
+        (t[1] - t[0]).cross(t[2] - t[0]).normalize()
+    }
+
+    #[test]
+    fn shapes_have_their_true_area_and_face_out() {
+        let m = Mat4::IDENTITY;
+        assert!((area(&rectangle(m)) - 4.0).abs() < 1e-5);
+        assert!((area(&cube(m)) - 24.0).abs() < 1e-4);
+        assert!((area(&disk(m)) - PI).abs() < 1e-4);
+        let (s, normals) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5);
+        assert!((area(&s) - PI).abs() < 1e-3 * PI, "{}", area(&s));
+        for (t, n) in s.iter().zip(&normals) {
+            let c = (t[0] + t[1] + t[2]) / 3.0 - Vec3::new(1.0, 2.0, 3.0);
+            assert!(normal(t).dot(c) > 0.0);
+            // Each corner's normal points from the centre through it.
+            for (v, n) in t.iter().zip(n) {
+                assert!((*v - Vec3::new(1.0, 2.0, 3.0)).normalize().dot(*n) > 0.9999);
+            }
+        }
+        for t in &cube(m) {
+            assert!(normal(t).dot(t[0] + t[1] + t[2]) > 0.0);
+        }
+        assert!(rectangle(m).iter().all(|t| normal(t).z > 0.99));
+        assert!(disk(m).iter().all(|t| normal(t).z > 0.99));
+    }
+
+    #[test]
+    fn a_mirroring_transform_keeps_an_analytic_shape_facing_its_side() {
+        // Mirrored in x, the rectangle's normal (a normal transformed by
+        // the inverse transpose) still points to +z.
+        let m = Mat4::from_scale(Vec3::new(-1.0, 1.0, 1.0));
+        assert!(rectangle(m).iter().all(|t| normal(t).z > 0.99));
+        let (s, n) = sphere(m, Vec3::ZERO, 1.0);
+        assert!(s.iter().all(|t| normal(t).dot(t[0] + t[1] + t[2]) > 0.0));
+        assert!(s.iter().zip(&n).all(|(t, n)| n[1].dot(t[1]) > 0.99));
+    }
+}

@@ -1,0 +1,574 @@
+//! Reading a Mitsuba 3 XML document: `<include>` spliced in, `<default>`
+//! parameters and `-D` definitions substituted for `$name`, every element
+//! remembering its file and line; then typed access to a plugin's
+//! properties that notices the ones nobody read.
+
+use super::super::{Loader, SceneError};
+use glam::{Mat4, Vec3};
+use std::cell::Cell;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+
+/// Deepest chain of `<include>`s followed (a cycle would never end).
+const MAX_INCLUDE_DEPTH: usize = 16;
+
+/// One element of the document, its attributes already substituted.
+#[derive(Debug)]
+pub struct Element {
+    pub tag: String,
+    pub attrs: Vec<(String, String)>,
+    pub children: Vec<Element>,
+    pub file: Rc<PathBuf>,
+    pub line: u32,
+}
+
+/// An error at an element: "file:line: message".
+pub fn at(file: &Path, line: u32, message: impl Into<String>) -> SceneError {
+    SceneError::At {
+        path: file.to_path_buf(),
+        line: line as usize,
+        message: message.into(),
+    }
+}
+
+impl Element {
+    pub fn attr(&self, name: &str) -> Option<&str> {
+        self.attrs
+            .iter()
+            .find(|(k, _)| k == name)
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// An error naming this element's file and line.
+    pub fn error(&self, message: impl Into<String>) -> SceneError {
+        at(&self.file, self.line, message)
+    }
+
+    pub fn required(&self, name: &str) -> Result<&str, SceneError> {
+        self.attr(name)
+            .ok_or_else(|| self.error(format!("<{}> needs the attribute '{name}'", self.tag)))
+    }
+
+    /// The plugin's `type`, for messages and dispatch.
+    pub fn plugin(&self) -> Result<&str, SceneError> {
+        self.required("type")
+    }
+}
+
+/// The `<scene>` of `path` as a list of top-level elements, includes
+/// spliced in, `defines` (the command line's `-D`) taking precedence over
+/// the document's `<default>`s.
+pub fn read_scene(
+    path: &Path,
+    loader: &Loader<'_>,
+    defines: &[(String, String)],
+) -> Result<Vec<Element>, SceneError> {
+    let mut params: HashMap<String, String> = defines.iter().cloned().collect();
+    let fixed: Vec<String> = defines.iter().map(|(k, _)| k.clone()).collect();
+    let mut reader = Reader {
+        loader,
+        params: &mut params,
+        fixed: &fixed,
+    };
+    reader.document(path, 0)
+}
+
+struct Reader<'a, 'l> {
+    loader: &'a Loader<'l>,
+    params: &'a mut HashMap<String, String>,
+    /// Names set on the command line, which `<default>` does not change.
+    fixed: &'a [String],
+}
+
+impl Reader<'_, '_> {
+    fn document(&mut self, path: &Path, depth: usize) -> Result<Vec<Element>, SceneError> {
+        let text = self.loader.text(path).map_err(|source| SceneError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let doc = roxmltree::Document::parse(&text).map_err(|e| {
+            let pos = e.pos();
+            at(path, pos.row, format!("malformed XML: {e}"))
+        })?;
+        let file = Rc::new(path.to_path_buf());
+        let root = doc.root_element();
+        let line = |n: roxmltree::Node| doc.text_pos_at(n.range().start).row;
+        if root.tag_name().name() != "scene" {
+            return Err(at(
+                path,
+                line(root),
+                format!(
+                    "the root element is <{}>, not <scene>",
+                    root.tag_name().name()
+                ),
+            ));
+        }
+        match root.attribute("version") {
+            None => {
+                return Err(at(path, line(root), "<scene> needs a version (3.0.0)"));
+            }
+            Some(v) if !v.starts_with("3.") && !v.starts_with("2.") => {
+                return Err(at(
+                    path,
+                    line(root),
+                    format!("scene version {v}: qtrace reads Mitsuba 3's format (version 3.x)"),
+                ));
+            }
+            Some(_) => {}
+        }
+        let mut out = Vec::new();
+        for node in root.children().filter(|n| n.is_element()) {
+            let ln = line(node);
+            match node.tag_name().name() {
+                "default" => {
+                    let name = node.attribute("name");
+                    let value = node.attribute("value");
+                    let (Some(name), Some(value)) = (name, value) else {
+                        return Err(at(path, ln, "<default> needs 'name' and 'value'"));
+                    };
+                    if !self.fixed.iter().any(|f| f == name) {
+                        let value = self.substitute(path, ln, value)?;
+                        self.params.insert(name.to_string(), value);
+                    }
+                }
+                "include" => {
+                    let name = node
+                        .attribute("filename")
+                        .ok_or_else(|| at(path, ln, "<include> needs a 'filename'"))?;
+                    let name = self.substitute(path, ln, name)?;
+                    if depth + 1 >= MAX_INCLUDE_DEPTH {
+                        return Err(at(
+                            path,
+                            ln,
+                            format!("includes nest deeper than {MAX_INCLUDE_DEPTH} (a cycle?)"),
+                        ));
+                    }
+                    let included = path.parent().unwrap_or(Path::new(".")).join(&name);
+                    out.extend(self.document(&included, depth + 1).map_err(|e| match e {
+                        SceneError::Read { source, .. } => at(
+                            path,
+                            ln,
+                            format!("cannot read <include> file '{name}': {source}"),
+                        ),
+                        e => e,
+                    })?);
+                }
+                _ => out.push(self.element(&doc, node, &file)?),
+            }
+        }
+        Ok(out)
+    }
+
+    fn element(
+        &self,
+        doc: &roxmltree::Document,
+        node: roxmltree::Node,
+        file: &Rc<PathBuf>,
+    ) -> Result<Element, SceneError> {
+        let line = doc.text_pos_at(node.range().start).row;
+        let mut attrs = Vec::new();
+        for a in node.attributes() {
+            attrs.push((
+                a.name().to_string(),
+                self.substitute(file, line, a.value())?,
+            ));
+        }
+        let mut children = Vec::new();
+        for c in node.children().filter(|n| n.is_element()) {
+            children.push(self.element(doc, c, file)?);
+        }
+        Ok(Element {
+            tag: node.tag_name().name().to_string(),
+            attrs,
+            children,
+            file: file.clone(),
+            line,
+        })
+    }
+
+    /// `value` with each `$name` replaced by its parameter's value.
+    fn substitute(&self, file: &Path, line: u32, value: &str) -> Result<String, SceneError> {
+        if !value.contains('$') {
+            return Ok(value.to_string());
+        }
+        let mut out = String::with_capacity(value.len());
+        let mut rest = value;
+        while let Some(i) = rest.find('$') {
+            out.push_str(&rest[..i]);
+            let tail = &rest[i + 1..];
+            let len = tail
+                .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .unwrap_or(tail.len());
+            let name = &tail[..len];
+            match self.params.get(name) {
+                Some(v) if !name.is_empty() => out.push_str(v),
+                _ => {
+                    return Err(at(
+                        file,
+                        line,
+                        format!(
+                            "${name} is not defined (give it a <default name=\"{name}\" value=...> or -D {name}=...)"
+                        ),
+                    ))
+                }
+            }
+            rest = &tail[len..];
+        }
+        out.push_str(rest);
+        Ok(out)
+    }
+}
+
+/// Property tags, as opposed to nested plugins.
+const PROPERTY_TAGS: &[&str] = &[
+    "integer",
+    "float",
+    "boolean",
+    "string",
+    "rgb",
+    "spectrum",
+    "point",
+    "vector",
+    "transform",
+];
+
+/// A plugin's properties (its children with a `name`), read by type; each
+/// read marks the property used, and [`Props::finish`] rejects the rest.
+pub struct Props<'e> {
+    pub el: &'e Element,
+    used: Vec<Cell<bool>>,
+}
+
+impl<'e> Props<'e> {
+    pub fn new(el: &'e Element) -> Self {
+        Self {
+            el,
+            used: el.children.iter().map(|_| Cell::new(false)).collect(),
+        }
+    }
+
+    /// The property element called `name`, marked used.
+    fn find(&self, name: &str) -> Option<&'e Element> {
+        let i = self.el.children.iter().position(|c| {
+            PROPERTY_TAGS.contains(&c.tag.as_str()) && c.attr("name") == Some(name)
+        })?;
+        self.used[i].set(true);
+        Some(&self.el.children[i])
+    }
+
+    /// Nested plugins of tag `tag` (bsdf, emitter, ...), marked used.
+    pub fn nested(&self, tag: &str) -> Vec<&'e Element> {
+        let mut out = Vec::new();
+        for (i, c) in self.el.children.iter().enumerate() {
+            if c.tag == tag {
+                self.used[i].set(true);
+                out.push(c);
+            }
+        }
+        out
+    }
+
+    /// Marks `name` used without reading it: a property that does not
+    /// change the image (an output format, say).
+    pub fn ignore(&self, name: &str) {
+        self.find(name);
+    }
+
+    fn number(&self, el: &Element, text: &str) -> Result<f32, SceneError> {
+        parse_f32(text).ok_or_else(|| {
+            el.error(format!(
+                "'{text}' is not a number (property '{}')",
+                el.attr("name").unwrap_or("")
+            ))
+        })
+    }
+
+    fn typed(&self, name: &str, tags: &[&str]) -> Result<Option<&'e Element>, SceneError> {
+        let Some(el) = self.find(name) else {
+            return Ok(None);
+        };
+        if !tags.contains(&el.tag.as_str()) {
+            return Err(el.error(format!(
+                "'{name}' is a <{}>; {} expects <{}>",
+                el.tag,
+                plugin_name(self.el),
+                tags.join("> or <")
+            )));
+        }
+        Ok(Some(el))
+    }
+
+    pub fn float(&self, name: &str) -> Result<Option<f32>, SceneError> {
+        let Some(el) = self.typed(name, &["float", "integer"])? else {
+            return Ok(None);
+        };
+        self.number(el, el.required("value")?).map(Some)
+    }
+
+    pub fn float_or(&self, name: &str, default: f32) -> Result<f32, SceneError> {
+        Ok(self.float(name)?.unwrap_or(default))
+    }
+
+    /// A `<float>` as Ok, a `<string>` as Err.
+    pub fn number_or_string(&self, name: &str) -> Result<Option<Result<f32, &'e str>>, SceneError> {
+        let Some(el) = self.typed(name, &["float", "integer", "string"])? else {
+            return Ok(None);
+        };
+        let v = el.required("value")?;
+        Ok(Some(if el.tag == "string" {
+            Err(v)
+        } else {
+            Ok(self.number(el, v)?)
+        }))
+    }
+
+    pub fn integer(&self, name: &str) -> Result<Option<i64>, SceneError> {
+        let Some(el) = self.typed(name, &["integer"])? else {
+            return Ok(None);
+        };
+        let v = el.required("value")?;
+        v.trim()
+            .parse::<i64>()
+            .map(Some)
+            .map_err(|_| el.error(format!("'{v}' is not an integer (property '{name}')")))
+    }
+
+    pub fn boolean(&self, name: &str) -> Result<Option<bool>, SceneError> {
+        let Some(el) = self.typed(name, &["boolean"])? else {
+            return Ok(None);
+        };
+        match el.required("value")?.trim() {
+            "true" => Ok(Some(true)),
+            "false" => Ok(Some(false)),
+            v => Err(el.error(format!("'{v}' is not true or false (property '{name}')"))),
+        }
+    }
+
+    pub fn string(&self, name: &str) -> Result<Option<&'e str>, SceneError> {
+        let Some(el) = self.typed(name, &["string"])? else {
+            return Ok(None);
+        };
+        el.required("value").map(Some)
+    }
+
+    /// A colour from `<rgb>`, a `<spectrum>` of one value or a `<float>`.
+    pub fn color(&self, name: &str) -> Result<Option<Vec3>, SceneError> {
+        let Some(el) = self.find(name) else {
+            return Ok(None);
+        };
+        let value = || el.required("value");
+        let c = match el.tag.as_str() {
+            "rgb" => {
+                let v = self.numbers(el, value()?)?;
+                match v[..] {
+                    [x] => Vec3::splat(x),
+                    [r, g, b] => Vec3::new(r, g, b),
+                    _ => {
+                        return Err(el.error(format!(
+                            "<rgb name=\"{name}\"> needs three numbers, not {}",
+                            v.len()
+                        )))
+                    }
+                }
+            }
+            "spectrum" => {
+                let text = value()?;
+                if text.contains(':') {
+                    return Err(el.error(format!(
+                        "<spectrum name=\"{name}\">: wavelength:value spectra are not supported yet; give <rgb>"
+                    )));
+                }
+                let v = self.numbers(el, text)?;
+                match v[..] {
+                    [x] => Vec3::splat(x),
+                    _ => {
+                        return Err(el.error(format!(
+                            "<spectrum name=\"{name}\"> needs one value or wavelength:value pairs"
+                        )))
+                    }
+                }
+            }
+            "float" | "integer" => Vec3::splat(self.number(el, value()?)?),
+            "texture" | "ref" => {
+                return Err(el.error(format!(
+                    "'{name}' is a texture: textures are not supported yet; give <rgb>"
+                )))
+            }
+            other => {
+                return Err(el.error(format!(
+                    "'{name}' is a <{other}>; a colour is <rgb>, <spectrum> or <float>"
+                )))
+            }
+        };
+        if !c.is_finite() {
+            return Err(el.error(format!("'{name}' is not finite")));
+        }
+        Ok(Some(c))
+    }
+
+    /// A point from `<point>` (x, y, z or value).
+    pub fn point(&self, name: &str) -> Result<Option<Vec3>, SceneError> {
+        let Some(el) = self.typed(name, &["point", "vector"])? else {
+            return Ok(None);
+        };
+        vector_attrs(el, 0.0).map(Some)
+    }
+
+    pub fn transform(&self, name: &str) -> Result<Option<Mat4>, SceneError> {
+        let Some(el) = self.typed(name, &["transform"])? else {
+            return Ok(None);
+        };
+        transform(el).map(Some)
+    }
+
+    fn numbers(&self, el: &Element, text: &str) -> Result<Vec<f32>, SceneError> {
+        numbers(el, text)
+    }
+
+    /// Fails on the first child nobody read: an unknown parameter or plugin
+    /// would change the image silently.
+    pub fn finish(self) -> Result<(), SceneError> {
+        for (c, used) in self.el.children.iter().zip(&self.used) {
+            if used.get() {
+                continue;
+            }
+            let what = match c.attr("name") {
+                Some(n) if PROPERTY_TAGS.contains(&c.tag.as_str()) => format!("parameter '{n}'"),
+                _ => format!(
+                    "<{}{}>",
+                    c.tag,
+                    c.attr("type")
+                        .map(|t| format!(" type=\"{t}\""))
+                        .unwrap_or_default()
+                ),
+            };
+            return Err(c.error(format!(
+                "{} has {what}, which qtrace does not support (see docs/mitsuba.md)",
+                plugin_name(self.el)
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// "bsdf 'roughconductor'", say.
+pub fn plugin_name(el: &Element) -> String {
+    match el.attr("type") {
+        Some(t) => format!("{} '{t}'", el.tag),
+        None => format!("<{}>", el.tag),
+    }
+}
+
+pub fn parse_f32(text: &str) -> Option<f32> {
+    let v: f32 = text.trim().parse().ok()?;
+    v.is_finite().then_some(v)
+}
+
+/// Numbers separated by commas and/or white space.
+pub fn numbers(el: &Element, text: &str) -> Result<Vec<f32>, SceneError> {
+    text.split(|c: char| c == ',' || c.is_whitespace())
+        .filter(|s| !s.is_empty())
+        .map(|s| parse_f32(s).ok_or_else(|| el.error(format!("'{s}' is not a finite number"))))
+        .collect()
+}
+
+/// A vector from `value="x, y, z"` or the attributes x, y, z (each
+/// `missing` when absent, as Mitsuba's translate and scale read them).
+fn vector_attrs(el: &Element, missing: f32) -> Result<Vec3, SceneError> {
+    if let Some(v) = el.attr("value") {
+        let v = numbers(el, v)?;
+        return match v[..] {
+            [x] => Ok(Vec3::splat(x)),
+            [x, y, z] => Ok(Vec3::new(x, y, z)),
+            _ => Err(el.error(format!("<{}> needs three numbers", el.tag))),
+        };
+    }
+    let mut out = [missing; 3];
+    for (o, k) in out.iter_mut().zip(["x", "y", "z"]) {
+        if let Some(s) = el.attr(k) {
+            *o = parse_f32(s)
+                .ok_or_else(|| el.error(format!("{k}=\"{s}\" is not a finite number")))?;
+        }
+    }
+    Ok(Vec3::from(out))
+}
+
+/// A `<transform>`'s matrix: its steps applied in document order.
+pub fn transform(el: &Element) -> Result<Mat4, SceneError> {
+    let mut m = Mat4::IDENTITY;
+    for step in &el.children {
+        let s = match step.tag.as_str() {
+            "translate" => Mat4::from_translation(vector_attrs(step, 0.0)?),
+            "scale" => {
+                let v = vector_attrs(step, 1.0)?;
+                Mat4::from_scale(v)
+            }
+            "rotate" => {
+                let axis = vector_attrs(step, 0.0)?;
+                let angle = parse_f32(step.required("angle")?)
+                    .ok_or_else(|| step.error("the angle is not a finite number"))?;
+                if axis.length() == 0.0 {
+                    return Err(step.error("<rotate> needs a non-zero axis"));
+                }
+                Mat4::from_axis_angle(axis.normalize(), angle.to_radians())
+            }
+            "matrix" => {
+                let v = numbers(step, step.required("value")?)?;
+                match v.len() {
+                    16 => Mat4::from_cols_array(&v.try_into().unwrap()).transpose(),
+                    9 => {
+                        let r = |i: usize| glam::Vec4::new(v[i], v[i + 1], v[i + 2], 0.0);
+                        Mat4::from_cols(r(0), r(3), r(6), glam::Vec4::W).transpose()
+                    }
+                    n => {
+                        return Err(step.error(format!("<matrix> needs 16 (or 9) numbers, not {n}")))
+                    }
+                }
+            }
+            "lookat" => {
+                let p = |k: &str| -> Result<Vec3, SceneError> {
+                    let v = numbers(step, step.required(k)?)?;
+                    match v[..] {
+                        [x, y, z] => Ok(Vec3::new(x, y, z)),
+                        _ => Err(step.error(format!("<lookat> {k} needs three numbers"))),
+                    }
+                };
+                let origin = p("origin")?;
+                let target = p("target")?;
+                let up = if step.attr("up").is_some() {
+                    p("up")?
+                } else {
+                    Vec3::Y
+                };
+                look_at(origin, target, up).ok_or_else(|| {
+                    step.error("<lookat>: target equals origin, or up is parallel to the view")
+                })?
+            }
+            other => {
+                return Err(step.error(format!(
+                "<{other}> in a <transform>: expected translate, rotate, scale, matrix or lookat"
+            )))
+            }
+        };
+        m = s * m;
+    }
+    if !m.is_finite() {
+        return Err(el.error("the transform is not finite"));
+    }
+    Ok(m)
+}
+
+/// Mitsuba's look-at: the camera's +z toward the target, +y up and +x to
+/// the image's left.
+pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> Option<Mat4> {
+    let dir = (target - origin).try_normalize()?;
+    let left = up.cross(dir).try_normalize()?;
+    let new_up = dir.cross(left);
+    Some(Mat4::from_cols(
+        left.extend(0.0),
+        new_up.extend(0.0),
+        dir.extend(0.0),
+        origin.extend(1.0),
+    ))
+}

@@ -1,0 +1,315 @@
+//! Mitsuba 3 XML scenes: what the reader makes of them, the errors it gives,
+//! and agreement with Mitsuba 3's own renders of the same files (references
+//! rendered by scripts/mitsuba_reference.py, kept in tests/fixtures/mitsuba/
+//! with how they were made, so no test needs Mitsuba).
+
+mod common;
+
+use glam::Vec3;
+use qtrace::image::Image;
+use qtrace::render::{Method, Overrides, RenderOutput};
+use qtrace::scene::{FovAxis, Loader, PixelFilter};
+use qtrace::Scene;
+use std::path::{Path, PathBuf};
+
+fn cornell() -> PathBuf {
+    common::repo("scenes/mitsuba/cornell-box/scene.xml")
+}
+
+#[test]
+fn bitterli_cornell_box_reads_as_mitsuba_reads_it() {
+    let scene = Scene::load(cornell()).unwrap();
+    let d = &scene.defaults;
+    assert_eq!(
+        (d.width, d.height, d.spp),
+        (Some(1024), Some(1024), Some(64))
+    );
+    // Mitsuba's max_depth 30 counts the camera ray: 29 bounces.
+    assert_eq!(d.max_depth, Some(29));
+    // Five rectangles, two cubes and the light.
+    assert_eq!(scene.triangles.len(), 5 * 2 + 2 * 12 + 2);
+    assert_eq!(scene.lights.len(), 2);
+    let light =
+        &scene.materials[scene.triangles[scene.lights[0].triangle as usize].material as usize];
+    assert_eq!(light.emission, Vec3::new(17.0, 12.0, 4.0));
+    // The light faces down.
+    let t = &scene.triangles[scene.lights[0].triangle as usize];
+    let n = Vec3::from(t.e1).cross(Vec3::from(t.e2));
+    assert!(n.normalize().y < -0.999, "{n}");
+    let c = &scene.camera;
+    assert!((c.position - Vec3::new(0.0, 1.0, 6.8)).length() < 1e-5);
+    assert!((c.forward - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-5);
+    assert!((c.right - Vec3::new(1.0, 0.0, 0.0)).length() < 1e-5);
+    assert_eq!((c.fov_degrees, c.fov_axis), (19.5, FovAxis::X));
+    assert_eq!(scene.filter, PixelFilter::Tent { radius: 1.0 });
+}
+
+#[test]
+fn defines_override_the_scene_defaults() {
+    let defines = [
+        ("resx".to_string(), "48".to_string()),
+        ("max_depth".to_string(), "-1".to_string()),
+    ];
+    let scene = Scene::load_defined(cornell(), &defines).unwrap();
+    assert_eq!(scene.defaults.width, Some(48));
+    assert_eq!(scene.defaults.height, Some(1024));
+    assert_eq!(
+        scene.defaults.max_depth,
+        Some(qtrace::scene::MITSUBA_UNLIMITED_DEPTH)
+    );
+    // A define is part of what the scene is.
+    assert_ne!(
+        scene.fingerprint,
+        Scene::load(cornell()).unwrap().fingerprint
+    );
+}
+
+/// Loads `text` as `mem/s.xml` (with `mem/m.obj`, a triangle, and
+/// `mem/inc.xml`, an include with one BSDF, beside it).
+fn load_text(text: &str) -> Result<Scene, String> {
+    let owned = text.to_string();
+    let read = move |p: &Path| -> std::io::Result<Vec<u8>> {
+        match p.file_name().and_then(|n| n.to_str()) {
+            Some("s.xml") => Ok(owned.clone().into_bytes()),
+            Some("m.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec()),
+            Some("inc.xml") => {
+                Ok(br#"<scene version="3.0.0"><bsdf type="diffuse" id="inc"/></scene>"#.to_vec())
+            }
+            _ => Err(std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "not found",
+            )),
+        }
+    };
+    Scene::load_with(
+        Path::new("mem/s.xml"),
+        &Loader {
+            read: &read,
+            max_triangles: 100_000,
+            defines: &[],
+        },
+    )
+    .map_err(|e| e.to_string())
+}
+
+/// A scene with a camera and a light, and `body` after them (from line 5 on).
+fn with_body(body: &str) -> String {
+    format!(
+        "<scene version=\"3.0.0\">\n<sensor type=\"perspective\"/>\n\
+         <shape type=\"rectangle\"><emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape>\n\
+         <default name=\"x\" value=\"0.5\"/>\n{body}\n</scene>\n"
+    )
+}
+
+#[test]
+fn a_scene_with_every_supported_shape_and_bsdf_loads() {
+    let scene = load_text(&with_body(
+        r#"<include filename="inc.xml"/>
+<shape type="obj"><string name="filename" value="m.obj"/><ref id="inc"/></shape>
+<shape type="cube"><bsdf type="roughconductor"><string name="material" value="Au"/></bsdf></shape>
+<shape type="sphere"><bsdf type="dielectric"/></shape>
+<shape type="disk"><bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="$x"/></bsdf></bsdf></shape>
+<shape type="sphere"><bsdf type="null"/><emitter type="area"><rgb name="radiance" value="2"/></emitter></shape>"#,
+    ))
+    .unwrap();
+    // The spheres and the disk are tessellated.
+    assert!(scene.triangles.len() > 2 + 1 + 12 + 2000);
+    assert!(scene.has_non_diffuse());
+}
+
+#[test]
+fn bad_scenes_get_one_line_naming_file_and_line() {
+    for (body, line, want) in [
+        ("<shape type=\"serialized\"/>", 5, "shape 'serialized' is not supported yet"),
+
+        ("<shape type=\"cube\"><bsdf type=\"null\"/></shape>", 5, "bsdf 'null' is not supported"),
+        ("<shape type=\"cube\"><bsdf type=\"plastic\"/></shape>", 5, "bsdf 'plastic'"),
+        (
+            "<shape type=\"cube\">\n<bsdf type=\"diffuse\"><float name=\"roughness\" value=\"1\"/></bsdf></shape>",
+            6,
+            "parameter 'roughness'",
+        ),
+        ("<shape type=\"cube\"><ref id=\"nope\"/></shape>", 5, "no BSDF has the id 'nope'"),
+        (
+            "<shape type=\"obj\"><string name=\"filename\" value=\"gone.obj\"/></shape>",
+            5,
+            "cannot read the mesh 'gone.obj'",
+        ),
+        ("<shape type=\"sphere\"><float name=\"radius\" value=\"$y\"/></shape>", 5, "$y is not defined"),
+        ("<shape type=\"sphere\"><float name=\"radius\" value=\"big\"/></shape>", 5, "'big' is not a number"),
+        ("<emitter type=\"envmap\"/>", 5, "emitter 'envmap' is not supported yet"),
+        ("<texture type=\"bitmap\"/>", 5, "textures are not supported yet"),
+        ("<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<texture name=\"reflectance\" type=\"bitmap\"/></bsdf></shape>", 7, "texture"),
+        ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
+        ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),
+        ("<shape type=\"cube\"", 6, "malformed XML"),
+    ] {
+        let Err(err) = load_text(&with_body(body)) else {
+            panic!("{body} loaded");
+        };
+        let prefix = format!("mem/s.xml:{line}: ");
+        assert!(
+            err.starts_with(&prefix) && err.contains(want) && !err.contains('\n'),
+            "{body}: {err}"
+        );
+    }
+    // A malformed mesh is named, with the shape that reads it.
+    let Err(err) = load_text(&with_body(
+        "<shape type=\"ply\"><string name=\"filename\" value=\"m.obj\"/></shape>",
+    )) else {
+        panic!("an OBJ read as PLY loaded");
+    };
+    assert_eq!(
+        err,
+        "mem/m.obj: malformed PLY: not a PLY file (it does not start with 'ply') (the shape at mem/s.xml:5)"
+    );
+}
+
+/// A Mitsuba reference: its image and the variance of each pixel's mean.
+fn reference(name: &str) -> (Image, Image) {
+    let dir = common::repo("tests/fixtures/mitsuba");
+    let read = |f: String| Image::read_exr(&dir.join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+    (read(format!("{name}.exr")), read(format!("{name}.var.exr")))
+}
+
+/// qtrace's render agrees with Mitsuba's: the image means within 0.5% (and
+/// within their noise), and no 8×8 block, per channel, further off than
+/// five standard errors of the two renders' noise.
+fn assert_agrees(name: &str, out: &RenderOutput, (mean, var): &(Image, Image)) {
+    let (w, h) = (out.image.width, out.image.height);
+    assert_eq!((w, h), (mean.width, mean.height), "{name}: size");
+    let n = out.stats.image_spp as f64;
+    let block = |x0: usize, y0: usize, bw: usize, bh: usize, c: usize| {
+        let (mut d, mut se2, mut sum) = (0.0f64, 0.0f64, 0.0f64);
+        for y in y0..y0 + bh {
+            for x in x0..x0 + bw {
+                let i = y * w + x;
+                d += out.image.pixels[i][c] as f64 - mean.pixels[i][c] as f64;
+                sum += mean.pixels[i][c] as f64;
+                se2 += out.variance.pixels[i][c] as f64 / n + var.pixels[i][c] as f64;
+            }
+        }
+        (d, se2.sqrt(), sum)
+    };
+    let mut worst = (0.0f64, 0, 0, 0);
+    for by in (0..h).step_by(8) {
+        for bx in (0..w).step_by(8) {
+            for c in 0..3 {
+                let (d, se, _) = block(bx, by, 8.min(w - bx), 8.min(h - by), c);
+                let z = if se > 0.0 {
+                    d / se
+                } else if d.abs() < 1e-6 {
+                    0.0
+                } else {
+                    f64::INFINITY
+                };
+                if z.abs() > worst.0.abs() {
+                    worst = (z, bx, by, c);
+                }
+            }
+        }
+    }
+    let (mut rel, mut z_mean, mut noise) = (0.0f64, 0.0f64, 0.0f64);
+    for c in 0..3 {
+        let (d, se, sum) = block(0, 0, w, h, c);
+        rel = rel.max((d / sum).abs());
+        z_mean = z_mean.max((d / se).abs());
+        noise = noise.max(se / sum);
+    }
+    // Where the two means are known to 0.1% or better, they must lie within
+    // 0.5%; where noise is larger (a tiny, bright light seen directly), the
+    // z-tests alone speak, and docs/mitsuba.md gives a longer render's
+    // figure.
+    let ok = worst.0.abs() < 5.0 && z_mean < 5.0 && (rel < 0.005 || noise > 0.001);
+    if !ok {
+        common::save_failure_images(name, &[("qtrace", &out.image), ("mitsuba", mean)]);
+    }
+    assert!(
+        ok,
+        "{name}: image means {:.3}% apart ({z_mean:.1} sigma, noise {:.3}%); worst 8x8 block ({}, {}) channel {} at {:.1} sigma",
+        100.0 * rel,
+        100.0 * noise,
+        worst.1,
+        worst.2,
+        worst.3,
+        worst.0
+    );
+}
+
+/// Renders `scene` (XML, with `defines`) as `o` says and compares it with
+/// Mitsuba's reference `name`.
+fn check(name: &str, scene: &Path, defines: &[(&str, &str)], o: Overrides) {
+    let label = format!("{name} {}", o.method.unwrap_or(Method::Pt).label(o.nee));
+    let defines: Vec<(String, String)> = defines
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    let scene = Scene::load_defined(scene, &defines).unwrap();
+    let ctx = common::gpu();
+    let out = common::render_with(&ctx, &scene, o);
+    assert_agrees(&label, &out, &reference(name));
+}
+
+fn method(m: Method, nee: bool, spp: u32) -> Overrides {
+    Overrides {
+        method: Some(m),
+        nee,
+        spp: Some(spp),
+        seed: Some(3),
+        ..Default::default()
+    }
+}
+
+const SQUARE: [(&str, &str); 2] = [("resx", "64"), ("resy", "64")];
+
+#[test]
+fn cornell_box_agrees_with_mitsuba() {
+    for (m, nee) in [
+        (Method::Pt, true),
+        (Method::Pt, false),
+        (Method::Sarsa, true),
+        (Method::Neural, true),
+    ] {
+        let name = format!("cornell-box {m:?} nee {nee}");
+        let scene = Scene::load_defined(
+            cornell(),
+            &SQUARE.map(|(k, v)| (k.to_string(), v.to_string())),
+        )
+        .unwrap();
+        let ctx = common::gpu();
+        let out = common::render_with(&ctx, &scene, method(m, nee, 1024));
+        assert_agrees(&name, &out, &reference("cornell-box"));
+    }
+}
+
+#[test]
+fn veach_mis_agrees_with_mitsuba() {
+    let scene = common::repo("scenes/mitsuba/veach-mis/scene.xml");
+    let size = [("resx", "96"), ("resy", "54")];
+    // Twice the samples of the other scenes: its tiny, bright lights make
+    // rare, large samples, whose noise 1024 spp estimates poorly.
+    for (m, nee) in [
+        (Method::Pt, true),
+        (Method::Sarsa, true),
+        (Method::Neural, true),
+    ] {
+        check("veach-mis", &scene, &size, method(m, nee, 2048));
+    }
+}
+
+#[test]
+fn coverage_scenes_agree_with_mitsuba() {
+    let dir = common::repo("tests/fixtures/mitsuba");
+    check(
+        "coverage-a",
+        &dir.join("coverage-a.xml"),
+        &[("res", "64")],
+        method(Method::Pt, true, 1024),
+    );
+    check(
+        "coverage-b",
+        &dir.join("coverage-b.xml"),
+        &[("width", "96"), ("height", "64")],
+        method(Method::Pt, true, 1024),
+    );
+}
