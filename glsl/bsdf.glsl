@@ -17,6 +17,9 @@ float luminance(vec3 c) {
 // without the other lobes, whose code costs on lavapipe even when no lane
 // takes it (measured: 10-40% of a trace pass on the diffuse scenes).
 layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
+// The conductors' options some material of the scene uses (MATERIAL_BECKMANN,
+// MATERIAL_FRESNEL); the code of the others is left out.
+layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES = MATERIAL_BECKMANN | MATERIAL_FRESNEL;
 
 // A material's scattering at a surface point, seen from one side
 // (SPEC 3, "Materials").
@@ -87,7 +90,7 @@ float beckmann_g1(float alpha, vec3 w) {
 }
 
 bool bsdf_beckmann(Bsdf bsdf) {
-    return (bsdf.flags & MATERIAL_BECKMANN) != 0u;
+    return (MATERIAL_FEATURES & MATERIAL_BECKMANN) != 0u && (bsdf.flags & MATERIAL_BECKMANN) != 0u;
 }
 
 float microfacet_d(Bsdf bsdf, vec3 h) {
@@ -118,8 +121,8 @@ vec3 fresnel_conductor(float cos_i, vec3 eta, vec3 k) {
 // A conductor's reflectance at cos between the path and the microfacet
 // normal: Ks, times the Fresnel term where it has one.
 vec3 conductor_reflectance(Bsdf bsdf, float cos) {
-    return (bsdf.flags & MATERIAL_FRESNEL) != 0u ? bsdf.color * fresnel_conductor(cos, bsdf.ior_eta, bsdf.ior_k)
-                                                 : bsdf.color;
+    bool fresnel = (MATERIAL_FEATURES & MATERIAL_FRESNEL) != 0u && (bsdf.flags & MATERIAL_FRESNEL) != 0u;
+    return fresnel ? bsdf.color * fresnel_conductor(cos, bsdf.ior_eta, bsdf.ior_k) : bsdf.color;
 }
 
 // f_s(wo, wi) cos(theta_i); zero for delta lobes.

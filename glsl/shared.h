@@ -115,11 +115,6 @@
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128
-// How a camera ray's point in its pixel is drawn (PixelFilter in
-// src/scene/mod.rs): uniformly (neither flag), from a tent of radius
-// cam_forward.w, or from a Gaussian of standard deviation cam_forward.w.
-#define FLAG_FILTER_TENT 256
-#define FLAG_FILTER_GAUSSIAN 512
 // Scenes with several lights (src/guide/sarsa.rs, guided_light_power) of
 // at most this many emitting triangles get it.
 #define MAX_GUIDED_LIGHTS 16
@@ -237,6 +232,18 @@ struct Triangle {
 // Specialization constant of the trace kernels: the scene has shading
 // normals (B_NORMALS), so the code that reads them is built in.
 #define SPEC_SHADING_NORMALS 6
+// Specialization constant of the trace kernels: how a camera ray's point in
+// its pixel is drawn (PixelFilter in src/scene/mod.rs): uniformly, from a
+// tent of radius cam_forward.w, or from a Gaussian of standard deviation
+// cam_forward.w. A constant, so the box filter's kernel has no other's code.
+#define SPEC_PIXEL_FILTER 7
+#define FILTER_BOX 0
+#define FILTER_TENT 1
+#define FILTER_GAUSSIAN 2
+// Specialization constant of the kernels that shade: the MATERIAL_BECKMANN
+// and MATERIAL_FRESNEL flags some material of the scene has (all, where not
+// given), so that a scene without them runs no code for them.
+#define SPEC_MATERIAL_FEATURES 8
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

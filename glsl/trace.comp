@@ -33,6 +33,7 @@ WORDS(light_texels, B_LIGHTS) // 1 per Light
 // Whether the scene has shading normals (B_NORMALS): without, the kernel
 // is built without the code that reads them.
 layout(constant_id = SPEC_SHADING_NORMALS) const bool SHADING_NORMALS = false;
+layout(constant_id = SPEC_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -148,15 +149,15 @@ uint td_count;
 float td_sq_sum;
 
 // A point of the pixel, as an offset from its corner, drawn from the
-// scene's pixel filter (FLAG_FILTER_*): the image converges to the one a
+// scene's pixel filter (PIXEL_FILTER): the image converges to the one a
 // renderer that splats each sample with that filter makes.
 vec2 filter_offset(vec2 u) {
     float r = params.cam_forward.w;
-    if ((params.flags & FLAG_FILTER_TENT) != 0u) {
+    if (PIXEL_FILTER == FILTER_TENT) {
         vec2 t = mix(sqrt(2.0 * u) - 1.0, 1.0 - sqrt(2.0 - 2.0 * u), step(0.5, u));
         return 0.5 + r * t;
     }
-    if ((params.flags & FLAG_FILTER_GAUSSIAN) != 0u) {
+    if (PIXEL_FILTER == FILTER_GAUSSIAN) {
         // Box-Muller; Mitsuba cuts its Gaussian at 4 deviations, where
         // less than 1e-3 of its weight lies beyond.
         float l = r * sqrt(-2.0 * log(max(1.0 - u.x, 1e-30)));
@@ -170,11 +171,11 @@ vec2 filter_offset(vec2 u) {
 // is cut at the border: draws that land outside are drawn again (a box
 // filter's never do).
 vec2 image_point() {
-    vec2 size = vec2(float(params.width), float(params.height));
     vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
-    if ((params.flags & (FLAG_FILTER_TENT | FLAG_FILTER_GAUSSIAN)) == 0u) {
+    if (PIXEL_FILTER == FILTER_BOX) {
         return p;
     }
+    vec2 size = vec2(float(params.width), float(params.height));
     for (uint i = 0u; i < 16u && (any(lessThan(p, vec2(0.0))) || any(greaterThanEqual(p, size))); i++) {
         vec2 again = vec2(pixel) + filter_offset(rng_next2(rng));
         bvec2 out_lo = lessThan(p, vec2(0.0));

@@ -72,12 +72,12 @@ impl GpuScene {
 pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
     let c = &scene.camera;
     let (tx, ty) = c.tan_half_fov(s.width, s.height);
-    let (filter_flag, filter_size) = match scene.filter {
-        PixelFilter::Box => (0, 0.0),
-        PixelFilter::Tent { radius } => (shaders::FLAG_FILTER_TENT, radius),
-        PixelFilter::Gaussian { stddev } => (shaders::FLAG_FILTER_GAUSSIAN, stddev),
+    let filter_size = match scene.filter {
+        PixelFilter::Box => 0.0,
+        PixelFilter::Tent { radius } => radius,
+        PixelFilter::Gaussian { stddev } => stddev,
     };
-    let mut flags = filter_flag;
+    let mut flags = 0;
     if s.nee {
         flags |= shaders::FLAG_NEE;
     }
@@ -349,6 +349,12 @@ impl Renderer {
         constants.push(scene.has_non_diffuse() as u32);
         constants.push(guide.as_ref().is_some_and(|g| g.chooses_lights()) as u32);
         constants.push(!scene.normals.is_empty() as u32);
+        constants.push(match scene.filter {
+            PixelFilter::Box => shaders::FILTER_BOX,
+            PixelFilter::Tent { .. } => shaders::FILTER_TENT,
+            PixelFilter::Gaussian { .. } => shaders::FILTER_GAUSSIAN,
+        });
+        constants.push(scene.material_features());
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

@@ -278,6 +278,17 @@ impl Scene {
             .any(|m| m.surface.kind() != shaders::MATERIAL_DIFFUSE)
     }
 
+    /// The conductor options (MATERIAL_BECKMANN, MATERIAL_FRESNEL) some
+    /// material of the scene uses, as the kernels' SPEC_MATERIAL_FEATURES.
+    pub fn material_features(&self) -> u32 {
+        self.materials
+            .iter()
+            .map(|m| m.gpu().color[3] as u32)
+            .fold(0, |acc, code| {
+                acc | (code & (shaders::MATERIAL_BECKMANN | shaders::MATERIAL_FRESNEL))
+            })
+    }
+
     /// The scene's table of guide `name` (empty when it has none).
     pub fn guide_table(&self, name: &str) -> &toml::Table {
         static EMPTY: std::sync::OnceLock<toml::Table> = std::sync::OnceLock::new();
