@@ -72,6 +72,8 @@ fn load_text(text: &str) -> Result<Scene, String> {
         match p.file_name().and_then(|n| n.to_str()) {
             Some("s.xml") => Ok(owned.clone().into_bytes()),
             Some("m.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec()),
+            // One triangle of zero area among two.
+            Some("d.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n".to_vec()),
             Some("inc.xml") => {
                 Ok(br#"<scene version="3.0.0"><bsdf type="diffuse" id="inc"/></scene>"#.to_vec())
             }
@@ -115,6 +117,19 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     // The spheres and the disk are tessellated.
     assert!(scene.triangles.len() > 2 + 1 + 12 + 2000);
     assert!(scene.has_non_diffuse());
+}
+
+#[test]
+fn triangles_of_zero_area_in_a_mesh_are_left_out() {
+    let with = |file: &str| {
+        load_text(&with_body(&format!(
+            "<shape type=\"obj\"><string name=\"filename\" value=\"{file}\"/></shape>"
+        )))
+        .unwrap()
+        .triangles
+        .len()
+    };
+    assert_eq!(with("d.obj"), with("m.obj"));
 }
 
 #[test]

@@ -382,6 +382,7 @@ impl Scene {
         let Parts {
             camera,
             filter,
+            drop_degenerate,
             defaults,
             guide_tables,
             environment,
@@ -419,6 +420,26 @@ impl Scene {
             }
         }
         let extent = (hi - lo).length().max(1e-6);
+        let zero_area = |t: &[Vec3; 3]| {
+            0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() <= 1e-12 * extent * extent
+        };
+        let (positions, normals, material_of, source_of) = if drop_degenerate {
+            drop_zero_area(
+                positions,
+                normals,
+                material_of,
+                source_of,
+                &sources,
+                zero_area,
+            )
+        } else {
+            (positions, normals, material_of, source_of)
+        };
+        if positions.is_empty() {
+            return Err(invalid(
+                "the scene has no triangles of non-zero area".into(),
+            ));
+        }
         for (i, t) in positions.iter().enumerate() {
             let area = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
             if area <= 1e-12 * extent * extent {
@@ -505,6 +526,10 @@ impl Scene {
 struct Parts {
     camera: Camera,
     filter: PixelFilter,
+    /// Leave out triangles of zero area with a warning (meshes made by
+    /// other tools have them, and Mitsuba never hits them) rather than
+    /// refuse the scene.
+    drop_degenerate: bool,
     defaults: RenderDefaults,
     guide_tables: [(&'static str, toml::Table); 2],
     environment: Vec3,
@@ -566,12 +591,62 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
     Ok(Parts {
         camera,
         filter: PixelFilter::Box,
+        drop_degenerate: false,
         defaults: file.render,
         guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
         environment,
         materials,
         geometry,
     })
+}
+
+/// The triangles without those `zero_area` says have none, and one warning
+/// per source that had some.
+#[allow(clippy::type_complexity)]
+fn drop_zero_area(
+    positions: Vec<[Vec3; 3]>,
+    normals: Vec<[Vec3; 3]>,
+    material_of: Vec<u32>,
+    source_of: Vec<u32>,
+    sources: &[(PathBuf, String)],
+    zero_area: impl Fn(&[Vec3; 3]) -> bool,
+) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<u32>, Vec<u32>) {
+    let mut dropped = vec![0usize; sources.len()];
+    let keep: Vec<bool> = positions
+        .iter()
+        .zip(&source_of)
+        .map(|(t, &s)| {
+            let zero = zero_area(t);
+            dropped[s as usize] += zero as usize;
+            !zero
+        })
+        .collect();
+    for ((path, what), &n) in sources.iter().zip(&dropped) {
+        if n > 0 {
+            log::warn!(
+                "{}: {what}: left out {n} triangle{} of zero area",
+                path.display(),
+                if n == 1 { "" } else { "s" }
+            );
+        }
+    }
+    fn filter<T>(v: Vec<T>, keep: &[bool]) -> Vec<T> {
+        v.into_iter()
+            .zip(keep)
+            .filter_map(|(x, &k)| k.then_some(x))
+            .collect()
+    }
+    let normals = if normals.is_empty() {
+        normals
+    } else {
+        filter(normals, &keep)
+    };
+    (
+        filter(positions, &keep),
+        normals,
+        filter(material_of, &keep),
+        filter(source_of, &keep),
+    )
 }
 
 /// Distance along the ray (o, d) to triangle `t` (Möller-Trumbore, as the

@@ -45,6 +45,7 @@ pub(super) fn read(
     b.defaults.max_depth = b.max_depth;
     Ok(Parts {
         camera,
+        drop_degenerate: true,
         defaults: b.defaults,
         guide_tables: [
             ("sarsa", toml::Table::new()),
