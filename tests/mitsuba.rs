@@ -135,7 +135,8 @@ fn triangles_of_zero_area_in_a_mesh_are_left_out() {
 #[test]
 fn bad_scenes_get_one_line_naming_file_and_line() {
     for (body, line, want) in [
-        ("<shape type=\"serialized\"/>", 5, "shape 'serialized' is not supported yet"),
+        ("<shape type=\"serialized\"/>", 5, "shape 'serialized' needs a filename"),
+        ("<shape type=\"hair\"/>", 5, "shape 'hair' is not supported"),
 
         ("<shape type=\"cube\"><bsdf type=\"null\"/></shape>", 5, "bsdf 'null' is not supported"),
         ("<shape type=\"cube\"><bsdf type=\"plastic\"/></shape>", 5, "bsdf 'plastic'"),

@@ -7,6 +7,7 @@ mod mitsuba;
 pub mod obj;
 pub mod ply;
 pub mod procedural;
+pub mod serialized;
 
 use crate::bsdf::{luminance, Distribution, Surface};
 use crate::shaders;

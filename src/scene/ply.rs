@@ -9,7 +9,7 @@ use glam::{Vec2, Vec3};
 
 /// A PLY mesh: vertices, and triangles as indices into them.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct PlyMesh {
+pub struct IndexedMesh {
     pub positions: Vec<Vec3>,
     /// Per vertex, where the file has `nx ny nz`.
     pub normals: Option<Vec<Vec3>>,
@@ -151,7 +151,7 @@ fn header(bytes: &[u8]) -> Result<(Vec<&str>, usize), String> {
 }
 
 /// Parses a PLY file, refusing more than `max_triangles` triangles.
-pub fn parse_ply(bytes: &[u8], max_triangles: usize) -> Result<PlyMesh, String> {
+pub fn parse_ply(bytes: &[u8], max_triangles: usize) -> Result<IndexedMesh, String> {
     if !bytes.starts_with(b"ply") {
         return Err("not a PLY file (it does not start with 'ply')".into());
     }
@@ -208,7 +208,7 @@ pub fn parse_ply(bytes: &[u8], max_triangles: usize) -> Result<PlyMesh, String> 
         bytes: &bytes[body..],
         at: 0,
     };
-    let mut mesh = PlyMesh::default();
+    let mut mesh = IndexedMesh::default();
     for e in &elements {
         // Each item takes at least one byte (or character): a count beyond
         // what is left is a lie.
@@ -245,7 +245,7 @@ pub fn parse_ply(bytes: &[u8], max_triangles: usize) -> Result<PlyMesh, String> 
     Ok(mesh)
 }
 
-fn read_vertices(e: &Element, v: &mut Values, mesh: &mut PlyMesh) -> Result<(), String> {
+fn read_vertices(e: &Element, v: &mut Values, mesh: &mut IndexedMesh) -> Result<(), String> {
     let find = |names: &[&str]| {
         e.properties
             .iter()
@@ -303,7 +303,7 @@ fn list_len(n: f64, v: &Values) -> Result<usize, String> {
 fn read_faces(
     e: &Element,
     v: &mut Values,
-    mesh: &mut PlyMesh,
+    mesh: &mut IndexedMesh,
     max_triangles: usize,
 ) -> Result<(), String> {
     let index = e.properties.iter().position(

@@ -8,12 +8,12 @@ mod shapes;
 mod xml;
 
 use super::file::RenderDefaults;
-use super::{obj, ply};
+use super::{obj, ply, serialized};
 use super::{Camera, FovAxis, Geometry, Loader, Material, Parts, PixelFilter, SceneError};
 use crate::bsdf::{ComplexIor, Distribution, Surface};
 use glam::{Mat4, Vec3};
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use xml::{plugin_name, Element, Props};
 
 /// Reads the scene of `path`; `defines` are the command line's `-D name=value`.
@@ -329,7 +329,17 @@ impl Builder<'_, '_> {
                 self.ply(el, name, to_world, face_normals)?
             }
             "serialized" => {
-                return Err(el.error(format!("shape '{kind}' is not supported yet")));
+                let name = p
+                    .string("filename")?
+                    .ok_or_else(|| el.error("shape 'serialized' needs a filename"))?;
+                let index = p.integer("shape_index")?.unwrap_or(0);
+                if !(0..=u32::MAX as i64).contains(&index) {
+                    return Err(el.error(format!("shape_index {index} is negative")));
+                }
+                if p.float("max_smooth_angle")?.is_some() {
+                    return Err(el.error("max_smooth_angle is not supported yet"));
+                }
+                self.serialized(el, name, index as u32, to_world, face_normals)?
             }
             other => {
                 return Err(el.error(format!(
@@ -533,8 +543,22 @@ impl Builder<'_, '_> {
 }
 
 impl Builder<'_, '_> {
-    /// A PLY mesh in world space, with Mitsuba's shading normals unless
-    /// `face_normals`: the file's where it has them, else computed.
+    /// A file a mesh shape names, and its path.
+    fn mesh_file(&self, el: &Element, name: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
+        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
+        let bytes = (self.loader.read)(&path)
+            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
+        Ok((path, bytes))
+    }
+
+    /// How many more triangles the scene may take.
+    fn triangle_budget(&self) -> usize {
+        self.loader
+            .max_triangles
+            .saturating_sub(self.geometry.positions.len())
+    }
+
+    /// A PLY mesh in world space.
     fn ply(
         &self,
         el: &Element,
@@ -542,47 +566,70 @@ impl Builder<'_, '_> {
         to_world: Mat4,
         face_normals: bool,
     ) -> Result<Mesh, SceneError> {
-        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
-        let bytes = (self.loader.read)(&path)
-            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
-        let budget = self
-            .loader
-            .max_triangles
-            .saturating_sub(self.geometry.positions.len());
-        let mesh = ply::parse_ply(&bytes, budget).map_err(|message| SceneError::Invalid {
-            path: path.clone(),
-            message: format!(
-                "malformed PLY: {message} (the shape at {}:{})",
-                el.file.display(),
-                el.line
-            ),
-        })?;
-        let positions: Vec<Vec3> = mesh
-            .positions
-            .iter()
-            .map(|p| to_world.transform_point3(*p))
-            .collect();
-        let triangles: Vec<[Vec3; 3]> = mesh
-            .triangles
-            .iter()
-            .map(|t| t.map(|i| positions[i as usize]))
-            .collect();
-        if face_normals {
-            return Ok((triangles, None));
-        }
-        let normals = match &mesh.normals {
-            Some(n) => {
-                let m = glam::Mat3::from_mat4(to_world).inverse().transpose();
-                let world: Vec<Vec3> = n.iter().map(|v| (m * *v).normalize_or_zero()).collect();
-                mesh.triangles
-                    .iter()
-                    .map(|t| t.map(|i| world[i as usize]))
-                    .collect()
-            }
-            None => smooth_normals(&triangles, &mesh.triangles),
-        };
-        Ok((triangles, Some(normals)))
+        let (path, bytes) = self.mesh_file(el, name)?;
+        let mesh = ply::parse_ply(&bytes, self.triangle_budget())
+            .map_err(|m| malformed(&path, "PLY", &m, el))?;
+        Ok(placed_mesh(&mesh, to_world, face_normals))
     }
+
+    /// Shape `index` of a serialized file in world space; the file's own
+    /// flag asks for face normals too.
+    fn serialized(
+        &self,
+        el: &Element,
+        name: &str,
+        index: u32,
+        to_world: Mat4,
+        face_normals: bool,
+    ) -> Result<Mesh, SceneError> {
+        let (path, bytes) = self.mesh_file(el, name)?;
+        let shape = serialized::parse_serialized(&bytes, index, self.triangle_budget())
+            .map_err(|m| malformed(&path, "serialized mesh", &m, el))?;
+        let flat = face_normals || shape.flags & serialized::FACE_NORMALS != 0;
+        Ok(placed_mesh(&shape.mesh, to_world, flat))
+    }
+}
+
+/// A mesh file's problem, naming the file and the shape that reads it.
+fn malformed(path: &Path, what: &str, message: &str, el: &Element) -> SceneError {
+    SceneError::Invalid {
+        path: path.to_path_buf(),
+        message: format!(
+            "malformed {what}: {message} (the shape at {}:{})",
+            el.file.display(),
+            el.line
+        ),
+    }
+}
+
+/// An indexed mesh in world space, with Mitsuba's shading normals unless
+/// `face_normals`: the file's where it has them, else computed.
+fn placed_mesh(mesh: &ply::IndexedMesh, to_world: Mat4, face_normals: bool) -> Mesh {
+    let positions: Vec<Vec3> = mesh
+        .positions
+        .iter()
+        .map(|p| to_world.transform_point3(*p))
+        .collect();
+    let triangles: Vec<[Vec3; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| positions[i as usize]))
+        .collect();
+    if face_normals {
+        return (triangles, None);
+    }
+    let normals = match &mesh.normals {
+        Some(n) => {
+            let m = glam::Mat3::from_mat4(to_world).inverse().transpose();
+            let world: Vec<Vec3> = n.iter().map(|v| (m * *v).normalize_or_zero()).collect();
+            mesh.triangles
+                .iter()
+                .map(|t| t.map(|i| world[i as usize]))
+                .collect()
+        }
+        None => smooth_normals(&triangles, &mesh.triangles),
+    };
+    (triangles, Some(normals))
 }
 
 /// Mitsuba's normals for a mesh without its own: at each vertex the sum of
