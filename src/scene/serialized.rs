@@ -174,13 +174,19 @@ pub fn parse_serialized(bytes: &[u8], index: u32, max_triangles: usize) -> Resul
     })
 }
 
-/// A serialized file of `shapes` (each positions, normals or none, and
+/// A serialized file of `shapes` (their positions, normals if any, and
 /// triangles), version 4, single precision: for tests and tools.
-pub fn write_serialized(shapes: &[(Vec<Vec3>, Option<Vec<Vec3>>, Vec<[u32; 3]>)]) -> Vec<u8> {
+pub fn write_serialized(shapes: &[IndexedMesh]) -> Vec<u8> {
     use std::io::Write;
     let mut out = Vec::new();
     let mut offsets = Vec::new();
-    for (positions, normals, triangles) in shapes {
+    for IndexedMesh {
+        positions,
+        normals,
+        triangles,
+        ..
+    } in shapes
+    {
         offsets.push(out.len() as u64);
         out.extend(MAGIC.to_le_bytes());
         out.extend(4u16.to_le_bytes());
@@ -218,8 +224,17 @@ mod tests {
     fn two_shapes() -> Vec<u8> {
         let quad = vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
         write_serialized(&[
-            (quad.clone(), None, vec![[0, 1, 2], [0, 2, 3]]),
-            (quad, Some(vec![Vec3::Z; 4]), vec![[0, 1, 2]]),
+            IndexedMesh {
+                positions: quad.clone(),
+                triangles: vec![[0, 1, 2], [0, 2, 3]],
+                ..Default::default()
+            },
+            IndexedMesh {
+                positions: quad,
+                normals: Some(vec![Vec3::Z; 4]),
+                triangles: vec![[0, 1, 2]],
+                ..Default::default()
+            },
         ])
     }
 
