@@ -1,6 +1,7 @@
-//! Fuzzes the scene loaders (TOML, OBJ, MTL) with mutants of the shipped
-//! scenes: `cargo run --release --example fuzz_scenes -- [INPUTS] [SEED]`
-//! (default 1,000,000 inputs, seed 1). Fails on any panic, on an input that
+//! Fuzzes the scene loaders (TOML, OBJ, MTL; Mitsuba XML, PLY, serialized)
+//! with mutants of the shipped scenes and the Mitsuba test scenes:
+//! `cargo run --release --example fuzz_scenes -- [INPUTS] [SEED] [xml]`
+//! (default 1,000,000 inputs, seed 1; `xml`: the Mitsuba scenes alone). Fails on any panic, on an input that
 //! takes over 2 s, or on one that takes the process's peak memory over
 //! 1 GiB; each such input is written to fuzz-findings/.
 
@@ -28,8 +29,13 @@ fn main() {
         .and_then(|a| a.parse().ok())
         .unwrap_or(1_000_000);
     let seed: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(1);
-    let corpus =
-        fuzz::shipped(std::path::Path::new("scenes")).expect("run from the repository root");
+    let xml_only = args.next().as_deref() == Some("xml");
+    let mut corpus = if xml_only {
+        Vec::new()
+    } else {
+        fuzz::shipped(std::path::Path::new("scenes")).expect("run from the repository root")
+    };
+    corpus.extend(fuzz::mitsuba(&fuzz::mitsuba_scenes()).expect("run from the repository root"));
     let start = Instant::now();
     reset_peak_rss();
     let mut peak_seen = 0u64;
@@ -60,6 +66,9 @@ fn main() {
         report.slowest.as_secs_f64(),
         peak_seen >> 20
     );
+    if let Some(e) = &report.multiline_example {
+        println!("an error of more than one line: {e:?}");
+    }
     if report.findings.is_empty() && report.multiline == 0 {
         return;
     }
@@ -67,7 +76,7 @@ fn main() {
     for f in &report.findings {
         let dir = format!("fuzz-findings/{}", f.input);
         std::fs::create_dir_all(&dir).expect("a findings folder");
-        std::fs::write(format!("{dir}/scene.toml"), &f.toml).expect("write");
+        std::fs::write(format!("{dir}/{}", f.main_name), &f.main).expect("write");
         for (name, bytes) in &f.files {
             std::fs::write(format!("{dir}/{name}"), bytes).expect("write");
         }

@@ -1,4 +1,5 @@
-//! A mutation fuzzer for the scene loaders (TOML, OBJ, MTL), on stable
+//! A mutation fuzzer for the scene loaders (TOML, OBJ, MTL; Mitsuba XML,
+//! PLY, serialized), on stable
 //! Rust and without dependencies: it starts from the shipped scenes, mutates
 //! their files in memory, loads each mutant through [`Scene::load_with`]
 //! and resolves its render settings, and reports any panic or slow input.
@@ -17,11 +18,14 @@ use std::time::{Duration, Instant};
 /// triangles is legitimate, and takes a second).
 pub const MAX_TRIANGLES: usize = 1 << 16;
 
-/// One scene's files, by the names its TOML and OBJ use.
+/// One scene's files, by the names its scene file and meshes use.
 #[derive(Clone, Debug)]
 pub struct Corpus {
-    pub toml: String,
-    /// Other files the scene reads (its OBJ, MTL), by file name.
+    /// The scene file's text, loaded as `mem/{main_name}`.
+    pub main: String,
+    /// `scene.toml` or `scene.xml`: the format the loader reads it as.
+    pub main_name: &'static str,
+    /// Other files the scene reads (its OBJ, MTL, PLY, ...), by file name.
     pub files: Vec<(String, Vec<u8>)>,
 }
 
@@ -54,7 +58,59 @@ pub fn shipped(scenes_dir: &Path) -> std::io::Result<Vec<Corpus>> {
                 files.push((name, bytes));
             }
         }
-        out.push(Corpus { toml, files });
+        out.push(Corpus {
+            main: toml,
+            main_name: "scene.toml",
+            files,
+        });
+    }
+    Ok(out)
+}
+
+/// The Mitsuba scenes the fuzzer starts from, relative to the repository:
+/// the shipped ones and the test scenes, which between them use every
+/// plugin and mesh format the reader knows.
+pub fn mitsuba_scenes() -> Vec<PathBuf> {
+    [
+        "scenes/mitsuba/cornell-box/scene.xml",
+        "scenes/mitsuba/veach-mis/scene.xml",
+        "tests/fixtures/mitsuba/coverage-a.xml",
+        "tests/fixtures/mitsuba/coverage-b.xml",
+    ]
+    .iter()
+    .map(PathBuf::from)
+    .collect()
+}
+
+/// Mitsuba XML scenes, each with every mesh and XML file beside it (what
+/// it may read); spheres and disks are tessellated finely, so these load
+/// more slowly than the TOML scenes.
+pub fn mitsuba(scenes: &[PathBuf]) -> std::io::Result<Vec<Corpus>> {
+    let mut out = Vec::new();
+    for path in scenes {
+        let main = std::fs::read_to_string(path)?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut files = Vec::new();
+        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
+            .map(|e| e.map(|e| e.path()))
+            .collect::<Result<_, _>>()?;
+        entries.sort();
+        for p in entries {
+            let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("");
+            if ["obj", "ply", "serialized", "xml"].contains(&ext) && p != *path {
+                let name = p
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .to_string();
+                files.push((name, std::fs::read(&p)?));
+            }
+        }
+        out.push(Corpus {
+            main,
+            main_name: "scene.xml",
+            files,
+        });
     }
     Ok(out)
 }
@@ -173,6 +229,26 @@ const LINES: &[&str] = &[
     "mesh = \"/\"",
     "mesh = \"cornell-box.mtl\"",
     "[unknown]",
+    "<shape type=\"sphere\"><float name=\"radius\" value=\"1e30\"/></shape>",
+    "<shape type=\"ply\"><string name=\"filename\" value=\"torus.ply\"/></shape>",
+    "<shape type=\"serialized\"><string name=\"filename\" value=\"shapes.serialized\"/><integer name=\"shape_index\" value=\"7\"/></shape>",
+    "<include filename=\"scene.xml\"/>",
+    "<include filename=\"materials.xml\"/>",
+    "<default name=\"res\" value=\"$res\"/>",
+    "<bsdf type=\"twosided\" id=\"x\"><bsdf type=\"twosided\"/></bsdf>",
+    "<ref id=\"x\"/>",
+    "<transform name=\"to_world\"><scale value=\"0\"/></transform>",
+    "<transform name=\"to_world\"><lookat origin=\"0,0,0\" target=\"0,0,0\"/></transform>",
+    "<emitter type=\"area\"><rgb name=\"radiance\" value=\"1e39\"/></emitter>",
+    "<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"1e30\"/></rfilter>",
+    "<integer name=\"max_depth\" value=\"-2\"/>",
+    "</scene>",
+    "element vertex 4294967295",
+    "element face 1",
+    "property list uchar int vertex_indices",
+    "property double x",
+    "format binary_big_endian 1.0",
+    "end_header",
 ];
 
 /// Applies one random mutation to `data`.
@@ -252,13 +328,19 @@ pub enum Outcome {
     Panicked(String),
 }
 
-/// Loads a scene whose files are `files` (the TOML as `scene.toml`) and
-/// resolves its default render settings, catching any panic.
-pub fn load(toml: &[u8], files: &HashMap<String, Vec<u8>>, max_triangles: usize) -> Outcome {
+/// Loads a scene whose files are `files` (its scene file, `main`, as
+/// `mem/{main_name}`) and resolves its default render settings, catching
+/// any panic.
+pub fn load(
+    main: &[u8],
+    main_name: &str,
+    files: &HashMap<String, Vec<u8>>,
+    max_triangles: usize,
+) -> Outcome {
     let read = |path: &Path| -> std::io::Result<Vec<u8>> {
         let name = path.file_name().map(|n| n.to_string_lossy().to_string());
         let bytes = match name.as_deref() {
-            Some("scene.toml") if path.parent() == Some(Path::new("mem")) => toml,
+            Some(n) if n == main_name && path.parent() == Some(Path::new("mem")) => main,
             Some(n) if path.parent() == Some(Path::new("mem")) => match files.get(n) {
                 Some(b) => b,
                 None => return Err(std::io::ErrorKind::NotFound.into()),
@@ -273,8 +355,8 @@ pub fn load(toml: &[u8], files: &HashMap<String, Vec<u8>>, max_triangles: usize)
         defines: &[],
     };
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let scene =
-            Scene::load_with(Path::new("mem/scene.toml"), &loader).map_err(|e| e.to_string())?;
+        let scene = Scene::load_with(&Path::new("mem").join(main_name), &loader)
+            .map_err(|e| e.to_string())?;
         RenderSettings::resolve(&scene, &Overrides::default()).map_err(|e| e.to_string())?;
         Ok::<(), String>(())
     }));
@@ -295,7 +377,9 @@ pub fn load(toml: &[u8], files: &HashMap<String, Vec<u8>>, max_triangles: usize)
 pub struct Finding {
     pub input: usize,
     pub what: String,
-    pub toml: Vec<u8>,
+    /// The scene file, named `main_name`.
+    pub main: Vec<u8>,
+    pub main_name: &'static str,
     pub files: HashMap<String, Vec<u8>>,
 }
 
@@ -306,8 +390,9 @@ pub struct Report {
     pub refused: usize,
     pub findings: Vec<Finding>,
     pub slowest: Duration,
-    /// Errors that were not one line.
+    /// Errors that were not one line, and the first of them.
     pub multiline: usize,
+    pub multiline_example: Option<String>,
 }
 
 /// Runs `inputs` mutants of `corpus` from `seed`; `slow` is how long one may
@@ -328,7 +413,7 @@ pub fn run(
     std::panic::set_hook(Box::new(|_| {}));
     for input in 0..inputs {
         let base = &corpus[rng.below(corpus.len())];
-        let mut toml = base.toml.clone().into_bytes();
+        let mut main = base.main.clone().into_bytes();
         let mut files: HashMap<String, Vec<u8>> = base.files.iter().cloned().collect();
         let names: Vec<String> = {
             let mut n: Vec<String> = files.keys().cloned().collect();
@@ -339,11 +424,11 @@ pub fn run(
             let pick = rng.below(names.len() + 1);
             match names.get(pick) {
                 Some(n) => mutate(&mut rng, files.get_mut(n).expect("a corpus file")),
-                None => mutate(&mut rng, &mut toml),
+                None => mutate(&mut rng, &mut main),
             }
         }
         let start = Instant::now();
-        let outcome = load(&toml, &files, max_triangles);
+        let outcome = load(&main, base.main_name, &files, max_triangles);
         let took = start.elapsed();
         report.slowest = report.slowest.max(took);
         let mut what = match &outcome {
@@ -353,7 +438,10 @@ pub fn run(
             }
             Outcome::Refused(e) => {
                 report.refused += 1;
-                report.multiline += usize::from(e.contains('\n'));
+                if e.contains('\n') {
+                    report.multiline += 1;
+                    report.multiline_example.get_or_insert_with(|| e.clone());
+                }
                 None
             }
             Outcome::Panicked(m) => Some(format!("panicked: {m}")),
@@ -368,7 +456,8 @@ pub fn run(
             report.findings.push(Finding {
                 input,
                 what,
-                toml: toml.clone(),
+                main: main.clone(),
+                main_name: base.main_name,
                 files: files.clone(),
             });
         }

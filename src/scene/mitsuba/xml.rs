@@ -23,12 +23,25 @@ pub struct Element {
     pub line: u32,
 }
 
-/// An error at an element: "file:line: message".
+/// An error at an element: "file:line: message", on one line whatever
+/// the file's text put into the message.
 pub fn at(file: &Path, line: u32, message: impl Into<String>) -> SceneError {
+    let message: String = message
+        .into()
+        .chars()
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect();
     SceneError::At {
         path: file.to_path_buf(),
         line: line as usize,
-        message: message.into(),
+        message,
     }
 }
 
