@@ -64,16 +64,38 @@ const NO_CHILD: Child = Child {
     reference: BVH_NO_CHILD,
 };
 
-struct Builder<'a> {
+/// Builds the tree over `order`, a slice of the whole triangle order that
+/// starts at `base`; subtrees of large ranges are built on other threads
+/// into builders of their own, whose nodes their parent then adopts.
+struct Builder<'a, 'o> {
     triangles: &'a [[Vec3; 3]],
     bounds: &'a [Aabb],
     centroids: &'a [Vec3],
-    order: Vec<u32>,
-    nodes: Vec<BvhNode>,
+    order: &'o mut [u32],
+    base: usize,
+    /// The nodes this builder fills, the next to fill, and the index of
+    /// the first in the whole tree: a subtree over k triangles has k - 1
+    /// nodes, so each thread's share is known before it starts.
+    nodes: &'o mut [BvhNode],
+    next: usize,
+    node_base: usize,
     depth: u32,
+    /// Levels below which subtrees still go to threads of their own.
+    parallel_levels: u32,
 }
 
+/// Ranges smaller than this are built on the thread that holds them.
+const PARALLEL_MIN: usize = 1 << 15;
+
 pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
+    build_with(
+        triangles,
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+    )
+}
+
+/// [`build`] on up to `threads` threads: the same tree whatever their number.
+fn build_with(triangles: &[[Vec3; 3]], threads: usize) -> Bvh {
     let bounds: Vec<Aabb> = triangles
         .iter()
         .map(|t| {
@@ -83,29 +105,36 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
         })
         .collect();
     let centroids: Vec<Vec3> = bounds.iter().map(|b| 0.5 * (b.min + b.max)).collect();
+    let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
+    let n = triangles.len();
+    // The root always exists: with one leaf child, or none, below two triangles.
+    let mut nodes = vec![BvhNode::default(); n.max(2) - 1];
     let mut builder = Builder {
         triangles,
         bounds: &bounds,
         centroids: &centroids,
-        order: (0..triangles.len() as u32).collect(),
-        nodes: Vec::new(),
+        order: &mut order,
+        base: 0,
+        nodes: &mut nodes,
+        next: 0,
+        node_base: 0,
         depth: 0,
+        parallel_levels: threads.max(1).next_power_of_two().trailing_zeros(),
     };
-    let n = triangles.len();
     let all = if n >= 2 {
         builder.split(0, n, 0).1
     } else {
-        // The root always exists: one leaf child, or none.
         let only = if n == 1 { builder.leaf(0) } else { NO_CHILD };
-        builder.nodes.push(node_of(&only, &NO_CHILD));
+        builder.nodes[0] = node_of(&only, &NO_CHILD);
         builder.depth = 1;
         builder.range_bounds(0, n).0
     };
-    set_escapes(&mut builder.nodes);
+    let depth = builder.depth;
+    set_escapes(&mut nodes);
     Bvh {
-        nodes: builder.nodes,
-        order: builder.order,
-        depth: builder.depth,
+        nodes,
+        order,
+        depth,
         bounds: (all.min, all.max),
     }
 }
@@ -161,7 +190,7 @@ fn node_of(a: &Child, b: &Child) -> BvhNode {
     }
 }
 
-impl Builder<'_> {
+impl Builder<'_, '_> {
     fn range_bounds(&self, start: usize, end: usize) -> (Aabb, Aabb) {
         let mut b = Aabb::EMPTY;
         let mut c = Aabb::EMPTY;
@@ -176,16 +205,76 @@ impl Builder<'_> {
         let [v0, v1, v2] = self.triangles[self.order[position] as usize];
         Child {
             points: [v0, v1 - v0, v2 - v0],
-            reference: BVH_LEAF | position as u32,
+            reference: BVH_LEAF | (self.base + position) as u32,
         }
+    }
+
+    /// The child for triangles `start..end`: a leaf, or a subtree.
+    fn child(&mut self, start: usize, end: usize, depth: u32) -> Child {
+        if end - start == 1 {
+            self.leaf(start)
+        } else {
+            let (index, b) = self.split(start, end, depth);
+            Child {
+                points: [b.min, b.max, Vec3::ZERO],
+                reference: index,
+            }
+        }
+    }
+
+    /// The children for `start..mid` and `mid..end`, each built on a
+    /// thread of its own into its share of the nodes, numbered as one
+    /// thread would have numbered them.
+    fn children_in_parallel(
+        &mut self,
+        start: usize,
+        mid: usize,
+        end: usize,
+        depth: u32,
+    ) -> [Child; 2] {
+        let (triangles, bounds, centroids) = (self.triangles, self.bounds, self.centroids);
+        let levels = self.parallel_levels - 1;
+        let (lo, hi) = self.order[start..end].split_at_mut(mid - start);
+        let left_nodes = (mid - start).max(1) - 1;
+        let right_nodes = (end - mid).max(1) - 1;
+        let rest = &mut self.nodes[self.next..];
+        let (nodes_lo, rest) = rest.split_at_mut(left_nodes);
+        let nodes_hi = &mut rest[..right_nodes];
+        let first = self.node_base + self.next;
+        let sub = |order: &mut [u32], base: usize, nodes: &mut [BvhNode], node_base: usize| {
+            let n = order.len();
+            let mut b = Builder {
+                triangles,
+                bounds,
+                centroids,
+                order,
+                base,
+                nodes,
+                next: 0,
+                node_base,
+                depth: 0,
+                parallel_levels: levels,
+            };
+            let child = b.child(0, n, depth + 1);
+            (child, b.depth)
+        };
+        let (base_lo, base_hi) = (self.base + start, self.base + mid);
+        let (a, b) = std::thread::scope(|s| {
+            let right = s.spawn(move || sub(hi, base_hi, nodes_hi, first + left_nodes));
+            let left = sub(lo, base_lo, nodes_lo, first);
+            (left, right.join().expect("a BVH builder thread"))
+        });
+        self.next += left_nodes + right_nodes;
+        self.depth = self.depth.max(a.1).max(b.1);
+        [a.0, b.0]
     }
 
     /// Builds the subtree of triangles `start..end` (at least two) and returns
     /// its root node's index and box.
     fn split(&mut self, start: usize, end: usize, depth: u32) -> (u32, Aabb) {
         self.depth = self.depth.max(depth + 1);
-        let node = self.nodes.len();
-        self.nodes.push(BvhNode::default());
+        let node = self.next;
+        self.next += 1;
         let (bounds, centroid_bounds) = self.range_bounds(start, end);
         let extent = centroid_bounds.max - centroid_bounds.min;
         let axis = extent.max_position();
@@ -195,22 +284,16 @@ impl Builder<'_> {
         } else {
             self.sah_split(start, end, axis, &centroid_bounds)
         };
-        let children = [(start, mid), (mid, end)].map(|(s, e)| {
-            if e - s == 1 {
-                self.leaf(s)
-            } else {
-                let (index, b) = self.split(s, e, depth + 1);
-                Child {
-                    points: [b.min, b.max, Vec3::ZERO],
-                    reference: index,
-                }
-            }
-        });
+        let children = if self.parallel_levels > 0 && end - start >= PARALLEL_MIN {
+            self.children_in_parallel(start, mid, end, depth)
+        } else {
+            [(start, mid), (mid, end)].map(|(s, e)| self.child(s, e, depth + 1))
+        };
         self.nodes[node] = BvhNode {
             axis: axis as u32,
             ..node_of(&children[0], &children[1])
         };
-        (node as u32, bounds)
+        ((self.node_base + node) as u32, bounds)
     }
 
     fn median_split(&mut self, start: usize, end: usize, axis: usize) -> usize {
@@ -342,6 +425,30 @@ mod tests {
             order.sort_unstable();
             assert_eq!(order, (0..bvh.nodes.len() as u32).collect::<Vec<_>>());
         }
+    }
+
+    #[test]
+    fn threads_build_the_tree_one_thread_builds() {
+        let mut tris = Vec::new();
+        let mut s = 7u32;
+        let mut rnd = || {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            (s >> 8) as f32 / (1 << 24) as f32
+        };
+        for _ in 0..5 * PARALLEL_MIN {
+            let p = Vec3::new(rnd(), rnd(), rnd()) * 100.0;
+            tris.push([p, p + Vec3::X, p + Vec3::Y * rnd()]);
+        }
+        let one = build_with(&tris, 1);
+        for threads in [2, 3, 8] {
+            let many = build_with(&tris, threads);
+            assert!(
+                many.nodes == one.nodes && many.order == one.order,
+                "{threads} threads"
+            );
+            assert_eq!(many.depth, one.depth);
+        }
+        check(&tris);
     }
 
     #[test]

@@ -622,6 +622,9 @@ fn drop_zero_area(
             !zero
         })
         .collect();
+    if dropped.iter().all(|&n| n == 0) {
+        return (positions, normals, material_of, source_of);
+    }
     for ((path, what), &n) in sources.iter().zip(&dropped) {
         if n > 0 {
             log::warn!(
@@ -734,6 +737,8 @@ impl Geometry {
             self.normals = self.positions.iter().map(face_normals).collect();
         }
         match normals {
+            // A scene's one large mesh moves in without a copy.
+            Some(n) if self.normals.is_empty() => self.normals = n,
             Some(n) => self.normals.extend(n),
             None if !self.normals.is_empty() => {
                 self.normals.extend(triangles.iter().map(face_normals))
@@ -746,7 +751,11 @@ impl Geometry {
             .extend(std::iter::repeat_n(material, triangles.len()));
         self.source_of
             .extend(std::iter::repeat_n(src, triangles.len()));
-        self.positions.extend(triangles);
+        if self.positions.is_empty() {
+            self.positions = triangles;
+        } else {
+            self.positions.extend(triangles);
+        }
     }
 }
 
