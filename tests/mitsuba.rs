@@ -119,6 +119,33 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     assert!(scene.has_non_diffuse());
 }
 
+/// wavelength:value spectra become the RGB Mitsuba 3.9.1's RGB variants
+/// make of them (values read from `mi.traverse`): lit by D65 and bounded
+/// for a reflectance, as they are for a radiance.
+#[test]
+fn spectra_turn_into_mitsubas_rgb() {
+    let case = |reflectance: &str, radiance: &str| {
+        let body = format!(
+            "<shape type=\"cube\"><bsdf type=\"diffuse\"><spectrum name=\"reflectance\" value=\"{reflectance}\"/></bsdf>\
+             <emitter type=\"area\"><spectrum name=\"radiance\" value=\"{radiance}\"/></emitter></shape>"
+        );
+        let scene = load_text(&with_body(&body)).unwrap();
+        let m = scene.materials.last().unwrap();
+        let qtrace::bsdf::Surface::Diffuse { albedo } = m.surface else {
+            panic!("{:?}", m.surface)
+        };
+        (albedo, m.emission)
+    };
+    let close = |a: Vec3, b: [f32; 3]| (a - Vec3::from(b)).abs().max_element() < 2e-4;
+    let (a, e) = case("400:0.5, 700:0.5", "400:1, 700:1");
+    assert!(close(a, [0.497671, 0.499878, 0.497455]), "{a}");
+    assert!(close(e, [1.19969, 0.949521, 0.903443]), "{e}");
+    let s = "400:0.1, 500:0.5, 600:0.9, 700:0.2";
+    let (a, e) = case(s, s);
+    assert!(close(a, [0.833828, 0.68912, 0.265243]), "{a}");
+    assert!(close(e, [0.974324, 0.661608, 0.229711]), "{e}");
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

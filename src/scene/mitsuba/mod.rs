@@ -4,6 +4,7 @@
 //! anything qtrace cannot render as Mitsuba would is an error naming the
 //! file and line, never a silently different image.
 
+mod cie;
 mod shapes;
 mod xml;
 
@@ -369,7 +370,7 @@ impl Builder<'_, '_> {
             }
             let ep = Props::new(e);
             let radiance = ep
-                .color("radiance")?
+                .radiance("radiance")?
                 .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?;
             if radiance.min_element() < 0.0 {
                 return Err(e.error("the area emitter's radiance is negative"));

@@ -365,8 +365,20 @@ impl<'e> Props<'e> {
         el.required("value").map(Some)
     }
 
-    /// A colour from `<rgb>`, a `<spectrum>` of one value or a `<float>`.
+    /// A colour from `<rgb>`, a `<spectrum>` (one value, or
+    /// wavelength:value pairs) or a `<float>`: a reflectance or other
+    /// bounded quantity.
     pub fn color(&self, name: &str) -> Result<Option<Vec3>, SceneError> {
+        self.color_as(name, false)
+    }
+
+    /// [`Props::color`] for an emitter's radiance, whose spectrum Mitsuba
+    /// turns into RGB without the white point and without bounds.
+    pub fn radiance(&self, name: &str) -> Result<Option<Vec3>, SceneError> {
+        self.color_as(name, true)
+    }
+
+    fn color_as(&self, name: &str, emitted: bool) -> Result<Option<Vec3>, SceneError> {
         let Some(el) = self.find(name) else {
             return Ok(None);
         };
@@ -388,9 +400,7 @@ impl<'e> Props<'e> {
             "spectrum" => {
                 let text = value()?;
                 if text.contains(':') {
-                    return Err(el.error(format!(
-                        "<spectrum name=\"{name}\">: wavelength:value spectra are not supported yet; give <rgb>"
-                    )));
+                    return spectrum_to_rgb(el, text, !emitted).map(Some);
                 }
                 let v = self.numbers(el, text)?;
                 match v[..] {
@@ -464,6 +474,77 @@ impl<'e> Props<'e> {
         Ok(())
     }
 }
+
+/// A `wavelength:value, ...` spectrum as Mitsuba 3's RGB variants see it:
+/// its colour under the CIE 1931 observer (lit by D65, for a `reflectance`
+/// that is not emitted), in linear sRGB, integrated as Mitsuba does (1000
+/// steps over 360-830 nm, the spectrum linear between its points and zero
+/// outside them), clamped to [0, 1] (`bounded`) or to non-negative values.
+pub fn spectrum_to_rgb(el: &Element, text: &str, bounded: bool) -> Result<Vec3, SceneError> {
+    let mut points: Vec<(f32, f32)> = Vec::new();
+    for pair in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let parsed = pair
+            .split_once(':')
+            .and_then(|(w, v)| Some((parse_f32(w)?, parse_f32(v)?)));
+        let Some((w, v)) = parsed else {
+            return Err(el.error(format!("'{pair}' is not wavelength:value")));
+        };
+        if points.last().is_some_and(|&(last, _)| w <= last) {
+            return Err(el.error("a spectrum's wavelengths must increase"));
+        }
+        points.push((w, v));
+    }
+    if points.len() < 2 {
+        return Err(el.error("a spectrum needs at least two wavelength:value pairs"));
+    }
+    let cmf = |x: f32| -> [f32; 4] {
+        let t = (x - super::cie::FIRST_NM).clamp(0.0, (super::cie::TABLE.len() - 1) as f32);
+        let i = (t as usize).min(super::cie::TABLE.len() - 2);
+        let f = t - i as f32;
+        let (a, b) = (super::cie::TABLE[i], super::cie::TABLE[i + 1]);
+        [0, 1, 2, 3].map(|k| a[k] + f * (b[k] - a[k]))
+    };
+    const STEPS: usize = 1000;
+    let (lo, hi) = (super::cie::FIRST_NM, super::cie::LAST_NM);
+    let mut xyz = glam::DVec3::ZERO;
+    for i in 0..STEPS {
+        let x = lo + (i as f32 / (STEPS - 1) as f32) * (hi - lo);
+        if x < points[0].0 || x > points[points.len() - 1].0 {
+            continue;
+        }
+        let k = points
+            .windows(2)
+            .position(|w| x <= w[1].0)
+            .unwrap_or(points.len() - 2);
+        let ((x0, y0), (x1, y1)) = (points[k], points[k + 1]);
+        let y = y0 + (x - x0) / (x1 - x0) * (y1 - y0);
+        let [cx, cy, cz, d65] = cmf(x);
+        let weight = if bounded { d65 } else { 1.0 } as f64 * y as f64;
+        xyz += glam::DVec3::new(cx as f64, cy as f64, cz as f64) * weight;
+    }
+    xyz *= (hi - lo) as f64 / STEPS as f64 * CIE_Y_NORMALIZATION;
+    let rgb = glam::DMat3::from_cols_array(&[
+        3.240479, -0.969256, 0.055648, -1.537150, 1.875991, -0.204043, -0.498535, 0.041556,
+        1.057311,
+    ]) * xyz;
+    let rgb = rgb.as_vec3();
+    let clamped = if bounded {
+        rgb.clamp(Vec3::ZERO, Vec3::ONE)
+    } else {
+        rgb.max(Vec3::ZERO)
+    };
+    if clamped != rgb {
+        log::warn!(
+            "{}:{}: the spectrum's colour {rgb} lies outside sRGB; clamped to {clamped}, as Mitsuba does",
+            el.file.display(),
+            el.line
+        );
+    }
+    Ok(clamped)
+}
+
+/// 1 / the integral of the CIE 1931 ȳ over 360-830 nm, as Mitsuba 3 has it.
+const CIE_Y_NORMALIZATION: f64 = 1.0 / 106.750_259_399_414_06;
 
 /// "bsdf 'roughconductor'", say.
 pub fn plugin_name(el: &Element) -> String {
