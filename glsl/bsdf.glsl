@@ -19,7 +19,8 @@ float luminance(vec3 c) {
 layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // The conductors' options some material of the scene uses (MATERIAL_BECKMANN,
 // MATERIAL_FRESNEL); the code of the others is left out.
-layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES = MATERIAL_BECKMANN | MATERIAL_FRESNEL;
+layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
+    MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC;
 
 // A material's scattering at a surface point, seen from one side
 // (SPEC 3, "Materials").
@@ -27,10 +28,11 @@ struct Bsdf {
     uint kind;   // MATERIAL_*
     vec3 color;  // Kd, Ks or Tf
     float alpha; // conductor: alpha, 0 for a mirror
-    float eta;   // dielectric: index beyond the surface / index on the path's side
-    uint flags;  // conductor: MATERIAL_BECKMANN, MATERIAL_FRESNEL
-    vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k
-    vec3 ior_k;
+    float eta;   // dielectric: index beyond the surface / index on the path's side;
+                 // plastic: its coat's relative index
+    uint flags;  // conductor: MATERIAL_BECKMANN, MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
+    vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
+    vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, 0)
 };
 
 // The BSDF of material m for a path arriving on the side the triangle's
@@ -40,9 +42,13 @@ Bsdf bsdf_of(Material m, bool front) {
     uint kind = code & (MATERIAL_ONE_SIDED - 1u);
     float p = m.emission.w;
     float alpha = kind == MATERIAL_CONDUCTOR && p > 0.0 ? max(p, MIN_ALPHA) : 0.0;
-    vec3 color = (code & MATERIAL_ONE_SIDED) != 0u && !front ? vec3(0.0) : m.color.rgb;
-    return Bsdf(kind, color, alpha, front ? p : 1.0 / p, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL),
-                m.eta.rgb, m.k.rgb);
+    bool black = (code & MATERIAL_ONE_SIDED) != 0u && !front;
+    vec3 color = black ? vec3(0.0) : m.color.rgb;
+    // A plastic's coat faces the path on either side it is seen from.
+    float eta = front || kind == MATERIAL_PLASTIC ? p : 1.0 / p;
+    vec3 specular = black ? vec3(0.0) : m.eta.rgb;
+    return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
+                kind == MATERIAL_PLASTIC ? specular : m.eta.rgb, m.k.rgb);
 }
 
 Bsdf bsdf_diffuse(vec3 albedo) {
@@ -52,6 +58,11 @@ Bsdf bsdf_diffuse(vec3 albedo) {
 // Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
 bool bsdf_is(Bsdf bsdf, uint kind) {
     return (NON_DIFFUSE ? bsdf.kind : MATERIAL_DIFFUSE) == kind;
+}
+
+// Whether the BSDF is a plastic; a constant false where the scene has none.
+bool bsdf_plastic(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_PLASTIC) != 0u && bsdf_is(bsdf, MATERIAL_PLASTIC);
 }
 
 // Whether the BSDF is a delta distribution (a mirror, smooth glass): such a
@@ -125,6 +136,52 @@ vec3 conductor_reflectance(Bsdf bsdf, float cos) {
     return fresnel ? bsdf.color * fresnel_conductor(cos, bsdf.ior_eta, bsdf.ior_k) : bsdf.color;
 }
 
+// Exact Fresnel reflectance of a smooth dielectric for cos_i > 0 and
+// eta = eta_t / eta_i; sets cos_t (0 under total internal reflection).
+float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
+    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0) {
+        cos_t = 0.0;
+        return 1.0;
+    }
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+float fresnel_dielectric(float cos_i, float eta) {
+    float cos_t;
+    return fresnel_dielectric(cos_i, eta, cos_t);
+}
+
+// A plastic's diffuse f_s cos: the base seen through the coat both ways,
+// light scattered back inside the coat accounted for.
+vec3 plastic_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    float fi = fresnel_dielectric(wo.z, bsdf.eta);
+    float fo = fresnel_dielectric(wi.z, bsdf.eta);
+    float fdr = bsdf.ior_k.x;
+    bool nonlinear = (MATERIAL_FEATURES & MATERIAL_NONLINEAR) != 0u && (bsdf.flags & MATERIAL_NONLINEAR) != 0u;
+    vec3 inside = nonlinear ? 1.0 - bsdf.color * fdr : vec3(1.0 - fdr);
+    return bsdf.color / inside * (INV_PI * wi.z / (bsdf.eta * bsdf.eta) * (1.0 - fi) * (1.0 - fo));
+}
+
+// The probability that a bounce from wo takes the BSDF's delta lobe: 1 for
+// a mirror or glass, a plastic's Fresnel-weighted share of its coat's
+// reflection, 0 for the rest. bsdf_sample_delta draws that lobe;
+// bsdf_sample, bsdf_pdf and bsdf_eval are the others', bsdf_pdf conditional
+// on not taking it.
+float bsdf_delta_share(Bsdf bsdf, vec3 wo) {
+    if (bsdf_plastic(bsdf)) {
+        float f = fresnel_dielectric(wo.z, bsdf.eta);
+        float w = bsdf.ior_k.y;
+        float s = f * w;
+        float d = (1.0 - f) * (1.0 - w);
+        return s + d > 0.0 ? s / (s + d) : 0.0;
+    }
+    return bsdf_is_delta(bsdf) ? 1.0 : 0.0;
+}
+
 // f_s(wo, wi) cos(theta_i); zero for delta lobes.
 vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z <= 0.0 || wo.z <= 0.0) {
@@ -132,6 +189,9 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf.color * (INV_PI * wi.z);
+    }
+    if (bsdf_plastic(bsdf)) {
+        return plastic_eval(bsdf, wo, wi);
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
@@ -152,6 +212,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : wi.z * INV_PI;
+    }
+    if (bsdf_plastic(bsdf)) {
+        return wi.z * INV_PI;
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
@@ -191,7 +254,7 @@ vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
         square = hemisphere_to_square(wi);
         return wi;
     }
-    if ((params.flags & FLAG_UNIFORM) != 0u) {
+    if ((params.flags & FLAG_UNIFORM) != 0u && !bsdf_plastic(bsdf)) {
         square = u;
         return square_to_hemisphere(u);
     }
@@ -200,20 +263,6 @@ vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
     vec3 wi = sample_cosine(u);
     square = 0.5 + (u - 0.5) / sqrt(1.0 + wi.z);
     return wi;
-}
-
-// Exact Fresnel reflectance of a smooth dielectric for cos_i > 0 and
-// eta = eta_t / eta_i; sets cos_t (0 under total internal reflection).
-float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
-    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
-    if (sin2_t >= 1.0) {
-        cos_t = 0.0;
-        return 1.0;
-    }
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    return 0.5 * (rs * rs + rp * rp);
 }
 
 // A delta lobe's direction from one uniform number, and its weight f cos /
@@ -232,7 +281,8 @@ vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
         weight = bsdf.color / (bsdf.eta * bsdf.eta);
         return vec3(-wo.xy / bsdf.eta, -cos_t);
     }
-    weight = conductor_reflectance(bsdf, wo.z);
+    // A plastic's coat: its weight before dividing by bsdf_delta_share.
+    weight = bsdf_plastic(bsdf) ? bsdf.ior_eta * fresnel_dielectric(wo.z, bsdf.eta) : conductor_reflectance(bsdf, wo.z);
     return mirror;
 }
 

@@ -127,6 +127,7 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 //   over all sectors would miss a lobe narrower than a sector and cost n
 //   reads.)
 // - Mirror: its reflectance times Q of the mirrored direction's sector.
+// - Plastic: its coat's mirror so, and its base as a diffuse lobe.
 // - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
 //   share sees the other side, of which the guide at g knows nothing, so it
 //   takes the cosine-weighted mean of g's Q instead.
@@ -138,12 +139,19 @@ float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf_reflect(bsdf, wo, guide_irradiance(g));
     }
-    if (!bsdf_is_delta(bsdf)) {
+    if (!bsdf_is_delta(bsdf) && !bsdf_plastic(bsdf)) {
         return 0.0;
     }
     uint a = grid_a();
     uint b = grid_b();
     float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
+    if (bsdf_plastic(bsdf)) {
+        // The coat's mirror, and the base through it (the way out's
+        // Fresnel loss left out).
+        float f = fresnel_dielectric(wo.z, bsdf.eta);
+        float base = luminance(bsdf.color / (1.0 - bsdf.ior_k.x)) * (1.0 - f) / (bsdf.eta * bsdf.eta);
+        return f * luminance(bsdf.ior_eta) * mirrored + base * INV_PI * guide_irradiance(g);
+    }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         return luminance(conductor_reflectance(bsdf, wo.z)) * mirrored;
     }

@@ -38,13 +38,19 @@ void main() {
         // in[6i..6i+4] = a Material; in[6i+4] = (wo, front side? 1 : 0);
         // in[6i+5] = three uniform numbers. out[i] = (wi, pdf), out[count + i]
         // = (f cos at wi, reflected estimate of irradiance 1), or for a delta
-        // lobe (wi, 0) and (its weight, 0).
+        // lobe (wi, 0) and (its weight, 0); out[2 count + i] = (the delta
+        // lobe's weight, bsdf_delta_share), for a plastic's coat.
         uint b = 6u * i;
         Material m = Material(probe_in[b], probe_in[b + 1u], probe_in[b + 2u], probe_in[b + 3u]);
         vec4 side = probe_in[b + 4u];
         vec3 u = probe_in[b + 5u].xyz;
         Bsdf bsdf = bsdf_of(m, side.w > 0.5);
         vec3 wo = side.xyz;
+        vec3 delta_weight = vec3(0.0);
+        if (bsdf_delta_share(bsdf, wo) > 0.0) {
+            bsdf_sample_delta(bsdf, wo, u.z, delta_weight);
+        }
+        probe_out[2u * params.item_count + i] = vec4(delta_weight, bsdf_delta_share(bsdf, wo));
         if (bsdf_is_delta(bsdf)) {
             vec3 weight;
             vec3 wi = bsdf_sample_delta(bsdf, wo, u.z, weight);

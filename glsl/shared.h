@@ -216,6 +216,10 @@ struct Triangle {
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
 #define MATERIAL_DIELECTRIC 2
+// Mitsuba's plastic: a diffuse base (color) under a smooth coat of relative
+// index emission.w; eta.rgb is its specular reflectance, k.x the coat's
+// internal diffuse reflectance, k.y the specular lobe's sampling weight.
+#define MATERIAL_PLASTIC 3
 // Added to the kind: the material is black on the side its triangle's
 // normal does not face (Mitsuba's BSDFs outside `twosided`).
 #define MATERIAL_ONE_SIDED 8
@@ -223,6 +227,11 @@ struct Triangle {
 // and a Fresnel term of complex index eta + i k.
 #define MATERIAL_BECKMANN 16
 #define MATERIAL_FRESNEL 32
+// Added to a plastic's kind: its internal scattering per colour (Mitsuba's
+// `nonlinear`).
+#define MATERIAL_NONLINEAR 64
+// In SPEC_MATERIAL_FEATURES only: the scene has a plastic.
+#define FEATURE_PLASTIC 128
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define SPEC_NON_DIFFUSE 4
@@ -240,9 +249,10 @@ struct Triangle {
 #define FILTER_BOX 0
 #define FILTER_TENT 1
 #define FILTER_GAUSSIAN 2
-// Specialization constant of the kernels that shade: the MATERIAL_BECKMANN
-// and MATERIAL_FRESNEL flags some material of the scene has (all, where not
-// given), so that a scene without them runs no code for them.
+// Specialization constant of the kernels that shade: the MATERIAL_BECKMANN,
+// MATERIAL_FRESNEL and MATERIAL_NONLINEAR flags some material of the scene
+// has, and FEATURE_PLASTIC (all, where not given), so that a scene without
+// them runs no code for them.
 #define SPEC_MATERIAL_FEATURES 8
 
 struct Material {

@@ -366,7 +366,7 @@ bool scatter() {
 #else
     // A glossy lobe's (0 here) is estimated from the bounce's own direction
     // below.
-    bool glossy = !delta && !bsdf_is(bsdf, MATERIAL_DIFFUSE);
+    bool glossy = !delta && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_plastic(bsdf);
     float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo) : 0.0;
 #endif
     if (depth == 0u) {
@@ -423,6 +423,8 @@ bool scatter() {
 #else
                 float scatter_pdf = bsdf_pdf(bsdf, wo, wi_local);
 #endif
+                // A plastic's coat takes some bounces as a mirror.
+                scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, wo);
                 float weight = power_heuristic(light_pdf, scatter_pdf);
                 vec3 le = load_material(lt.material).emission.rgb;
                 vec3 f_le = bsdf_eval(bsdf, wo, wi_local) * le;
@@ -457,8 +459,14 @@ bool scatter() {
 #if defined(GUIDED) && !defined(FROZEN)
     float mix = 0.0;
 #endif
-    if (delta) {
+    // A plastic takes its coat's mirror with this probability, as a delta
+    // vertex would (and what that ray hits takes no MIS, as NEE cannot
+    // find it); else its base, of density (1 - share) times the sampler's.
+    float delta_share = bsdf_delta_share(bsdf, wo);
+    bool take_delta = delta || (delta_share > 0.0 && rng_next(rng) < delta_share);
+    if (take_delta) {
         local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
+        weight /= delta ? 1.0 : delta_share;
 #ifdef GUIDED
         // Guides learn along reflections, which stay in this vertex's
         // hemisphere, and do not sample here.
@@ -499,6 +507,7 @@ bool scatter() {
         local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
         pdf = bsdf_pdf(bsdf, wo, local);
 #endif
+        pdf *= 1.0 - delta_share;
         if (pdf <= 0.0) {
             return false;
         }

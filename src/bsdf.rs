@@ -43,6 +43,16 @@ pub enum Surface {
     /// Smooth dielectric of index `Ni` on the side the normal does not face,
     /// transmission tinted by `Tf`.
     Dielectric { ior: f32, transmittance: Vec3 },
+    /// Mitsuba's `plastic`: a diffuse base under a smooth dielectric coat
+    /// of relative index `eta`, reflecting `specular` times the Fresnel term
+    /// as a mirror; light scattered inside the coat by the base is
+    /// accounted for in the mean (or, `nonlinear`, per colour).
+    Plastic {
+        diffuse: Vec3,
+        specular: Vec3,
+        eta: f32,
+        nonlinear: bool,
+    },
 }
 
 /// A rough conductor's distribution of microfacet normals.
@@ -77,6 +87,7 @@ impl Surface {
             Surface::Diffuse { .. } => crate::shaders::MATERIAL_DIFFUSE,
             Surface::Conductor { .. } => crate::shaders::MATERIAL_CONDUCTOR,
             Surface::Dielectric { .. } => crate::shaders::MATERIAL_DIELECTRIC,
+            Surface::Plastic { .. } => crate::shaders::MATERIAL_PLASTIC,
         }
     }
 
@@ -86,6 +97,7 @@ impl Surface {
             Surface::Diffuse { .. } => "diffuse",
             Surface::Conductor { .. } => "conductor",
             Surface::Dielectric { .. } => "glass",
+            Surface::Plastic { .. } => "plastic",
         }
     }
 
@@ -98,7 +110,54 @@ impl Surface {
                 reflectance, alpha, ..
             } => (reflectance, alpha),
             Surface::Dielectric { ior, transmittance } => (transmittance, ior),
+            Surface::Plastic { diffuse, eta, .. } => (diffuse, eta),
         }
+    }
+
+    /// A plastic's specular colour and (internal diffuse reflectance,
+    /// probability weight of the specular lobe, 0): the GPU `Material`'s
+    /// `eta` and `k`.
+    pub fn plastic_terms(&self) -> Option<(Vec3, Vec3)> {
+        match *self {
+            Surface::Plastic {
+                diffuse,
+                specular,
+                eta,
+                ..
+            } => Some((
+                specular,
+                Vec3::new(
+                    fresnel_diffuse_reflectance(1.0 / eta),
+                    specular_weight(diffuse, specular),
+                    0.0,
+                ),
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// The share of a plastic's specular lobe in its lobe choice before the
+/// Fresnel term (Mitsuba's: mean specular over mean specular and diffuse).
+fn specular_weight(diffuse: Vec3, specular: Vec3) -> f32 {
+    let (d, s) = (diffuse.element_sum() / 3.0, specular.element_sum() / 3.0);
+    if d + s > 0.0 {
+        s / (d + s)
+    } else {
+        0.5
+    }
+}
+
+/// The hemispherical mean of the dielectric Fresnel reflectance for
+/// relative index `eta`, in the fits Mitsuba uses (Egan and Hilgeman for
+/// eta < 1, d'Eon and Irving above).
+pub fn fresnel_diffuse_reflectance(eta: f32) -> f32 {
+    let inv = 1.0 / eta;
+    if eta < 1.0 {
+        0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    } else {
+        let c = [0.919317, -3.4793, 6.75335, -7.80989, 4.98554, -1.36881];
+        c.iter().rev().fold(0.0, |acc, &k| acc * inv + k)
     }
 }
 
@@ -115,6 +174,15 @@ enum Lobe {
     /// side the path arrives from.
     Dielectric {
         eta: f32,
+    },
+    /// `color` is the base's diffuse reflectance.
+    Plastic {
+        eta: f32,
+        specular: Vec3,
+        /// The coat's internal diffuse reflectance.
+        fdr_int: f32,
+        specular_weight: f32,
+        nonlinear: bool,
     },
 }
 
@@ -246,6 +314,56 @@ impl Bsdf {
                 },
                 color: transmittance,
             },
+            Surface::Plastic {
+                diffuse,
+                specular,
+                eta,
+                nonlinear,
+            } => Self {
+                lobe: Lobe::Plastic {
+                    eta,
+                    specular,
+                    fdr_int: fresnel_diffuse_reflectance(1.0 / eta),
+                    specular_weight: specular_weight(diffuse, specular),
+                    nonlinear,
+                },
+                color: diffuse,
+            },
+        }
+    }
+
+    /// The same lobe reflecting nothing: a one-sided material seen from
+    /// behind.
+    pub fn black(mut self) -> Self {
+        self.color = Vec3::ZERO;
+        if let Lobe::Plastic { specular, .. } = &mut self.lobe {
+            *specular = Vec3::ZERO;
+        }
+        self
+    }
+
+    /// The probability that a bounce from wo takes the BSDF's delta lobe:
+    /// 1 for a mirror or glass, a plastic's Fresnel-weighted share of its
+    /// coat's reflection, 0 for the rest. `sample_delta` draws that lobe;
+    /// `sample`, `pdf` and `eval` are the others', `pdf` conditional on
+    /// not taking it.
+    pub fn delta_share(&self, wo: Vec3) -> f32 {
+        match self.lobe {
+            Lobe::Plastic {
+                eta,
+                specular_weight,
+                ..
+            } => {
+                let f = fresnel_dielectric(wo.z, eta).0;
+                let (s, d) = (f * specular_weight, (1.0 - f) * (1.0 - specular_weight));
+                if s + d > 0.0 {
+                    s / (s + d)
+                } else {
+                    0.0
+                }
+            }
+            _ if self.is_delta() => 1.0,
+            _ => 0.0,
         }
     }
 
@@ -256,6 +374,7 @@ impl Bsdf {
             Lobe::Diffuse(_) => false,
             Lobe::Conductor { alpha, .. } => alpha == 0.0,
             Lobe::Dielectric { .. } => true,
+            Lobe::Plastic { .. } => false,
         }
     }
 
@@ -266,6 +385,24 @@ impl Bsdf {
         }
         match self.lobe {
             Lobe::Diffuse(_) => self.color * (FRAC_1_PI * wi.z),
+            Lobe::Plastic {
+                eta,
+                fdr_int,
+                nonlinear,
+                ..
+            } => {
+                let (fi, fo) = (
+                    fresnel_dielectric(wo.z, eta).0,
+                    fresnel_dielectric(wi.z, eta).0,
+                );
+                let d = self.color;
+                let inside = if nonlinear {
+                    Vec3::ONE - d * fdr_int
+                } else {
+                    Vec3::splat(1.0 - fdr_int)
+                };
+                d / inside * (FRAC_1_PI * wi.z / (eta * eta) * (1.0 - fi) * (1.0 - fo))
+            }
             Lobe::Conductor {
                 alpha,
                 distribution: m,
@@ -286,7 +423,7 @@ impl Bsdf {
             return 0.0;
         }
         match self.lobe {
-            Lobe::Diffuse(Sampling::Cosine) => wi.z * FRAC_1_PI,
+            Lobe::Diffuse(Sampling::Cosine) | Lobe::Plastic { .. } => wi.z * FRAC_1_PI,
             Lobe::Diffuse(Sampling::Uniform) => 0.5 * FRAC_1_PI,
             // GGX samples visible normals: D_wo(h) / (4 wo·h) with
             // D_wo(h) = G1(wo) (wo·h) D(h) / wo.z.
@@ -317,7 +454,7 @@ impl Bsdf {
     pub fn sample(&self, wo: Vec3, u: Vec2) -> Option<(Vec3, Vec2)> {
         match self.lobe {
             Lobe::Diffuse(Sampling::Uniform) => Some((square_to_hemisphere(u), u)),
-            Lobe::Diffuse(Sampling::Cosine) => {
+            Lobe::Diffuse(Sampling::Cosine) | Lobe::Plastic { .. } => {
                 let wi = sample_cosine(u);
                 Some((wi, Vec2::splat(0.5) + (u - 0.5) / (1.0 + wi.z).sqrt()))
             }
@@ -368,6 +505,10 @@ impl Bsdf {
                 }
             }
             Lobe::Conductor { fresnel, .. } => (mirror, self.color * self.fresnel(fresnel, wo.z)),
+            // The coat's mirror: its weight before dividing by delta_share.
+            Lobe::Plastic { eta, specular, .. } => {
+                (mirror, specular * fresnel_dielectric(wo.z, eta).0)
+            }
             _ => (mirror, self.color),
         }
     }
@@ -669,6 +810,76 @@ mod tests {
         let wo = direction(40.0);
         let (_, w) = mirror.sample_delta(wo, 0.5);
         assert!((w - 0.5 * fresnel_conductor(wo.z, ior)).abs().max_element() < 1e-6);
+    }
+
+    /// Mitsuba's fits of the hemispherical Fresnel reflectance (values from
+    /// Mitsuba 3.9.1's `fresnel_diffuse_reflectance`).
+    #[test]
+    fn fresnel_diffuse_reflectance_is_mitsubas() {
+        for (eta, want) in [
+            (1.49f32, 0.090299964),
+            (1.0 / 1.49, 0.5907325),
+            (1.5, 0.09177428),
+            (2.0, 0.16058916),
+        ] {
+            let got = fresnel_diffuse_reflectance(eta);
+            assert!((got - want).abs() < 1e-5, "{eta}: {got} vs {want}");
+        }
+    }
+
+    /// A plastic's two lobes: the base's sampler follows its pdf (the
+    /// cosine) and reproduces its integral, the coat's share follows the
+    /// Fresnel term, and the whole BSDF, both lobes sampled as the kernel
+    /// samples them, reflects what its parts integrate to; it is reciprocal.
+    #[test]
+    fn plastic_lobes_sample_what_they_evaluate() {
+        for nonlinear in [false, true] {
+            let surface = Surface::Plastic {
+                diffuse: Vec3::new(0.9, 0.5, 0.1),
+                specular: Vec3::splat(0.8),
+                eta: 1.49,
+                nonlinear,
+            };
+            let bsdf = Bsdf::new(surface, true, Sampling::Uniform);
+            for theta in [0.0f32, 40.0, 75.0, 88.0] {
+                let wo = direction(theta);
+                let share = bsdf.delta_share(wo);
+                let f = fresnel_dielectric(wo.z, 1.49).0;
+                // Mitsuba's choice: F weighted by the specular's share of
+                // the mean colours, against 1 - F by the diffuse's.
+                let w = 0.8 / (0.8 + 0.5);
+                let want = f * w / (f * w + (1.0 - f) * (1.0 - w));
+                assert!((share - want).abs() < 1e-6, "{share} vs {want}");
+                // The base: E[f cos / pdf] over its sampler against quadrature.
+                let n = 300;
+                let sampled: Vec3 = grid(n)
+                    .filter_map(|u| bsdf.sample(wo, u))
+                    .map(|(wi, _)| bsdf.eval(wo, wi) / bsdf.pdf(wo, wi))
+                    .sum::<Vec3>()
+                    / (n * n) as f32;
+                let m = 600;
+                let integral: Vec3 = grid(m)
+                    .map(|u| bsdf.eval(wo, square_to_hemisphere(u)))
+                    .sum::<Vec3>()
+                    * (2.0 * PI / (m * m) as f32);
+                assert!(
+                    (sampled - integral).abs().max_element() < 3e-3,
+                    "θ {theta}: {sampled} vs {integral}"
+                );
+                // The whole, as the kernel weighs it: the coat with
+                // probability share, its weight over share; the base
+                // otherwise, its density (1 - share) times the sampler's.
+                let (_, coat) = bsdf.sample_delta(wo, 0.5);
+                assert!((coat - Vec3::splat(0.8 * f)).abs().max_element() < 1e-6);
+                let whole = share * (coat / share) + (1.0 - share) * (sampled / (1.0 - share));
+                assert!((whole - (coat + integral)).abs().max_element() < 3e-3);
+                for b in [10.0f32, 50.0, 80.0] {
+                    let wi = (direction(b) + Vec3::new(0.0, 0.2, 0.0)).normalize();
+                    let (f1, f2) = (bsdf.eval(wo, wi) / wi.z, bsdf.eval(wi, wo) / wo.z);
+                    assert!((f1 - f2).abs().max_element() < 1e-5, "{f1} vs {f2}");
+                }
+            }
+        }
     }
 
     #[test]

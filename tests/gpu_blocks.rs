@@ -190,6 +190,18 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             ior: 1.5,
             transmittance: Vec3::new(1.0, 0.9, 0.8),
         },
+        Surface::Plastic {
+            diffuse: Vec3::new(0.8, 0.3, 0.1),
+            specular: Vec3::splat(0.9),
+            eta: 1.49,
+            nonlinear: false,
+        },
+        Surface::Plastic {
+            diffuse: Vec3::new(0.2, 0.6, 0.9),
+            specular: Vec3::ONE,
+            eta: 1.7,
+            nonlinear: true,
+        },
     ];
     let mut queries = Vec::new();
     for surface in surfaces {
@@ -226,6 +238,20 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             let close = |a: Vec3, b: Vec3| {
                 (a - b).abs().max_element() <= 2e-4 * (1.0 + b.abs().max_element())
             };
+            let share = cpu.delta_share(q.wo);
+            assert!(
+                (g.delta_share - share).abs() <= 1e-5,
+                "{what}: GPU delta share {} vs CPU {share}",
+                g.delta_share
+            );
+            if share > 0.0 && !cpu.is_delta() {
+                let (_, weight) = cpu.sample_delta(q.wo, q.u.z);
+                assert!(
+                    close(g.delta_weight, weight),
+                    "{what}: GPU coat weight {} vs CPU {weight}",
+                    g.delta_weight
+                );
+            }
             if cpu.is_delta() {
                 let (wi, weight) = cpu.sample_delta(q.wo, q.u.z);
                 assert!(close(g.wi, wi), "{what}: GPU {} vs CPU {wi}", g.wi);

@@ -354,6 +354,9 @@ pub struct BsdfSample {
     pub pdf: f32,
     pub eval: Vec3,
     pub reflected: f32,
+    /// `bsdf_sample_delta`'s weight and `bsdf_delta_share` (a plastic's).
+    pub delta_weight: Vec3,
+    pub delta_share: f32,
 }
 
 /// One query of the GPU BSDF: a material seen from its front side or not,
@@ -400,7 +403,7 @@ pub fn bsdf_samples(
         &gpu_scene.bindings(),
         params,
         &input,
-        (n, 2),
+        (n, 3),
     )?;
     Ok((0..n)
         .map(|i| BsdfSample {
@@ -408,6 +411,8 @@ pub fn bsdf_samples(
             pdf: out[i].w,
             eval: out[n + i].truncate(),
             reflected: out[n + i].w,
+            delta_weight: out[2 * n + i].truncate(),
+            delta_share: out[2 * n + i].w,
         })
         .collect())
 }

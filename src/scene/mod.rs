@@ -70,11 +70,12 @@ impl Material {
     /// Its BSDF for a path arriving on the front side or the back (the CPU
     /// twin of `bsdf_of` in glsl/bsdf.glsl).
     pub fn bsdf(&self, front: bool, sampling: crate::bsdf::Sampling) -> crate::bsdf::Bsdf {
-        let mut bsdf = crate::bsdf::Bsdf::new(self.surface, front, sampling);
+        let bsdf = crate::bsdf::Bsdf::new(self.surface, front, sampling);
         if self.one_sided && !front {
-            bsdf.color = Vec3::ZERO;
+            bsdf.black()
+        } else {
+            bsdf
         }
-        bsdf
     }
 
     /// The material as the kernels read it (`Material` of shared.h).
@@ -98,6 +99,14 @@ impl Material {
                 code |= shaders::MATERIAL_FRESNEL;
                 (eta, k) = (ior.eta, ior.k);
             }
+        }
+        if let Surface::Plastic { nonlinear, .. } = self.surface {
+            if nonlinear {
+                code |= shaders::MATERIAL_NONLINEAR;
+            }
+        }
+        if let Some((specular, terms)) = self.surface.plastic_terms() {
+            (eta, k) = (specular, terms);
         }
         shaders::Material {
             color: color.extend(code as f32).into(),
@@ -279,14 +288,19 @@ impl Scene {
             .any(|m| m.surface.kind() != shaders::MATERIAL_DIFFUSE)
     }
 
-    /// The conductor options (MATERIAL_BECKMANN, MATERIAL_FRESNEL) some
-    /// material of the scene uses, as the kernels' SPEC_MATERIAL_FEATURES.
+    /// The conductor and plastic options (MATERIAL_BECKMANN, _FRESNEL,
+    /// _NONLINEAR, FEATURE_PLASTIC) some material of the scene uses, as the
+    /// kernels' SPEC_MATERIAL_FEATURES.
     pub fn material_features(&self) -> u32 {
         self.materials
             .iter()
             .map(|m| m.gpu().color[3] as u32)
             .fold(0, |acc, code| {
-                acc | (code & (shaders::MATERIAL_BECKMANN | shaders::MATERIAL_FRESNEL))
+                let flags = shaders::MATERIAL_BECKMANN
+                    | shaders::MATERIAL_FRESNEL
+                    | shaders::MATERIAL_NONLINEAR;
+                let plastic = code & (shaders::MATERIAL_ONE_SIDED - 1) == shaders::MATERIAL_PLASTIC;
+                acc | (code & flags) | if plastic { shaders::FEATURE_PLASTIC } else { 0 }
             })
     }
 

@@ -926,14 +926,29 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             one_sided: false,
             null: true,
         },
-        "thindielectric" | "roughdielectric" | "plastic" | "roughplastic" => {
+        "plastic" => {
+            let int = ior(el, &p, "int_ior", "polypropylene")?;
+            let ext = ior(el, &p, "ext_ior", "air")?;
+            let diffuse = reflectance(el, &p, "diffuse_reflectance", 0.5)?;
+            let specular = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
+            if specular.min_element() < 0.0 {
+                return Err(el.error("plastic specular_reflectance must not be negative"));
+            }
+            one(Surface::Plastic {
+                diffuse,
+                specular,
+                eta: int / ext,
+                nonlinear: p.boolean("nonlinear")?.unwrap_or(false),
+            })
+        }
+        "thindielectric" | "roughdielectric" | "roughplastic" => {
             return Err(el.error(format!("bsdf '{kind}' is not supported yet")))
         }
         "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, twosided and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, plastic, twosided and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
