@@ -44,11 +44,11 @@ Bsdf bsdf_of(Material m, bool front) {
     float alpha = kind == MATERIAL_CONDUCTOR && p > 0.0 ? max(p, MIN_ALPHA) : 0.0;
     bool black = (code & MATERIAL_ONE_SIDED) != 0u && !front;
     vec3 color = black ? vec3(0.0) : m.color.rgb;
-    // A plastic's coat faces the path on either side it is seen from.
-    float eta = front || kind == MATERIAL_PLASTIC ? p : 1.0 / p;
+    // A plastic's coat, and a thin sheet, look the same from either side.
+    float eta = front || kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? p : 1.0 / p;
     vec3 specular = black ? vec3(0.0) : m.eta.rgb;
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
-                kind == MATERIAL_PLASTIC ? specular : m.eta.rgb, m.k.rgb);
+                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb);
 }
 
 Bsdf bsdf_diffuse(vec3 albedo) {
@@ -68,7 +68,8 @@ bool bsdf_plastic(Bsdf bsdf) {
 // Whether the BSDF is a delta distribution (a mirror, smooth glass): such a
 // vertex samples with bsdf_sample_delta and skips NEE and guiding.
 bool bsdf_is_delta(Bsdf bsdf) {
-    return bsdf_is(bsdf, MATERIAL_DIELECTRIC) || (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha == 0.0);
+    return bsdf_is(bsdf, MATERIAL_DIELECTRIC) || bsdf_is(bsdf, MATERIAL_THIN) ||
+           (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha == 0.0);
 }
 
 // GGX normal distribution, written without the cancellation of
@@ -153,6 +154,14 @@ float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
 float fresnel_dielectric(float cos_i, float eta) {
     float cos_t;
     return fresnel_dielectric(cos_i, eta, cos_t);
+}
+
+// What a thin sheet reflects of light arriving at cos_i: its first
+// surface's Fresnel reflectance with every inner reflection after it.
+float thin_reflectance(float cos_i, float eta) {
+    float r = fresnel_dielectric(cos_i, eta);
+    float t = 1.0 - r;
+    return r < 1.0 ? r + t * t * r / (1.0 - r * r) : r;
 }
 
 // A plastic's diffuse f_s cos: the base seen through the coat both ways,
@@ -280,6 +289,11 @@ vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
         }
         weight = bsdf.color / (bsdf.eta * bsdf.eta);
         return vec3(-wo.xy / bsdf.eta, -cos_t);
+    }
+    if (bsdf_is(bsdf, MATERIAL_THIN)) {
+        float r = thin_reflectance(wo.z, bsdf.eta);
+        weight = u < r ? bsdf.ior_eta : bsdf.color;
+        return u < r ? mirror : -wo;
     }
     // A plastic's coat: its weight before dividing by bsdf_delta_share.
     weight = bsdf_plastic(bsdf) ? bsdf.ior_eta * fresnel_dielectric(wo.z, bsdf.eta) : conductor_reflectance(bsdf, wo.z);

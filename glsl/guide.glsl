@@ -128,6 +128,7 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 //   reads.)
 // - Mirror: its reflectance times Q of the mirrored direction's sector.
 // - Plastic: its coat's mirror so, and its base as a diffuse lobe.
+// - Thin sheet: its reflection so; what it lets through as glass's.
 // - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
 //   share sees the other side, of which the guide at g knows nothing, so it
 //   takes the cosine-weighted mean of g's Q instead.
@@ -154,6 +155,12 @@ float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
         return luminance(conductor_reflectance(bsdf, wo.z)) * mirrored;
+    }
+    if (bsdf_is(bsdf, MATERIAL_THIN)) {
+        // What passes straight through comes from the other side, of which
+        // g knows nothing: its cosine-weighted mean of Q stands in.
+        float r = thin_reflectance(wo.z, bsdf.eta);
+        return r * luminance(bsdf.ior_eta) * mirrored + (1.0 - r) * luminance(bsdf.color) * INV_PI * guide_irradiance(g);
     }
     float cos_t;
     float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);

@@ -220,6 +220,10 @@ struct Triangle {
 // index emission.w; eta.rgb is its specular reflectance, k.x the coat's
 // internal diffuse reflectance, k.y the specular lobe's sampling weight.
 #define MATERIAL_PLASTIC 3
+// Mitsuba's thindielectric: a thin sheet of relative index emission.w that
+// reflects (eta.rgb tints) or lets light straight through (color tints),
+// its inner reflections summed.
+#define MATERIAL_THIN 4
 // Added to the kind: the material is black on the side its triangle's
 // normal does not face (Mitsuba's BSDFs outside `twosided`).
 #define MATERIAL_ONE_SIDED 8

@@ -43,6 +43,14 @@ pub enum Surface {
     /// Smooth dielectric of index `Ni` on the side the normal does not face,
     /// transmission tinted by `Tf`.
     Dielectric { ior: f32, transmittance: Vec3 },
+    /// Mitsuba's `thindielectric`: a thin sheet of relative index `eta`
+    /// that reflects (tinted by `reflectance`) or lets light straight
+    /// through (tinted by `transmittance`), its inner reflections summed.
+    Thin {
+        eta: f32,
+        reflectance: Vec3,
+        transmittance: Vec3,
+    },
     /// Mitsuba's `plastic`: a diffuse base under a smooth dielectric coat
     /// of relative index `eta`, reflecting `specular` times the Fresnel term
     /// as a mirror; light scattered inside the coat by the base is
@@ -88,6 +96,7 @@ impl Surface {
             Surface::Conductor { .. } => crate::shaders::MATERIAL_CONDUCTOR,
             Surface::Dielectric { .. } => crate::shaders::MATERIAL_DIELECTRIC,
             Surface::Plastic { .. } => crate::shaders::MATERIAL_PLASTIC,
+            Surface::Thin { .. } => crate::shaders::MATERIAL_THIN,
         }
     }
 
@@ -98,6 +107,7 @@ impl Surface {
             Surface::Conductor { .. } => "conductor",
             Surface::Dielectric { .. } => "glass",
             Surface::Plastic { .. } => "plastic",
+            Surface::Thin { .. } => "thin glass",
         }
     }
 
@@ -111,6 +121,9 @@ impl Surface {
             } => (reflectance, alpha),
             Surface::Dielectric { ior, transmittance } => (transmittance, ior),
             Surface::Plastic { diffuse, eta, .. } => (diffuse, eta),
+            Surface::Thin {
+                eta, transmittance, ..
+            } => (transmittance, eta),
         }
     }
 
@@ -134,6 +147,18 @@ impl Surface {
             )),
             _ => None,
         }
+    }
+}
+
+/// What a thin sheet reflects of light arriving at cos θ_i: its first
+/// surface's Fresnel reflectance with every inner reflection after it.
+pub fn thin_reflectance(cos_i: f32, eta: f32) -> f32 {
+    let r = fresnel_dielectric(cos_i, eta).0;
+    let t = 1.0 - r;
+    if r < 1.0 {
+        r + t * t * r / (1.0 - r * r)
+    } else {
+        r
     }
 }
 
@@ -174,6 +199,11 @@ enum Lobe {
     /// side the path arrives from.
     Dielectric {
         eta: f32,
+    },
+    /// `color` is what passes through.
+    Thin {
+        eta: f32,
+        reflectance: Vec3,
     },
     /// `color` is the base's diffuse reflectance.
     Plastic {
@@ -314,6 +344,14 @@ impl Bsdf {
                 },
                 color: transmittance,
             },
+            Surface::Thin {
+                eta,
+                reflectance,
+                transmittance,
+            } => Self {
+                lobe: Lobe::Thin { eta, reflectance },
+                color: transmittance,
+            },
             Surface::Plastic {
                 diffuse,
                 specular,
@@ -336,8 +374,10 @@ impl Bsdf {
     /// behind.
     pub fn black(mut self) -> Self {
         self.color = Vec3::ZERO;
-        if let Lobe::Plastic { specular, .. } = &mut self.lobe {
-            *specular = Vec3::ZERO;
+        match &mut self.lobe {
+            Lobe::Plastic { specular, .. } => *specular = Vec3::ZERO,
+            Lobe::Thin { reflectance, .. } => *reflectance = Vec3::ZERO,
+            _ => {}
         }
         self
     }
@@ -373,7 +413,7 @@ impl Bsdf {
         match self.lobe {
             Lobe::Diffuse(_) => false,
             Lobe::Conductor { alpha, .. } => alpha == 0.0,
-            Lobe::Dielectric { .. } => true,
+            Lobe::Dielectric { .. } | Lobe::Thin { .. } => true,
             Lobe::Plastic { .. } => false,
         }
     }
@@ -482,7 +522,7 @@ impl Bsdf {
                 let wi = 2.0 * wo.dot(m) * m - wo;
                 (wi.z > 0.0).then(|| (wi, hemisphere_to_square(wi)))
             }
-            Lobe::Dielectric { .. } => None,
+            Lobe::Dielectric { .. } | Lobe::Thin { .. } => None,
         }
     }
 
@@ -505,6 +545,13 @@ impl Bsdf {
                 }
             }
             Lobe::Conductor { fresnel, .. } => (mirror, self.color * self.fresnel(fresnel, wo.z)),
+            Lobe::Thin { eta, reflectance } => {
+                if u < thin_reflectance(wo.z, eta) {
+                    (mirror, reflectance)
+                } else {
+                    (-wo, self.color)
+                }
+            }
             // The coat's mirror: its weight before dividing by delta_share.
             Lobe::Plastic { eta, specular, .. } => {
                 (mirror, specular * fresnel_dielectric(wo.z, eta).0)
@@ -878,6 +925,35 @@ mod tests {
                     let (f1, f2) = (bsdf.eval(wo, wi) / wi.z, bsdf.eval(wi, wo) / wo.z);
                     assert!((f1 - f2).abs().max_element() < 1e-5, "{f1} vs {f2}");
                 }
+            }
+        }
+    }
+
+    /// A thin sheet reflects 2F / (1 + F) of what arrives (its inner
+    /// reflections summed), passes the rest straight through, and looks the
+    /// same from both sides.
+    #[test]
+    fn thin_glass_reflects_its_summed_fresnel_and_passes_the_rest() {
+        let sheet = Surface::Thin {
+            eta: 1.5,
+            reflectance: Vec3::splat(0.9),
+            transmittance: Vec3::new(1.0, 0.5, 0.25),
+        };
+        for front in [true, false] {
+            let b = Bsdf::new(sheet, front, Sampling::Cosine);
+            assert!(b.is_delta() && b.delta_share(Vec3::Z) == 1.0);
+            for theta in [0.0f32, 45.0, 80.0] {
+                let wo = direction(theta);
+                let f = fresnel_dielectric(wo.z, 1.5).0;
+                let r = thin_reflectance(wo.z, 1.5);
+                assert!((r - 2.0 * f / (1.0 + f)).abs() < 1e-6, "{r} vs {f}");
+                let (wr, weight) = b.sample_delta(wo, 0.99 * r);
+                assert_eq!(
+                    (wr, weight),
+                    (Vec3::new(-wo.x, -wo.y, wo.z), Vec3::splat(0.9))
+                );
+                let (wt, weight) = b.sample_delta(wo, r + 0.01 * (1.0 - r));
+                assert_eq!((wt, weight), (-wo, Vec3::new(1.0, 0.5, 0.25)));
             }
         }
     }

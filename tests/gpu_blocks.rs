@@ -190,6 +190,11 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             ior: 1.5,
             transmittance: Vec3::new(1.0, 0.9, 0.8),
         },
+        Surface::Thin {
+            eta: 1.45,
+            reflectance: Vec3::new(0.9, 0.8, 1.0),
+            transmittance: Vec3::new(0.7, 1.0, 0.9),
+        },
         Surface::Plastic {
             diffuse: Vec3::new(0.8, 0.3, 0.1),
             specular: Vec3::splat(0.9),

@@ -108,6 +108,9 @@ impl Material {
         if let Some((specular, terms)) = self.surface.plastic_terms() {
             (eta, k) = (specular, terms);
         }
+        if let Surface::Thin { reflectance, .. } = self.surface {
+            eta = reflectance;
+        }
         shaders::Material {
             color: color.extend(code as f32).into(),
             emission: self.emission.extend(parameter).into(),

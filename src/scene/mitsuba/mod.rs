@@ -941,14 +941,25 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
                 nonlinear: p.boolean("nonlinear")?.unwrap_or(false),
             })
         }
-        "thindielectric" | "roughdielectric" | "roughplastic" => {
+        "thindielectric" => {
+            let int = ior(el, &p, "int_ior", "bk7")?;
+            let ext = ior(el, &p, "ext_ior", "air")?;
+            let mut d = one(Surface::Thin {
+                eta: int / ext,
+                reflectance: reflectance(el, &p, "specular_reflectance", 1.0)?,
+                transmittance: reflectance(el, &p, "specular_transmittance", 1.0)?,
+            });
+            d.one_sided = false;
+            d
+        }
+        "roughdielectric" | "roughplastic" => {
             return Err(el.error(format!("bsdf '{kind}' is not supported yet")))
         }
         "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, plastic, twosided and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, thindielectric, plastic, twosided and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
