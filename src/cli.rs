@@ -445,6 +445,7 @@ pub fn inspect_summary(scene: &Scene) -> String {
             scene.filter
         ),
         format!("scene extent {:.3} (bounding-box diagonal)", scene.extent),
+        format!("defaults     {}", defaults_summary(&scene.defaults)),
     ];
     for (name, table) in &scene.guide_tables {
         if !table.is_empty() {
@@ -452,6 +453,19 @@ pub fn inspect_summary(scene: &Scene) -> String {
         }
     }
     lines.join("\n") + "\n"
+}
+
+/// The render settings a scene suggests, "(qtrace's)" where it gives none.
+fn defaults_summary(d: &crate::scene::file::RenderDefaults) -> String {
+    let or =
+        |v: Option<u32>, default: u32| v.map_or(format!("{default} (qtrace's)"), |v| v.to_string());
+    format!(
+        "{} x {} pixels, {} spp, max depth {} bounces",
+        or(d.width, 256),
+        or(d.height, 256),
+        or(d.spp, 64),
+        or(d.max_depth, 64)
+    )
 }
 
 pub fn inspect(path: &Path, defines: &[(String, String)]) -> Result<()> {

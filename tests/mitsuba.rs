@@ -265,6 +265,12 @@ fn assert_agrees(name: &str, out: &RenderOutput, (mean, var): &(Image, Image)) {
     // z-tests alone speak, and docs/mitsuba.md gives a longer render's
     // figure.
     let ok = worst.0.abs() < 5.0 && z_mean < 5.0 && (rel < 0.005 || noise > 0.001);
+    eprintln!(
+        "{name}: means {:.3}% apart ({z_mean:.1} sigma, noise {:.3}%), worst 8x8 block {:.1} sigma",
+        100.0 * rel,
+        100.0 * noise,
+        worst.0
+    );
     if !ok {
         common::save_failure_images(name, &[("qtrace", &out.image), ("mitsuba", mean)]);
     }
