@@ -260,11 +260,11 @@ fn assert_agrees(name: &str, out: &RenderOutput, (mean, var): &(Image, Image)) {
         z_mean = z_mean.max((d / se).abs());
         noise = noise.max(se / sum);
     }
-    // Where the two means are known to 0.1% or better, they must lie within
-    // 0.5%; where noise is larger (a tiny, bright light seen directly), the
-    // z-tests alone speak, and docs/mitsuba.md gives a longer render's
-    // figure.
-    let ok = worst.0.abs() < 5.0 && z_mean < 5.0 && (rel < 0.005 || noise > 0.001);
+    // Where the two means are known to 0.125% (a quarter of 0.5%) or
+    // better, they must lie within 0.5%; where noise is larger (a tiny,
+    // bright light seen directly), the z-tests alone speak, and
+    // docs/mitsuba.md gives a longer render's figure.
+    let ok = worst.0.abs() < 5.0 && z_mean < 5.0 && (rel < 0.005 || noise > 0.00125);
     eprintln!(
         "{name}: means {:.3}% apart ({z_mean:.1} sigma, noise {:.3}%), worst 8x8 block {:.1} sigma",
         100.0 * rel,
@@ -314,11 +314,12 @@ const SQUARE: [(&str, &str); 2] = [("resx", "64"), ("resy", "64")];
 
 #[test]
 fn cornell_box_agrees_with_mitsuba() {
-    for (m, nee) in [
-        (Method::Pt, true),
-        (Method::Pt, false),
-        (Method::Sarsa, true),
-        (Method::Neural, true),
+    // pt+nee long enough that the means are known to the 0.5% checked.
+    for (m, nee, spp) in [
+        (Method::Pt, true, 4096),
+        (Method::Pt, false, 1024),
+        (Method::Sarsa, true, 1024),
+        (Method::Neural, true, 1024),
     ] {
         let name = format!("cornell-box {m:?} nee {nee}");
         let scene = Scene::load_defined(
@@ -327,7 +328,7 @@ fn cornell_box_agrees_with_mitsuba() {
         )
         .unwrap();
         let ctx = common::gpu();
-        let out = common::render_with(&ctx, &scene, method(m, nee, 1024));
+        let out = common::render_with(&ctx, &scene, method(m, nee, spp));
         assert_agrees(&name, &out, &reference("cornell-box"));
     }
 }
@@ -363,6 +364,6 @@ fn coverage_scenes_agree_with_mitsuba() {
         "coverage-b",
         &dir.join("coverage-b.xml"),
         &[("width", "96"), ("height", "64")],
-        method(Method::Pt, true, 1024),
+        method(Method::Pt, true, 2048),
     );
 }
