@@ -76,7 +76,7 @@ class Parser(argparse.ArgumentParser):
 
 def parse_args():
     p = Parser(description="Render a qtrace scene with Mitsuba 3 and print samples/s as JSON.")
-    p.add_argument("scene", help="scene TOML file")
+    p.add_argument("scene", help="scene file: qtrace TOML, or Mitsuba XML")
     p.add_argument("--width", type=int, help="image width (default: scene's [render], else 256)")
     p.add_argument("--height", type=int, help="image height (default: scene's [render], else 256)")
     p.add_argument("--spp", type=int, default=32, help="samples per pixel per batch (default 32)")
@@ -84,7 +84,42 @@ def parse_args():
                    help="qtrace's max depth (default: scene's [render], else 64)")
     p.add_argument("--batches", type=int, default=4, help="timed batches (default 4)")
     p.add_argument("--exr", help="write the last batch's image here (linear RGB EXR)")
+    p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter of an XML scene, as mitsuba's -D")
     return p.parse_args()
+
+
+def load_xml(mi, path, defines, width, height, max_depth):
+    """A Mitsuba XML scene as the file has it, but for the film's size and
+    the path length qtrace renders it with (and Russian roulette from
+    RR_DEPTH, as for TOML scenes). Their values may be $parameters, which
+    are given here as numbers."""
+    import xml.etree.ElementTree as ET
+    tree = ET.parse(path)
+    root = tree.getroot()
+    for film in root.iter("film"):
+        for el in film.findall("integer"):
+            if el.get("name") == "width":
+                el.set("value", str(width))
+            elif el.get("name") == "height":
+                el.set("value", str(height))
+    for integrator in root.findall("integrator"):
+        for el in list(integrator):
+            if el.get("name") in ("max_depth", "rr_depth"):
+                integrator.remove(el)
+        ET.SubElement(integrator, "integer", name="max_depth", value=str(max_depth + 1))
+        ET.SubElement(integrator, "integer", name="rr_depth", value=str(RR_DEPTH))
+    params = {}
+    for d in defines:
+        k, sep, v = d.partition("=")
+        if not sep:
+            fail(f"-D {d}: expected NAME=VALUE")
+        params[k] = v
+    mi.Thread.thread().file_resolver().prepend(os.path.dirname(os.path.abspath(path)))
+    try:
+        return mi.load_string(ET.tostring(root, encoding="unicode"), **params)
+    except Exception as e:
+        fail(f"{path}: Mitsuba cannot load it: {str(e).splitlines()[0]}")
 
 
 # --------------------------------------------------------------------------
@@ -378,6 +413,13 @@ def main():
     args = parse_args()
     if not os.path.isfile(args.scene):
         fail(f"{args.scene}: scene file not found")
+    if args.scene.lower().endswith(".xml"):
+        # qtrace gives the size and the path length it rendered with.
+        width, height = args.width or 256, args.height or 256
+        max_depth = args.max_depth if args.max_depth is not None else 64
+        dr, mi = import_mitsuba()
+        scene = load_xml(mi, args.scene, args.defines, width, height, max_depth)
+        return time_renders(dr, mi, args, scene, width, height)
     doc, groups, environment = load_scene(args.scene)
     render = doc.get("render", {})
     width = args.width if args.width is not None else render.get("width", 256)
@@ -392,7 +434,11 @@ def main():
 
     dr, mi = import_mitsuba()
     scene = build_scene(mi, args.scene, doc, groups, environment, width, height, max_depth)
+    time_renders(dr, mi, args, scene, width, height)
 
+
+def time_renders(dr, mi, args, scene, width, height):
+    """Renders the batches, prints the JSON line."""
     times = []
     image = None
     for batch in range(args.batches + 1):

@@ -481,13 +481,14 @@ pub fn inspect(path: &Path, defines: &[(String, String)]) -> Result<()> {
 /// fails before any GPU work.
 fn check_scenes(
     scenes: &[PathBuf],
+    defines: &[(String, String)],
     configs: &[bench::Config],
     guides: &GuideSources,
 ) -> Result<()> {
     let methods: Vec<&str> = configs.iter().map(|c| c.method.name()).collect();
     guides.check_used(&methods).map_err(anyhow::Error::msg)?;
     for path in scenes {
-        let scene = Scene::load(path)?;
+        let scene = Scene::load_defined(path, defines)?;
         for config in configs {
             let guide = guides
                 .resolve(&scene, config.method.name())
@@ -508,7 +509,7 @@ pub fn bench_speed(plan: &SpeedPlan<'_>, json: Option<&Path>, device: &DeviceCho
     if let Some(p) = json {
         check_output(p, "json")?;
     }
-    check_scenes(plan.scenes, plan.configs, plan.guides)?;
+    check_scenes(plan.scenes, plan.defines, plan.configs, plan.guides)?;
     let ctx = open_device(device)?;
     let info = ctx.info();
     println!(
@@ -608,7 +609,7 @@ fn reference_floor_line(s: &bench::eval::SceneReport) -> String {
 
 pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
     plan.validate().map_err(anyhow::Error::msg)?;
-    check_scenes(&plan.scenes, &plan.configs, &plan.guides)?;
+    check_scenes(&plan.scenes, &plan.defines, &plan.configs, &plan.guides)?;
     bench::charts::ensure_font().map_err(anyhow::Error::msg)?;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("{}: cannot create the report directory", plan.out.display()))?;

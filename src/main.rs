@@ -197,9 +197,12 @@ enum Command {
     /// pictures of what was learned, charts, CSV/JSON and an HTML page
     /// (with --speed: only a table of samples/s, rays/s and GPU ms per pass).
     Bench {
-        /// Scenes to evaluate.
+        /// Scenes to evaluate (TOML, or Mitsuba 3 XML).
         #[arg(default_values = ["scenes/cornell-box.toml"])]
         scenes: Vec<PathBuf>,
+        /// A parameter of the XML scenes, as Mitsuba's -D (repeatable).
+        #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
+        define: Vec<(String, String)>,
         /// Methods to compare (pt, sarsa, neural; add +nee for next-event estimation).
         #[arg(long, alias = "configs", value_delimiter = ',', default_values = ["pt", "sarsa"])]
         methods: Vec<Config>,
@@ -293,6 +296,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Inspect { scene, define } => cli::inspect(scene, define),
         Command::Bench {
             scenes,
+            define,
             methods,
             spp_list,
             width,
@@ -322,6 +326,7 @@ fn run(cli: Cli) -> Result<()> {
                     repeats: *repeats,
                     peer: peer == "mitsuba",
                     guides: &guides.sources(),
+                    defines: define,
                 };
                 return cli::bench_speed(&plan, json.as_deref(), &device.choice());
             }
@@ -335,6 +340,7 @@ fn run(cli: Cli) -> Result<()> {
             plan.seed = *seed;
             plan.reference = reference.clone();
             plan.guides = guides.sources();
+            plan.defines = define.clone();
             if let Some(n) = reference_spp {
                 plan.reference_spp = *n;
             }

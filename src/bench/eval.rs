@@ -31,6 +31,8 @@ pub struct EvalPlan {
     pub cache_dir: PathBuf,
     /// Guide settings beyond each scene's tables.
     pub guides: GuideSources,
+    /// XML scenes' `-D name=value` parameters.
+    pub defines: Vec<(String, String)>,
 }
 
 impl EvalPlan {
@@ -48,6 +50,7 @@ impl EvalPlan {
             out,
             cache_dir: default_cache_dir(),
             guides: GuideSources::default(),
+            defines: Vec::new(),
         }
     }
 
@@ -504,7 +507,7 @@ pub fn evaluate(
     let mut scenes = Vec::new();
     let mut names: Vec<String> = Vec::new();
     for path in &plan.scenes {
-        let scene = Scene::load(path)?;
+        let scene = Scene::load_defined(path, &plan.defines)?;
         let mut name = short_name(path);
         while names.contains(&name) {
             name.push('_');

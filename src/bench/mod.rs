@@ -93,6 +93,8 @@ pub struct SpeedPlan<'a> {
     pub peer: bool,
     /// Guide settings beyond each scene's tables.
     pub guides: &'a GuideSources,
+    /// XML scenes' `-D name=value` parameters.
+    pub defines: &'a [(String, String)],
 }
 
 /// The speed table: our rows, and the peer's where it was measured.
@@ -131,7 +133,7 @@ pub fn speed(
 ) -> Result<SpeedReport, BenchError> {
     let mut report = SpeedReport::default();
     for path in plan.scenes {
-        let scene = Scene::load(path)?;
+        let scene = Scene::load_defined(path, plan.defines)?;
         let first_row = report.rows.len();
         let mut overrides = Vec::new();
         for config in plan.configs {
@@ -203,7 +205,14 @@ pub fn speed(
             let max_depth = RenderSettings::resolve(&scene, &o)
                 .map_err(RenderError::from)?
                 .max_depth;
-            match peer::mitsuba(path, plan.width, plan.height, plan.spp, max_depth) {
+            match peer::mitsuba(
+                path,
+                plan.defines,
+                plan.width,
+                plan.height,
+                plan.spp,
+                max_depth,
+            ) {
                 Ok(mut p) => {
                     p.pt_nee_ratio = report.rows[first_row..]
                         .iter()

@@ -65,9 +65,11 @@ fn command() -> (String, PathBuf) {
     (python, script)
 }
 
-/// Renders `scene` with Mitsuba 3 `llvm_ad_rgb` at our settings.
+/// Renders `scene` (with an XML scene's `defines`) with Mitsuba 3
+/// `llvm_ad_rgb` at our settings.
 pub fn mitsuba(
     scene: &Path,
+    defines: &[(String, String)],
     width: u32,
     height: u32,
     spp: u32,
@@ -95,6 +97,11 @@ pub fn mitsuba(
             "--max-depth",
             &max_depth.to_string(),
         ])
+        .args(
+            defines
+                .iter()
+                .flat_map(|(k, v)| ["-D".to_string(), format!("{k}={v}")]),
+        )
         .output()
         .map_err(|e| {
             PeerError::NotSetUp(format!(

@@ -883,9 +883,19 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
                     (Some(a), None, None) => a,
                     (None, None, None) => 0.1,
                     (None, Some(u), Some(v)) if u == v => u,
+                    (None, Some(u), Some(v)) => {
+                        // The isotropic lobe of the same area of normals.
+                        let a = (u * v).sqrt();
+                        log::warn!(
+                            "{}:{}: qtrace's rough conductors are isotropic: alpha_u {u} and alpha_v {v} render as alpha {a}",
+                            el.file.display(),
+                            el.line
+                        );
+                        a
+                    }
                     _ => {
                         return Err(el.error(
-                            "anisotropic roughness (alpha_u, alpha_v) is not supported yet",
+                            "give alpha, or alpha_u and alpha_v together, not both",
                         ))
                     }
                 };
