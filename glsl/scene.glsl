@@ -35,18 +35,25 @@ vec3 unpack_normal(uint p) {
     return normalize(v);
 }
 
-// The shading normal of triangle i at point p on it: its corners' normals
-// interpolated by p's barycentric coordinates.
-vec3 shading_normal(uint i, Triangle tri, vec3 p) {
-    vec3 d = p - tri.v0;
+// Barycentric coordinates (along e1 and e2) of point p of the triangle's
+// plane: an offset along the normal drops out.
+vec2 barycentric(Triangle tri, vec3 p) {
+    vec3 q = p - tri.v0;
     float d00 = dot(tri.e1, tri.e1);
     float d01 = dot(tri.e1, tri.e2);
     float d11 = dot(tri.e2, tri.e2);
-    float d20 = dot(d, tri.e1);
-    float d21 = dot(d, tri.e2);
+    float d20 = dot(q, tri.e1);
+    float d21 = dot(q, tri.e2);
     float inv = 1.0 / (d00 * d11 - d01 * d01);
-    float v = clamp((d11 * d20 - d01 * d21) * inv, 0.0, 1.0);
-    float w = clamp((d00 * d21 - d01 * d20) * inv, 0.0, 1.0);
+    return vec2(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv;
+}
+
+// The shading normal of triangle i at point p on it: its corners' normals
+// interpolated by p's barycentric coordinates.
+vec3 shading_normal(uint i, Triangle tri, vec3 p) {
+    vec2 uv = clamp(barycentric(tri, p), vec2(0.0), vec2(1.0));
+    float v = uv.x;
+    float w = uv.y;
     uvec4 q = FETCH(normal_texels, int(i));
     vec3 n = (1.0 - v - w) * unpack_normal(q.x) + v * unpack_normal(q.y) + w * unpack_normal(q.z);
     return normalize(n);

@@ -52,14 +52,7 @@ uint nearest_volume(uint triangle, Triangle tri, vec3 p, bool front) {
         // Barycentric coordinates of p: its offset is along the triangle's
         // normal, so it drops out. (Triangles with a small angle at v0, where
         // these lose precision, have one cell; see src/guide/lookup.rs.)
-        vec3 q = p - tri.v0;
-        float d00 = dot(tri.e1, tri.e1);
-        float d01 = dot(tri.e1, tri.e2);
-        float d11 = dot(tri.e2, tri.e2);
-        float d20 = dot(q, tri.e1);
-        float d21 = dot(q, tri.e2);
-        float inv = 1.0 / (d00 * d11 - d01 * d01);
-        vec2 uv = vec2(d11 * d20 - d01 * d21, d00 * d21 - d01 * d20) * inv;
+        vec2 uv = barycentric(tri, p);
         uvec2 c = uvec2(clamp(uv * vec2(nu, nv), vec2(0.0), vec2(nu - 1u, nv - 1u)));
         cell += c.x + nu * c.y;
     }

@@ -302,6 +302,13 @@ impl Builder<'_, '_> {
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip = p.boolean("flip_normals")?.unwrap_or(false);
         let face_normals = p.boolean("face_normals")?.unwrap_or(false);
+        // A mesh file's name (texture coordinates' orientation aside: no
+        // textures yet).
+        let filename = || {
+            p.boolean("flip_tex_coords")?;
+            p.string("filename")?
+                .ok_or_else(|| el.error(format!("shape '{kind}' needs a filename")))
+        };
         let (triangles, normals) = match kind {
             "rectangle" => (shapes::rectangle(to_world), None),
             "cube" => (shapes::cube(to_world), None),
@@ -315,24 +322,10 @@ impl Builder<'_, '_> {
                 let (t, n) = shapes::sphere(to_world, center, radius);
                 (t, Some(n))
             }
-            "obj" => {
-                let name = p
-                    .string("filename")?
-                    .ok_or_else(|| el.error("shape 'obj' needs a filename"))?;
-                p.boolean("flip_tex_coords")?;
-                self.obj(el, name, to_world, face_normals)?
-            }
-            "ply" => {
-                let name = p
-                    .string("filename")?
-                    .ok_or_else(|| el.error("shape 'ply' needs a filename"))?;
-                p.boolean("flip_tex_coords")?;
-                self.ply(el, name, to_world, face_normals)?
-            }
+            "obj" => self.obj(el, filename()?, to_world, face_normals)?,
+            "ply" => self.ply(el, filename()?, to_world, face_normals)?,
             "serialized" => {
-                let name = p
-                    .string("filename")?
-                    .ok_or_else(|| el.error("shape 'serialized' needs a filename"))?;
+                let name = filename()?;
                 let index = p.integer("shape_index")?.unwrap_or(0);
                 if !(0..=u32::MAX as i64).contains(&index) {
                     return Err(el.error(format!("shape_index {index} is negative")));
