@@ -9,6 +9,7 @@ WORDS(node_texels, B_NODES)         // 8 per BvhNode
 WORDS(triangle_texels, B_TRIANGLES) // 3 per Triangle
 WORDS(material_texels, B_MATERIALS) // 4 per Material
 WORDS(normal_texels, B_NORMALS)     // 1 per triangle, with shading normals
+WORDS(delta_light_texels, B_DELTA_LIGHTS) // 4 per DeltaLight
 
 Triangle load_triangle(uint i) {
     uvec4 a = FETCH(triangle_texels, int(3u * i));
@@ -57,6 +58,35 @@ vec3 shading_normal(uint i, Triangle tri, vec3 p) {
     uvec4 q = FETCH(normal_texels, int(i));
     vec3 n = (1.0 - v - w) * unpack_normal(q.x) + v * unpack_normal(q.y) + w * unpack_normal(q.z);
     return normalize(n);
+}
+
+// What delta light i sends to x: the radiance-like term NEE weighs by the
+// BSDF (intensity / distance^2 times a spot's falloff, or a directional
+// light's irradiance), the direction toward it and its distance.
+vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist) {
+    vec4 position = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i)));
+    vec4 intensity = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 1u)));
+    vec4 axis = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 2u)));
+    vec4 falloff = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 3u)));
+    uint kind = uint(position.w);
+    if (kind == DELTA_DIRECTIONAL) {
+        wi = -position.xyz;
+        dist = 3.0e38;
+        return intensity.rgb;
+    }
+    vec3 to = position.xyz - x;
+    float d2 = dot(to, to);
+    dist = sqrt(d2);
+    wi = to / dist;
+    vec3 l = intensity.rgb / d2;
+    if (kind == DELTA_SPOT) {
+        // Mitsuba's: full inside the beam, falling linearly in angle to
+        // nothing at the cutoff.
+        float c = dot(-wi, axis.xyz);
+        float beam = c >= axis.w ? 1.0 : (falloff.x - acos(clamp(c, -1.0, 1.0))) * falloff.y;
+        l *= c > intensity.w ? beam : 0.0;
+    }
+    return l;
 }
 
 struct Hit {

@@ -94,6 +94,13 @@
 // Shading normals at each triangle's corners, three packed normals a texel
 // (pack_normal in src/scene/mod.rs), where SPEC_SHADING_NORMALS says so.
 #define B_NORMALS 45
+// Point, spot and directional lights (DeltaLight), which only NEE reaches;
+// the light list names one by LIGHT_DELTA | its index here.
+#define B_DELTA_LIGHTS 46
+#define LIGHT_DELTA 0x80000000u
+#define DELTA_POINT 0
+#define DELTA_SPOT 1
+#define DELTA_DIRECTIONAL 2
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -258,6 +265,9 @@ struct Triangle {
 // has, and FEATURE_PLASTIC (all, where not given), so that a scene without
 // them runs no code for them.
 #define SPEC_MATERIAL_FEATURES 8
+// Specialization constant of the trace kernels: the scene has delta lights
+// (B_DELTA_LIGHTS).
+#define SPEC_DELTA_LIGHTS 9
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)
@@ -273,6 +283,14 @@ struct Light {
     float cdf;
     float pdf;         // P(choose this light)
     float pad;
+};
+
+// A light only NEE reaches (Mitsuba's point, spot and directional).
+struct DeltaLight {
+    vec4 position;  // xyz: where it is (point, spot) or the direction its light travels (directional); w: DELTA_*
+    vec4 intensity; // rgb: intensity (point, spot) or irradiance (directional); w: spot: cos of the cutoff angle
+    vec4 axis;      // xyz: a spot's axis; w: cos of its beam width
+    vec4 falloff;   // x: a spot's cutoff angle, y: 1 / (cutoff angle - beam width), in radians
 };
 
 // One path's result, written by the trace pass, read by accumulate.

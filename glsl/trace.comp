@@ -34,6 +34,8 @@ WORDS(light_texels, B_LIGHTS) // 1 per Light
 // is built without the code that reads them.
 layout(constant_id = SPEC_SHADING_NORMALS) const bool SHADING_NORMALS = false;
 layout(constant_id = SPEC_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX;
+// Whether the scene has lights only NEE reaches (B_DELTA_LIGHTS).
+layout(constant_id = SPEC_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -396,27 +398,44 @@ bool scatter() {
         {
             light = pick_light(rng_next(rng));
         }
-        Triangle lt = load_triangle(FETCH(light_texels, int(light)).x);
-        float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
+        uvec4 entry = FETCH(light_texels, int(light));
         float brought = 0.0;
-        vec2 u = rng_next2(rng);
-        if (u.x + u.y > 1.0) {
-            u = 1.0 - u;
+        // A delta light: its one direction, its pick's probability as the
+        // pdf, no MIS (no bounce finds it). An emitting triangle: a point
+        // on it, its solid-angle density.
+        bool delta_light = DELTA_LIGHTS && (entry.x & LIGHT_DELTA) != 0u;
+        vec3 wi;
+        float dist;
+        float light_pdf;
+        vec3 le;
+        bool faces = true;
+        if (delta_light) {
+            le = delta_light_radiance(entry.x & ~LIGHT_DELTA, position, wi, dist);
+            light_pdf = uintBitsToFloat(entry.z);
+        } else {
+            Triangle lt = load_triangle(entry.x);
+            float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
+            vec2 u = rng_next2(rng);
+            if (u.x + u.y > 1.0) {
+                u = 1.0 - u;
+            }
+            vec3 target = lt.v0 + u.x * lt.e1 + u.y * lt.e2;
+            vec3 to_light = target - position;
+            float dist2 = dot(to_light, to_light);
+            dist = sqrt(dist2);
+            wi = to_light / dist;
+            float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
+            faces = cos_y > 0.0;
+            light_pdf = area_pdf * dist2 / cos_y;
+            le = load_material(lt.material).emission.rgb;
         }
-        vec3 target = lt.v0 + u.x * lt.e1 + u.y * lt.e2;
-        vec3 to_light = target - position;
-        float dist2 = dot(to_light, to_light);
-        float dist = sqrt(dist2);
-        vec3 wi = to_light / dist;
         float cos_x = dot(ns, wi);
-        float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
-        if (cos_x > 0.0 && cos_y > 0.0) {
+        if (cos_x > 0.0 && faces) {
             rays += 1u;
             // A direction the shading normal allows may lie below the
             // geometric surface: the shadow ray then leaves from beneath.
             vec3 from = SHADING_NORMALS && dot(wi, ng) < 0.0 ? surface_point - ng * eps : position;
             if (!occluded(from, wi, dist * (1.0 - 1e-4) - eps)) {
-                float light_pdf = area_pdf * dist2 / cos_y;
                 vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
 #ifdef GUIDED
                 float scatter_pdf = mixture_pdf(here, bsdf, wo, wi_local);
@@ -425,8 +444,7 @@ bool scatter() {
 #endif
                 // A plastic's coat takes some bounces as a mirror.
                 scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, wo);
-                float weight = power_heuristic(light_pdf, scatter_pdf);
-                vec3 le = load_material(lt.material).emission.rgb;
+                float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
                 vec3 f_le = bsdf_eval(bsdf, wo, wi_local) * le;
                 vec3 direct = f_le * weight / light_pdf;
                 radiance += throughput * direct;

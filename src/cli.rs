@@ -148,6 +148,12 @@ pub fn render(
         check_output(p, "json")?;
     }
     let scene = Scene::load_defined(scene_path, defines)?;
+    if !overrides.nee && !scene.delta_lights.is_empty() {
+        log::warn!(
+            "{}: its point, spot and directional lights reach the image only through NEE (--nee); without, they light nothing",
+            scene_path.display()
+        );
+    }
     let bad = || format!("{}: bad render settings", scene_path.display());
     let method = overrides.method.unwrap_or(Method::Pt).name();
     guides

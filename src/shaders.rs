@@ -75,6 +75,15 @@ pub struct Material {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct DeltaLight {
+    pub position: [f32; 4],
+    pub intensity: [f32; 4],
+    pub axis: [f32; 4],
+    pub falloff: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct Light {
     pub triangle: u32,
     pub cdf: f32,

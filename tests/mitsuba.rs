@@ -182,6 +182,7 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         ("<shape type=\"sphere\"><float name=\"radius\" value=\"$y\"/></shape>", 5, "$y is not defined"),
         ("<shape type=\"sphere\"><float name=\"radius\" value=\"big\"/></shape>", 5, "'big' is not a number"),
         ("<emitter type=\"envmap\"/>", 5, "emitter 'envmap' is not supported yet"),
+        ("<emitter type=\"spot\"><float name=\"beam_width\" value=\"30\"/></emitter>", 5, "beam_width"),
         ("<texture type=\"bitmap\"/>", 5, "textures are not supported yet"),
         ("<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<texture name=\"reflectance\" type=\"bitmap\"/></bsdf></shape>", 7, "texture"),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
@@ -366,4 +367,14 @@ fn coverage_scenes_agree_with_mitsuba() {
         &[("width", "96"), ("height", "64")],
         method(Method::Pt, true, 2048),
     );
+    // Point, spot and directional lights (NEE's alone), and a lookat
+    // without an up, with a plain and a guided method.
+    for m in [Method::Pt, Method::Sarsa, Method::Neural] {
+        check(
+            "coverage-c",
+            &dir.join("coverage-c.xml"),
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
 }

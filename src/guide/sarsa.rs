@@ -94,7 +94,11 @@ pub fn bytes_per_volume(sectors: u32, lights: u32) -> u64 {
 /// on the Cornell box) and at most MAX_GUIDED_LIGHTS emitting triangles.
 pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
     let n = scene.lights.len();
-    if n > shaders::MAX_GUIDED_LIGHTS as usize || separate_lights(scene) < 2 {
+    // Delta lights are NEE's alone: the tables choose among triangles.
+    if !scene.delta_lights.is_empty()
+        || n > shaders::MAX_GUIDED_LIGHTS as usize
+        || separate_lights(scene) < 2
+    {
         return Vec::new();
     }
     scene.lights.iter().map(|l| l.pdf).collect()

@@ -38,6 +38,8 @@ pub struct GpuScene {
     pub lights: Buffer,
     /// Shading normals; one unused texel where the scene has none.
     pub normals: Buffer,
+    /// Point, spot and directional lights; one unused where none.
+    pub delta_lights: Buffer,
 }
 
 impl GpuScene {
@@ -47,7 +49,16 @@ impl GpuScene {
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
-            lights: Buffer::gpu_only_with(ctx, "lights", &scene.lights)?,
+            lights: Buffer::gpu_only_with(
+                ctx,
+                "lights",
+                &[&scene.lights[..], &scene.delta_entries[..]].concat(),
+            )?,
+            delta_lights: if scene.delta_lights.is_empty() {
+                Buffer::gpu_only_with(ctx, "delta lights", &[shaders::DeltaLight::default()])?
+            } else {
+                Buffer::gpu_only_with(ctx, "delta lights", &scene.delta_lights)?
+            },
             normals: if scene.normals.is_empty() {
                 Buffer::gpu_only_with(ctx, "shading normals", &[[0u32; 4]])?
             } else {
@@ -57,13 +68,14 @@ impl GpuScene {
     }
 
     /// Bindings every kernel that traces rays uses.
-    pub fn bindings(&self) -> [(u32, &Buffer); 5] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 6] {
         [
             (shaders::B_NODES, &self.nodes),
             (shaders::B_TRIANGLES, &self.triangles),
             (shaders::B_MATERIALS, &self.materials),
             (shaders::B_LIGHTS, &self.lights),
             (shaders::B_NORMALS, &self.normals),
+            (shaders::B_DELTA_LIGHTS, &self.delta_lights),
         ]
     }
 }
@@ -96,7 +108,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         seed: s.seed,
         max_depth: s.max_depth,
         flags,
-        light_count: scene.lights.len() as u32,
+        light_count: (scene.lights.len() + scene.delta_entries.len()) as u32,
         ..Default::default()
     }
 }
@@ -355,6 +367,7 @@ impl Renderer {
             PixelFilter::Gaussian { .. } => shaders::FILTER_GAUSSIAN,
         });
         constants.push(scene.material_features());
+        constants.push(!scene.delta_lights.is_empty() as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

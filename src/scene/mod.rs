@@ -245,6 +245,10 @@ pub struct Scene {
     /// empty where every triangle is shaded flat.
     pub normals: Vec<[u32; 4]>,
     pub lights: Vec<shaders::Light>,
+    /// Point, spot and directional lights, and their entries of NEE's light
+    /// list, which follow `lights` on the GPU (`LIGHT_DELTA | index`).
+    pub delta_lights: Vec<shaders::DeltaLight>,
+    pub delta_entries: Vec<shaders::Light>,
     pub nodes: Vec<shaders::BvhNode>,
     pub bvh_depth: u32,
     /// The box around every triangle.
@@ -406,6 +410,7 @@ impl Scene {
             environment,
             materials,
             geometry,
+            delta_lights,
         } = parts;
         let Geometry {
             positions,
@@ -471,7 +476,7 @@ impl Scene {
         let has_emitter = material_of
             .iter()
             .any(|&m| materials[m as usize].emission.max_element() > 0.0);
-        if !has_emitter && environment.max_element() <= 0.0 {
+        if !has_emitter && environment.max_element() <= 0.0 && delta_lights.is_empty() {
             return Err(SceneError::NoEmitter {
                 path: path.to_path_buf(),
             });
@@ -494,7 +499,7 @@ impl Scene {
                 }
             })
             .collect();
-        let lights = build_lights(&mut triangles, &materials);
+        let (lights, delta_entries) = build_lights(&mut triangles, &materials, &delta_lights);
         let normals = if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
             // Flat everywhere: the kernels shade with the faces' normals.
             Vec::new()
@@ -519,6 +524,8 @@ impl Scene {
             triangles,
             normals,
             lights,
+            delta_lights: delta_lights.into_iter().map(|(l, _)| l).collect(),
+            delta_entries,
             nodes: bvh.nodes,
             bvh_depth: bvh.depth,
             bounds: bvh.bounds,
@@ -553,6 +560,8 @@ struct Parts {
     environment: Vec3,
     materials: Vec<Material>,
     geometry: Geometry,
+    /// Lights only NEE reaches, each with its weight in NEE's choice.
+    delta_lights: Vec<(shaders::DeltaLight, f32)>,
 }
 
 /// A qtrace TOML scene and the OBJ/MTL it names.
@@ -615,6 +624,7 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         environment,
         materials,
         geometry,
+        delta_lights: Vec::new(),
     })
 }
 
@@ -689,11 +699,14 @@ pub fn ray_triangle(o: Vec3, d: Vec3, t: &shaders::Triangle) -> Option<f32> {
 }
 
 /// Emissive triangles, chosen for next-event estimation in proportion to
-/// area × luminance(Le); also stores each one's P(choose)/area on the triangle.
+/// area × luminance(Le), and the delta lights by their weights; also stores
+/// each triangle's P(choose)/area on it. The delta lights' entries follow
+/// the triangles' in the one list NEE draws from.
 fn build_lights(
     triangles: &mut [shaders::Triangle],
     materials: &[Material],
-) -> Vec<shaders::Light> {
+    delta: &[(shaders::DeltaLight, f32)],
+) -> (Vec<shaders::Light>, Vec<shaders::Light>) {
     let weights: Vec<(u32, f32)> = triangles
         .iter()
         .enumerate()
@@ -701,6 +714,12 @@ fn build_lights(
             let w = t.area * luminance(materials[t.material as usize].emission);
             (w > 0.0).then_some((i as u32, w))
         })
+        .chain(
+            delta
+                .iter()
+                .enumerate()
+                .map(|(i, &(_, w))| (shaders::LIGHT_DELTA | i as u32, w)),
+        )
         .collect();
     let total: f64 = weights.iter().map(|&(_, w)| w as f64).sum();
     let mut acc = 0.0f64;
@@ -708,7 +727,9 @@ fn build_lights(
     for &(i, w) in &weights {
         acc += w as f64;
         let pdf = (w as f64 / total) as f32;
-        triangles[i as usize].light_pdf = pdf / triangles[i as usize].area;
+        if i & shaders::LIGHT_DELTA == 0 {
+            triangles[i as usize].light_pdf = pdf / triangles[i as usize].area;
+        }
         lights.push(shaders::Light {
             triangle: i,
             cdf: (acc / total) as f32,
@@ -719,7 +740,9 @@ fn build_lights(
     if let Some(last) = lights.last_mut() {
         last.cdf = 1.0; // rounding must not leave a gap at the top
     }
-    lights
+    let first_delta = lights.len() - delta.len();
+    let delta_entries = lights.split_off(first_delta);
+    (lights, delta_entries)
 }
 
 /// Triangles with their materials, and where each came from (an index

@@ -33,6 +33,7 @@ pub(super) fn read(
         defaults: RenderDefaults::default(),
         filter: PixelFilter::Gaussian { stddev: 0.5 },
         max_depth: None,
+        delta_lights: Vec::new(),
     };
     for el in &elements {
         b.top_level(el)?;
@@ -44,7 +45,32 @@ pub(super) fn read(
         });
     };
     b.defaults.max_depth = b.max_depth;
+    // NEE picks a directional light by the power it sends into the scene:
+    // its irradiance over a disk as wide as the scene.
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in b.geometry.positions.iter().flatten() {
+        (lo, hi) = (lo.min(*p), hi.max(*p));
+    }
+    let radius = if lo.x <= hi.x {
+        0.5 * (hi - lo).length()
+    } else {
+        1.0
+    };
+    let delta_lights = b
+        .delta_lights
+        .iter()
+        .map(|&(light, power)| {
+            let directional = light.position[3] as u32 == crate::shaders::DELTA_DIRECTIONAL;
+            let w = if directional {
+                power * std::f32::consts::PI * radius * radius
+            } else {
+                power
+            };
+            (light, w.max(1e-30))
+        })
+        .collect();
     Ok(Parts {
+        delta_lights,
         camera,
         drop_degenerate: true,
         defaults: b.defaults,
@@ -84,6 +110,9 @@ struct Builder<'a, 'l> {
     defaults: RenderDefaults,
     filter: PixelFilter,
     max_depth: Option<u32>,
+    /// Point, spot and directional lights, each with its power (a
+    /// directional light's per unit area, scaled at the end).
+    delta_lights: Vec<(crate::shaders::DeltaLight, f32)>,
 }
 
 impl Builder<'_, '_> {
@@ -100,10 +129,7 @@ impl Builder<'_, '_> {
                 Ok(())
             }
             "shape" => self.shape(el),
-            "emitter" => Err(el.error(format!(
-                "{} is not supported yet: qtrace lights a scene with area emitters on shapes",
-                plugin_name(el)
-            ))),
+            "emitter" => self.emitter(el),
             "texture" => Err(el.error("textures are not supported yet")),
             "medium" | "phase" => Err(el.error(format!(
                 "{}: participating media are not supported",
@@ -113,6 +139,75 @@ impl Builder<'_, '_> {
                 "<{other}> is not supported at the top level of a scene (see docs/mitsuba.md)"
             ))),
         }
+    }
+
+    /// A light only NEE reaches: `point`, `spot` or `directional`.
+    fn emitter(&mut self, el: &Element) -> Result<(), SceneError> {
+        use crate::shaders::{DELTA_DIRECTIONAL, DELTA_POINT, DELTA_SPOT};
+        let kind = el.plugin()?;
+        let p = Props::new(el);
+        let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
+        let axis = to_world
+            .transform_vector3(Vec3::Z)
+            .try_normalize()
+            .ok_or_else(|| el.error("the emitter's to_world is singular"))?;
+        let mut light = crate::shaders::DeltaLight::default();
+        let luminance = crate::bsdf::luminance;
+        let power = match kind {
+            "point" | "spot" => {
+                let intensity = p.radiance("intensity")?.unwrap_or(Vec3::ONE);
+                let position = match p.point("position")? {
+                    Some(at) => at,
+                    None => to_world.transform_point3(Vec3::ZERO),
+                };
+                light.position = position.extend(if kind == "point" { DELTA_POINT } else { DELTA_SPOT } as f32).into();
+                if kind == "point" {
+                    light.intensity = intensity.extend(0.0).into();
+                    4.0 * std::f32::consts::PI * luminance(intensity)
+                } else {
+                    let cutoff = p.float_or("cutoff_angle", 20.0)?;
+                    let beam = p.float_or("beam_width", cutoff * 0.75)?;
+                    if !(cutoff > 0.0 && cutoff <= 90.0 && beam > 0.0 && beam < cutoff) {
+                        return Err(el.error(format!(
+                            "spot cutoff_angle {cutoff} and beam_width {beam}: need 0 < beam_width < cutoff_angle <= 90"
+                        )));
+                    }
+                    let (c, w) = (cutoff.to_radians(), beam.to_radians());
+                    light.intensity = intensity.extend(c.cos()).into();
+                    light.axis = axis.extend(w.cos()).into();
+                    light.falloff = [c, 1.0 / (c - w), 0.0, 0.0];
+                    2.0 * std::f32::consts::PI * (1.0 - c.cos()) * luminance(intensity)
+                }
+            }
+            "directional" => {
+                let irradiance = p.radiance("irradiance")?.unwrap_or(Vec3::ONE);
+                let direction = match p.point("direction")? {
+                    Some(d) => d
+                        .try_normalize()
+                        .ok_or_else(|| el.error("the directional light's direction is zero"))?,
+                    None => axis,
+                };
+                light.position = direction.extend(DELTA_DIRECTIONAL as f32).into();
+                light.intensity = irradiance.extend(0.0).into();
+                luminance(irradiance)
+            }
+            "constant" | "envmap" => {
+                return Err(el.error(format!(
+                    "emitter '{kind}' is not supported yet (light from the sky is the next issue)"
+                )))
+            }
+            other => {
+                return Err(el.error(format!(
+                    "emitter '{other}' is not supported; qtrace has area (on shapes), point, spot and directional"
+                )))
+            }
+        };
+        if light.intensity[..3].iter().any(|v| *v < 0.0) {
+            return Err(el.error("the emitter's intensity is negative"));
+        }
+        p.finish()?;
+        self.delta_lights.push((light, power));
+        Ok(())
     }
 
     fn integrator(&mut self, el: &Element) -> Result<(), SceneError> {

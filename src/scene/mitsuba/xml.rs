@@ -630,10 +630,14 @@ pub fn transform(el: &Element) -> Result<Mat4, SceneError> {
                 };
                 let origin = p("origin")?;
                 let target = p("target")?;
+                // Without an up, Mitsuba takes the first axis of its
+                // orthonormal basis around the view direction.
                 let up = if step.attr("up").is_some() {
                     p("up")?
                 } else {
-                    Vec3::Y
+                    (target - origin)
+                        .try_normalize()
+                        .map_or(Vec3::Y, |d| coordinate_system(d).0)
                 };
                 look_at(origin, target, up).ok_or_else(|| {
                     step.error("<lookat>: target equals origin, or up is parallel to the view")
@@ -651,6 +655,17 @@ pub fn transform(el: &Element) -> Result<Mat4, SceneError> {
         return Err(el.error("the transform is not finite"));
     }
     Ok(m)
+}
+
+/// Mitsuba's orthonormal basis around unit vector n (Duff et al. 2017).
+pub fn coordinate_system(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1.0f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(n.x * n.x * a * sign + 1.0, b * sign, -n.x * sign),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
 }
 
 /// Mitsuba's look-at: the camera's +z toward the target, +y up and +x to
