@@ -7,41 +7,14 @@ mod common;
 use qtrace::fuzz;
 use std::time::Duration;
 
-#[test]
-fn mutated_scenes_load_or_refuse_in_one_line() {
-    let corpus = fuzz::shipped(&common::repo("scenes")).unwrap();
-    assert!(corpus.len() >= 5);
+/// `inputs` mutants of `corpus` from `seed`: no panic, none slow, every
+/// error one line; at least `each` load and `each` are refused, so the
+/// mutants reach past the parsers.
+fn assert_mutants_hold(corpus: &[fuzz::Corpus], seed: u64, inputs: usize, each: usize) {
     let report = fuzz::run(
-        &corpus,
-        7,
-        50_000,
-        fuzz::MAX_TRIANGLES,
-        Duration::from_secs(2),
-        &mut |_, _| None,
-    );
-    let what: Vec<String> = report
-        .findings
-        .iter()
-        .map(|f| format!("input {}: {}", f.input, f.what))
-        .collect();
-    assert!(what.is_empty(), "{what:#?}");
-    assert_eq!(report.multiline, 0);
-    // The mutants reach past the parsers: some load, most are refused.
-    assert!(report.loaded > 1000 && report.refused > 1000, "{report:?}");
-}
-
-/// The same for Mitsuba XML scenes and their OBJ, PLY and serialized meshes.
-#[test]
-fn mutated_mitsuba_scenes_load_or_refuse_in_one_line() {
-    let scenes: Vec<_> = fuzz::mitsuba_scenes()
-        .iter()
-        .map(|p| common::repo(&p.to_string_lossy()))
-        .collect();
-    let corpus = fuzz::mitsuba(&scenes).unwrap();
-    let report = fuzz::run(
-        &corpus,
-        11,
-        3_000,
+        corpus,
+        seed,
+        inputs,
         fuzz::MAX_TRIANGLES,
         Duration::from_secs(2),
         &mut |_, _| None,
@@ -53,5 +26,22 @@ fn mutated_mitsuba_scenes_load_or_refuse_in_one_line() {
         .collect();
     assert!(what.is_empty(), "{what:#?}");
     assert_eq!(report.multiline, 0, "{:?}", report.multiline_example);
-    assert!(report.loaded > 100 && report.refused > 100, "{report:?}");
+    assert!(report.loaded > each && report.refused > each, "{report:?}");
+}
+
+#[test]
+fn mutated_scenes_load_or_refuse_in_one_line() {
+    let corpus = fuzz::shipped(&common::repo("scenes")).unwrap();
+    assert!(corpus.len() >= 5);
+    assert_mutants_hold(&corpus, 7, 50_000, 1000);
+}
+
+/// The same for Mitsuba XML scenes and their OBJ, PLY and serialized meshes.
+#[test]
+fn mutated_mitsuba_scenes_load_or_refuse_in_one_line() {
+    let scenes: Vec<_> = fuzz::mitsuba_scenes()
+        .iter()
+        .map(|p| common::repo(&p.to_string_lossy()))
+        .collect();
+    assert_mutants_hold(&fuzz::mitsuba(&scenes).unwrap(), 11, 3_000, 100);
 }

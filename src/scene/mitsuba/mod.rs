@@ -578,15 +578,10 @@ impl Builder<'_, '_> {
         to_world: Mat4,
         face_normals: bool,
     ) -> Result<Mesh, SceneError> {
-        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
-        let text = self
-            .loader
-            .text(&path)
-            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
-        let budget = self
-            .loader
-            .max_triangles
-            .saturating_sub(self.geometry.positions.len());
+        let (path, bytes) = self.mesh_file(el, name)?;
+        let text = String::from_utf8(bytes)
+            .map_err(|_| el.error(format!("the mesh '{name}' is not UTF-8 text")))?;
+        let budget = self.triangle_budget();
         // The XML gives the materials; an OBJ's own MTL is not read.
         let parsed = obj::parse_obj(&text, budget, &mut |_| Ok(String::new())).map_err(|e| {
             SceneError::Obj {
