@@ -1,4 +1,4 @@
-//! The scene TOML format (SPEC §3). Unknown keys are an error.
+//! The scene TOML format (README.md, "Scenes"). Unknown keys are an error.
 
 use serde::{Deserialize, Serialize};
 

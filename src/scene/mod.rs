@@ -869,7 +869,7 @@ impl Default for Loader<'_> {
     }
 }
 
-/// The surface an MTL material describes (SPEC §3, "Materials"): glass for
+/// The surface an MTL material describes (README.md, "Scenes"): glass for
 /// `d 0` with `Ni` > 1, a conductor for `Pm 1`, else diffuse. Keys the
 /// chosen surface does not use draw one warning per material; values out of
 /// range are errors naming the file and the material.
@@ -945,7 +945,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     ignored.dedup();
     if !ignored.is_empty() {
         log::warn!(
-            "{}: material '{}' ({}): ignoring {} (see SPEC §3, \"Materials\")",
+            "{}: material '{}' ({}): ignoring {} (see README.md, \"Scenes\")",
             obj_path.display(),
             m.name,
             surface.name(),
