@@ -17,22 +17,25 @@ float luminance(vec3 c) {
 // without the other lobes, whose code costs on lavapipe even when no lane
 // takes it (measured: 10-40% of a trace pass on the diffuse scenes).
 layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
-// The conductors' options some material of the scene uses (MATERIAL_BECKMANN,
-// MATERIAL_FRESNEL); the code of the others is left out.
+// The lobes' options some material of the scene uses (MATERIAL_BECKMANN,
+// MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
 layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
-    MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC;
+    MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
+    FEATURE_ROUGH_PLASTIC;
 
 // A material's scattering at a surface point, seen from one side
 // (SPEC 3, "Materials").
 struct Bsdf {
     uint kind;   // MATERIAL_*
     vec3 color;  // Kd, Ks or Tf
-    float alpha; // conductor: alpha, 0 for a mirror
+    float alpha; // conductor, dielectric, plastic: alpha, 0 when smooth
     float eta;   // dielectric: index beyond the surface / index on the path's side;
                  // plastic: its coat's relative index
-    uint flags;  // conductor: MATERIAL_BECKMANN, MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
+    uint flags;  // MATERIAL_BECKMANN; conductor: MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
     vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
-    vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, 0)
+    vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, alpha);
+                  // rough glass: its reflection's tint (ior_eta)
+    uint table;  // rough plastic: the word its transmittance table begins at
 };
 
 // The BSDF of material m for a path arriving on the side the triangle's
@@ -41,18 +44,19 @@ Bsdf bsdf_of(Material m, bool front) {
     uint code = uint(m.color.w);
     uint kind = code & (MATERIAL_ONE_SIDED - 1u);
     float p = m.emission.w;
-    float alpha = kind == MATERIAL_CONDUCTOR && p > 0.0 ? max(p, MIN_ALPHA) : 0.0;
+    float rough = kind == MATERIAL_CONDUCTOR ? p : kind == MATERIAL_DIELECTRIC || kind == MATERIAL_PLASTIC ? m.k.z : 0.0;
+    float alpha = rough > 0.0 ? max(rough, MIN_ALPHA) : 0.0;
     bool black = (code & MATERIAL_ONE_SIDED) != 0u && !front;
     vec3 color = black ? vec3(0.0) : m.color.rgb;
     // A plastic's coat, and a thin sheet, look the same from either side.
     float eta = front || kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? p : 1.0 / p;
     vec3 specular = black ? vec3(0.0) : m.eta.rgb;
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
-                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb);
+                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w));
 }
 
 Bsdf bsdf_diffuse(vec3 albedo) {
-    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0));
+    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
 }
 
 // Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
@@ -65,11 +69,34 @@ bool bsdf_plastic(Bsdf bsdf) {
     return (MATERIAL_FEATURES & FEATURE_PLASTIC) != 0u && bsdf_is(bsdf, MATERIAL_PLASTIC);
 }
 
+// Whether the BSDF is a rough glass; a constant false where the scene has none.
+bool bsdf_rough_glass(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_ROUGH_GLASS) != 0u && bsdf_is(bsdf, MATERIAL_DIELECTRIC) && bsdf.alpha > 0.0;
+}
+
+// Whether the BSDF is a rough plastic; a constant false where the scene has none.
+bool bsdf_rough_plastic(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_ROUGH_PLASTIC) != 0u && bsdf_plastic(bsdf) && bsdf.alpha > 0.0;
+}
+
+// Whether the BSDF is a plastic under a smooth coat, whose coat is a delta lobe.
+bool bsdf_smooth_plastic(Bsdf bsdf) {
+    return bsdf_plastic(bsdf) && !bsdf_rough_plastic(bsdf);
+}
+
 // Whether the BSDF is a delta distribution (a mirror, smooth glass): such a
 // vertex samples with bsdf_sample_delta and skips NEE and guiding.
 bool bsdf_is_delta(Bsdf bsdf) {
-    return bsdf_is(bsdf, MATERIAL_DIELECTRIC) || bsdf_is(bsdf, MATERIAL_THIN) ||
+    return (bsdf_is(bsdf, MATERIAL_DIELECTRIC) && !bsdf_rough_glass(bsdf)) || bsdf_is(bsdf, MATERIAL_THIN) ||
            (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha == 0.0);
+}
+
+// Whether the BSDF sends light through the surface without a delta lobe
+// (rough glass): its directions below the surface are sampled, evaluated
+// and reached by NEE; the guides, whose sectors cover the side the path
+// arrives on, do not sample there.
+bool bsdf_transmits(Bsdf bsdf) {
+    return bsdf_rough_glass(bsdf);
 }
 
 // GGX normal distribution, written without the cancellation of
@@ -109,8 +136,89 @@ float microfacet_d(Bsdf bsdf, vec3 h) {
     return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) : ggx_d(bsdf.alpha, h);
 }
 
+// Smith's masking for a direction on either side (by its angle to the normal).
 float microfacet_g1(Bsdf bsdf, vec3 w) {
+    w.z = abs(w.z);
     return bsdf_beckmann(bsdf) ? beckmann_g1(bsdf.alpha, w) : ggx_g1(bsdf.alpha, w);
+}
+
+// A microfacet normal for a path arriving from wo: GGX draws the normals wo
+// sees (spherical caps, Dupuy & Benyoub 2023), Beckmann all of them by
+// D(m) m.z.
+vec3 microfacet_sample(Bsdf bsdf, vec3 wo, vec2 u) {
+    float alpha = bsdf.alpha;
+    if (bsdf_beckmann(bsdf)) {
+        float tan2 = -alpha * alpha * log(max(1.0 - u.x, 1e-30));
+        float c = inversesqrt(1.0 + tan2);
+        float s = sqrt(max(1.0 - c * c, 0.0));
+        float phi = 2.0 * PI * u.y;
+        return vec3(s * cos(phi), s * sin(phi), c);
+    }
+    vec3 wh = normalize(vec3(alpha * wo.xy, wo.z));
+    float phi = 2.0 * PI * u.x;
+    float z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
+    float s = sqrt(max(1.0 - z * z, 0.0));
+    vec3 h = vec3(s * cos(phi), s * sin(phi), z) + wh;
+    return normalize(vec3(alpha * h.xy, max(h.z, 0.0)));
+}
+
+// The density of microfacet_sample drawing m: GGX's visible normals
+// G1(wo) (wo.m) D(m) / wo.z, Beckmann's D(m) m.z.
+float microfacet_sample_pdf(Bsdf bsdf, vec3 wo, vec3 m) {
+    return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, m) * m.z
+                               : ggx_g1(bsdf.alpha, wo) * max(dot(wo, m), 0.0) * ggx_d(bsdf.alpha, m) / wo.z;
+}
+
+// wo mirrored about m; below the horizon (pdf 0) where wo does not see m.
+vec3 microfacet_reflect(vec3 wo, vec3 m) {
+    return dot(wo, m) > 0.0 ? 2.0 * dot(wo, m) * m - wo : vec3(0.0, 0.0, -1.0);
+}
+
+// A rough plastic's coat transmittance at cos, from its table (linear, as
+// Mitsuba's lerp_gather). Kernels without the scene's buffers meet no
+// material.
+#ifdef QTRACE_SCENE_GLSL
+float rough_table(uint word, uint i) {
+    return uintBitsToFloat(FETCH(material_texels, int(word + i / 4u))[i % 4u]);
+}
+#else
+float rough_table(uint word, uint i) {
+    return 1.0;
+}
+#endif
+
+float rough_transmittance(Bsdf bsdf, float cos) {
+    float x = clamp(cos, 0.0, 1.0) * float(ROUGH_TABLE_SIZE - 1);
+    uint i = min(uint(x), uint(ROUGH_TABLE_SIZE - 2));
+    return mix(rough_table(bsdf.table, i), rough_table(bsdf.table, i + 1u), x - float(i));
+}
+
+// A rough plastic's probability of sampling its coat rather than its base
+// (Mitsuba's choice: the coat's reflectance at wo against the base's
+// transmittance, weighted by their mean colours).
+float rough_coat_share(Bsdf bsdf, vec3 wo) {
+    float t = rough_transmittance(bsdf, wo.z);
+    float w = bsdf.ior_k.y;
+    float s = (1.0 - t) * w;
+    float d = t * (1.0 - w);
+    return s + d > 0.0 ? s / (s + d) : 0.0;
+}
+
+// The microfacet normal (on wo's side) that takes wo to wi across a rough
+// interface of relative index eta, in xyz, and in w 1 for a reflection, 0
+// for a refraction; w -1 where wo or wi sees that normal from behind
+// (Smith's masking 0).
+vec4 rough_glass_half(vec3 wo, vec3 wi, float eta) {
+    bool reflect = wi.z > 0.0;
+    vec3 h = reflect ? wo + wi : wo + eta * wi;
+    h = h.z < 0.0 ? -h : h;
+    float l = length(h);
+    if (wo.z <= 0.0 || wi.z == 0.0 || !(l > 0.0)) {
+        return vec4(0.0, 0.0, 1.0, -1.0);
+    }
+    h /= l;
+    bool ok = dot(wo, h) > 0.0 && (dot(wi, h) > 0.0) == reflect;
+    return vec4(h, ok ? (reflect ? 1.0 : 0.0) : -1.0);
 }
 
 // Fresnel reflectance of a conductor of complex index eta + i k for
@@ -181,7 +289,7 @@ vec3 plastic_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
 // bsdf_sample, bsdf_pdf and bsdf_eval are the others', bsdf_pdf conditional
 // on not taking it.
 float bsdf_delta_share(Bsdf bsdf, vec3 wo) {
-    if (bsdf_plastic(bsdf)) {
+    if (bsdf_smooth_plastic(bsdf)) {
         float f = fresnel_dielectric(wo.z, bsdf.eta);
         float w = bsdf.ior_k.y;
         float s = f * w;
@@ -193,11 +301,37 @@ float bsdf_delta_share(Bsdf bsdf, vec3 wo) {
 
 // f_s(wo, wi) cos(theta_i); zero for delta lobes.
 vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    if (bsdf_rough_glass(bsdf)) {
+        vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
+        if (hr.w < 0.0) {
+            return vec3(0.0);
+        }
+        vec3 h = hr.xyz;
+        float oh = dot(wo, h);
+        float ih = dot(wi, h);
+        float f = fresnel_dielectric(oh, bsdf.eta);
+        float dg = microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi);
+        if (hr.w > 0.0) {
+            return bsdf.ior_eta * (f * dg / (4.0 * wo.z));
+        }
+        float denom = oh + bsdf.eta * ih;
+        return bsdf.color * ((1.0 - f) * dg * abs(oh * ih) / (wo.z * denom * denom));
+    }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return vec3(0.0);
     }
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf.color * (INV_PI * wi.z);
+    }
+    if (bsdf_rough_plastic(bsdf)) {
+        vec3 h = normalize(wo + wi);
+        vec3 coat = bsdf.ior_eta * (fresnel_dielectric(dot(wo, h), bsdf.eta) * microfacet_d(bsdf, h) *
+                                    microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi) / (4.0 * wo.z));
+        bool nonlinear = (MATERIAL_FEATURES & MATERIAL_NONLINEAR) != 0u && (bsdf.flags & MATERIAL_NONLINEAR) != 0u;
+        float fdr = bsdf.ior_k.x;
+        vec3 inside = nonlinear ? 1.0 - bsdf.color * fdr : vec3(1.0 - fdr);
+        float through = rough_transmittance(bsdf, wo.z) * rough_transmittance(bsdf, wi.z);
+        return coat + bsdf.color / inside * (INV_PI * wi.z / (bsdf.eta * bsdf.eta) * through);
     }
     if (bsdf_plastic(bsdf)) {
         return plastic_eval(bsdf, wo, wi);
@@ -216,61 +350,76 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
 // D_wo(h) / (4 wo.h) with D_wo(h) = G1(wo) (wo.h) D(h) / wo.z; a Beckmann
 // conductor all its normals: D(h) h.z / (4 wo.h).
 float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
+    if (bsdf_rough_glass(bsdf)) {
+        vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
+        if (hr.w < 0.0) {
+            return 0.0;
+        }
+        float oh = dot(wo, hr.xyz);
+        float ih = dot(wi, hr.xyz);
+        float f = fresnel_dielectric(oh, bsdf.eta);
+        float m = microfacet_sample_pdf(bsdf, wo, hr.xyz);
+        if (hr.w > 0.0) {
+            return f * m / (4.0 * oh);
+        }
+        float denom = oh + bsdf.eta * ih;
+        return (1.0 - f) * m * bsdf.eta * bsdf.eta * abs(ih) / (denom * denom);
+    }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
     }
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return (params.flags & FLAG_UNIFORM) != 0u ? 0.5 * INV_PI : wi.z * INV_PI;
     }
+    if (bsdf_rough_plastic(bsdf)) {
+        float share = rough_coat_share(bsdf, wo);
+        vec3 h = normalize(wo + wi);
+        return share * microfacet_sample_pdf(bsdf, wo, h) / (4.0 * dot(wo, h)) + (1.0 - share) * wi.z * INV_PI;
+    }
     if (bsdf_plastic(bsdf)) {
         return wi.z * INV_PI;
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
+        // The normal's density over the reflection's Jacobian 4 wo.h.
         vec3 h = normalize(wo + wi);
-        return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) * h.z / (4.0 * dot(wo, h))
-                                   : ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
+        return microfacet_sample_pdf(bsdf, wo, h) / (4.0 * dot(wo, h));
     }
     return 0.0;
 }
 
-// A direction wi from two uniform numbers u; bsdf_pdf gives its density
-// (zero, for a rough conductor, where it falls below the horizon). Also sets
-// `square` to wi's point of the equal-area square (the guides' sector grid),
-// which samplers built on the concentric map know without inverting it
+// A direction wi from three uniform numbers u; bsdf_pdf gives its density
+// (zero, for a rough lobe, where it falls below the horizon). u.z picks a
+// rough plastic's lobe, or rough glass's reflection against refraction.
+// Also sets `square` to wi's point of the equal-area square (the guides'
+// sector grid; the mirrored direction's for one below), which samplers
+// built on the concentric map know without inverting it
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
-vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec2 u, out vec2 square) {
-    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf_beckmann(bsdf)) {
-        float tan2 = -bsdf.alpha * bsdf.alpha * log(max(1.0 - u.x, 1e-30));
-        float c = inversesqrt(1.0 + tan2);
-        float s = sqrt(max(1.0 - c * c, 0.0));
-        float phi = 2.0 * PI * u.y;
-        vec3 m = vec3(s * cos(phi), s * sin(phi), c);
-        // Below the horizon (pdf 0) where wo does not see m.
-        vec3 wi = dot(wo, m) > 0.0 ? 2.0 * dot(wo, m) * m - wo : vec3(0.0, 0.0, -1.0);
-        square = hemisphere_to_square(wi);
-        return wi;
-    }
-    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR)) {
-        // Visible normals by spherical caps (Dupuy & Benyoub 2023).
-        float alpha = bsdf.alpha;
-        vec3 wh = normalize(vec3(alpha * wo.xy, wo.z));
-        float phi = 2.0 * PI * u.x;
-        float z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
-        float s = sqrt(max(1.0 - z * z, 0.0));
-        vec3 h = vec3(s * cos(phi), s * sin(phi), z) + wh;
-        vec3 m = normalize(vec3(alpha * h.xy, max(h.z, 0.0)));
-        vec3 wi = 2.0 * dot(wo, m) * m - wo;
-        square = hemisphere_to_square(wi);
+vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
+    bool coat = bsdf_rough_plastic(bsdf) && u.z < rough_coat_share(bsdf, wo);
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || bsdf_rough_glass(bsdf)) {
+        vec3 m = microfacet_sample(bsdf, wo, u.xy);
+        vec3 wi = microfacet_reflect(wo, m);
+        if (bsdf_rough_glass(bsdf)) {
+            // Reflect with the Fresnel probability, else refract; no
+            // direction (pdf 0) where either leaves on the wrong side.
+            float c = dot(wo, m);
+            float cos_t;
+            float f = fresnel_dielectric(max(c, 0.0), bsdf.eta, cos_t);
+            bool reflect = u.z < f;
+            wi = reflect ? 2.0 * c * m - wo : -wo / bsdf.eta + (c / bsdf.eta - cos_t) * m;
+            wi = c > 0.0 && (wi.z > 0.0) == reflect ? wi : vec3(0.0);
+        }
+        square = hemisphere_to_square(wi.z == 0.0 ? vec3(0.0, 0.0, 1.0) : vec3(wi.xy, abs(wi.z)));
         return wi;
     }
     if ((params.flags & FLAG_UNIFORM) != 0u && !bsdf_plastic(bsdf)) {
-        square = u;
-        return square_to_hemisphere(u);
+        square = u.xy;
+        return square_to_hemisphere(u.xy);
     }
     // Malley's method keeps the concentric map's angle, so the equal-area
     // point is the disk's square point scaled by 1 / sqrt(1 + z).
-    vec3 wi = sample_cosine(u);
-    square = 0.5 + (u - 0.5) / sqrt(1.0 + wi.z);
+    vec3 wi = sample_cosine(u.xy);
+    square = 0.5 + (u.xy - 0.5) / sqrt(1.0 + wi.z);
     return wi;
 }
 

@@ -83,7 +83,10 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
     // Both sides are worked out (lavapipe runs both sides of a branch
     // anyway), so that one read of the guide's table serves either.
     vec2 square;
-    vec3 wi = bsdf_sample(bsdf, wo, u.xy, square);
+    // Where BSDF sampling is chosen, u.z / eps is uniform again: it picks
+    // among the lobes.
+    float lobe_u = guide_covers(g) ? min(u.z / max(eps, 1e-30), 0.99999994) : u.z;
+    vec3 wi = bsdf_sample(bsdf, wo, vec3(u.xy, lobe_u), square);
     sector = square_sector(square, a, b);
     p_sector = 0.0;
     if (guide_covers(g)) {
@@ -121,7 +124,7 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 // there: the target a transition that reached g learns (SPEC 4.2, 4.3:
 // (2 pi / n) sum_j Q_j f_s(w_j, wo) cos(theta_j)).
 // - Diffuse: exact, from the guide's irradiance-like sum.
-// - Rough conductor: 0 here; trace.comp estimates it from the bounce's own
+// - Rough conductor and rough plastic: 0 here; trace.comp estimates it from the bounce's own
 //   direction (Q of its sector times f cos / pdf), where a sample of its
 //   own would cost a second lobe sample, evaluation and table read. (A sum
 //   over all sectors would miss a lobe narrower than a sector and cost n
@@ -129,7 +132,8 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 // - Mirror: its reflectance times Q of the mirrored direction's sector.
 // - Plastic: its coat's mirror so, and its base as a diffuse lobe.
 // - Thin sheet: its reflection so; what it lets through as glass's.
-// - Glass: the Fresnel share of the mirrored direction's Q; the transmitted
+// - Glass, smooth or rough (as if smooth): the Fresnel share of the
+//   mirrored direction's Q; the transmitted
 //   share sees the other side, of which the guide at g knows nothing, so it
 //   takes the cosine-weighted mean of g's Q instead.
 //   A transition into a delta vertex learns from the path beyond it instead
@@ -140,13 +144,13 @@ float guide_reflect(GuideVertex g, Bsdf bsdf, vec3 wo) {
     if (bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         return bsdf_reflect(bsdf, wo, guide_irradiance(g));
     }
-    if (!bsdf_is_delta(bsdf) && !bsdf_plastic(bsdf)) {
+    if (!bsdf_is_delta(bsdf) && !bsdf_smooth_plastic(bsdf) && !bsdf_rough_glass(bsdf)) {
         return 0.0;
     }
     uint a = grid_a();
     uint b = grid_b();
     float mirrored = guide_sector_q(g, hemisphere_sector(vec3(-wo.xy, wo.z), a, b));
-    if (bsdf_plastic(bsdf)) {
+    if (bsdf_smooth_plastic(bsdf)) {
         // The coat's mirror, and the base through it (the way out's
         // Fresnel loss left out).
         float f = fresnel_dielectric(wo.z, bsdf.eta);

@@ -58,7 +58,7 @@ void main() {
             probe_out[params.item_count + i] = vec4(weight, 0.0);
         } else {
             vec2 square;
-            vec3 wi = bsdf_sample(bsdf, wo, u.xy, square);
+            vec3 wi = bsdf_sample(bsdf, wo, u, square);
             probe_out[i] = vec4(wi, bsdf_pdf(bsdf, wo, wi));
             probe_out[params.item_count + i] = vec4(bsdf_eval(bsdf, wo, wi), bsdf_reflect(bsdf, wo, 1.0));
         }

@@ -222,11 +222,17 @@ struct Triangle {
 // Material kinds (SPEC 3, "Materials"), in Material.color.w.
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
+// A dielectric of index emission.w; rough (Mitsuba's roughdielectric) where
+// k.z, its alpha, is above 0, eta.rgb then tinting its reflection.
 #define MATERIAL_DIELECTRIC 2
 // Mitsuba's plastic: a diffuse base (color) under a smooth coat of relative
 // index emission.w; eta.rgb is its specular reflectance, k.x the coat's
 // internal diffuse reflectance, k.y the specular lobe's sampling weight.
+// Rough (roughplastic) where k.z, its alpha, is above 0: k.w is then the
+// word of the materials' buffer where its coat's transmittance table
+// (ROUGH_TABLE_SIZE floats, after the materials) begins.
 #define MATERIAL_PLASTIC 3
+#define ROUGH_TABLE_SIZE 64
 // Mitsuba's thindielectric: a thin sheet of relative index emission.w that
 // reflects (eta.rgb tints) or lets light straight through (color tints),
 // its inner reflections summed.
@@ -234,15 +240,18 @@ struct Triangle {
 // Added to the kind: the material is black on the side its triangle's
 // normal does not face (Mitsuba's BSDFs outside `twosided`).
 #define MATERIAL_ONE_SIDED 8
-// Added to a conductor's kind: Beckmann's distribution instead of GGX's,
-// and a Fresnel term of complex index eta + i k.
+// Added to a rough lobe's kind: Beckmann's distribution instead of GGX's;
+// to a conductor's: a Fresnel term of complex index eta + i k.
 #define MATERIAL_BECKMANN 16
 #define MATERIAL_FRESNEL 32
 // Added to a plastic's kind: its internal scattering per colour (Mitsuba's
 // `nonlinear`).
 #define MATERIAL_NONLINEAR 64
-// In SPEC_MATERIAL_FEATURES only: the scene has a plastic.
+// In SPEC_MATERIAL_FEATURES only: the scene has a plastic, a rough glass,
+// a rough plastic.
 #define FEATURE_PLASTIC 128
+#define FEATURE_ROUGH_GLASS 256
+#define FEATURE_ROUGH_PLASTIC 512
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define SPEC_NON_DIFFUSE 4

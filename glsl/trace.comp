@@ -350,14 +350,21 @@ bool scatter() {
     }
     Bsdf bsdf = bsdf_of(mat, front);
     bool delta = bsdf_is_delta(bsdf);
+    // Rough glass: sampled and reached by NEE on both sides, not guided.
+    bool transmits = bsdf_transmits(bsdf);
     vec3 t;
     vec3 b;
     make_frame(ns, t, b);
     vec3 wo = vec3(-dot(dir, t), -dot(dir, b), SHADING_NORMALS ? -dot(dir, ns) : abs(cos_out));
 #ifdef GUIDED
-    // A delta vertex is never guided: unless it learns, the guide's lookup
-    // there (a network inference, for neural) would only tune the roulette.
-    GuideVertex here = delta && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ng, cos_out > 0.0);
+    // A delta vertex or rough glass is never guided: unless it learns, the
+    // guide's lookup there (a network inference, for neural) would only tune
+    // the roulette. Its bounces learn as a delta vertex's (chaining).
+    bool unguided = delta || transmits;
+    GuideVertex here = unguided && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ng, cos_out > 0.0);
+    // What the bounce and NEE's MIS sample from: BSDF sampling alone where
+    // the guide does not sample.
+    GuideVertex sampled_from = transmits ? guide_none() : here;
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn).
 #ifdef FROZEN
@@ -368,7 +375,7 @@ bool scatter() {
 #else
     // A glossy lobe's (0 here) is estimated from the bounce's own direction
     // below.
-    bool glossy = !delta && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_plastic(bsdf);
+    bool glossy = !unguided && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
     float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo) : 0.0;
 #endif
     if (depth == 0u) {
@@ -430,15 +437,26 @@ bool scatter() {
             le = load_material(lt.material).emission.rgb;
         }
         float cos_x = dot(ns, wi);
-        if (cos_x > 0.0 && faces) {
+        if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {
             rays += 1u;
             // A direction the shading normal allows may lie below the
-            // geometric surface: the shadow ray then leaves from beneath.
-            vec3 from = SHADING_NORMALS && dot(wi, ng) < 0.0 ? surface_point - ng * eps : position;
-            if (!occluded(from, wi, dist * (1.0 - 1e-4) - eps)) {
+            // geometric surface, as rough glass's transmission does: the
+            // shadow ray then leaves from beneath.
+            // It aims at the light's point from there (a directional
+            // light's direction stays).
+            vec3 from = position;
+            vec3 shadow_dir = wi;
+            float reach = dist;
+            if ((SHADING_NORMALS || transmits) && dot(wi, ng) < 0.0) {
+                from = surface_point - ng * eps;
+                vec3 to = position + wi * dist - from;
+                reach = dist < 1e30 ? length(to) : dist;
+                shadow_dir = dist < 1e30 ? to / reach : wi;
+            }
+            if (!occluded(from, shadow_dir, reach * (1.0 - 1e-4) - eps)) {
                 vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
 #ifdef GUIDED
-                float scatter_pdf = mixture_pdf(here, bsdf, wo, wi_local);
+                float scatter_pdf = mixture_pdf(sampled_from, bsdf, wo, wi_local);
 #else
                 float scatter_pdf = bsdf_pdf(bsdf, wo, wi_local);
 #endif
@@ -462,7 +480,7 @@ bool scatter() {
     }
 #ifdef GUIDED
     if (learn) {
-        if (delta && (chaining || guide_covers(prev_vertex))) {
+        if (unguided && (chaining || guide_covers(prev_vertex))) {
             pass_through_delta();
         } else {
             land(0.0, 1.0, reflected, direct_lum);
@@ -482,10 +500,48 @@ bool scatter() {
     // find it); else its base, of density (1 - share) times the sampler's.
     float delta_share = bsdf_delta_share(bsdf, wo);
     bool take_delta = delta || (delta_share > 0.0 && rng_next(rng) < delta_share);
+#ifdef GUIDED
+    uint sector = 0u;
+    float p_sector = 0.0;
+#endif
     if (take_delta) {
         local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
         weight /= delta ? 1.0 : delta_share;
+    } else {
 #ifdef GUIDED
+        local = mixture_sample(sampled_from, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+        pdf = mixture_pdf_in(sampled_from, bsdf, wo, local, p_sector);
+#else
+        vec2 square;
+        // The third number picks a rough lobe; drawn only where there is one.
+        bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC)) != 0u;
+        local = bsdf_sample(bsdf, wo, vec3(rng_next2(rng), rough ? rng_next(rng) : 0.0), square);
+        pdf = bsdf_pdf(bsdf, wo, local);
+#endif
+        pdf *= 1.0 - delta_share;
+        if (pdf <= 0.0) {
+            return false;
+        }
+        weight = bsdf_eval(bsdf, wo, local) / pdf;
+#if defined(GUIDED) && !defined(FROZEN)
+        mix = learn ? mixture_gradient(sampled_from, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
+        if (glossy && (learn || depth == 0u)) {
+            // What a glossy lobe reflects of the light the guide expects,
+            // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
+            // the mixture's own draw, Q of its sector times f cos / pdf
+            // (unbiased for Q constant over each sector). Q itself, not the
+            // sampling table's weight (prev_q), which with NEE leaves out
+            // NEE's share.
+            float estimate = luminance(weight) * guide_sector_q(here, sector);
+            land_reflected = estimate * land_scale;
+            if (depth == 0u) {
+                path_estimate = estimate;
+            }
+        }
+#endif
+    }
+#ifdef GUIDED
+    if (take_delta || transmits) {
         // Guides learn along reflections, which stay in this vertex's
         // hemisphere, and do not sample here.
         bool up = local.z > 0.0;
@@ -509,44 +565,13 @@ bool scatter() {
         }
 #endif
         prev_vertex = up ? here : guide_none();
-#endif
     } else {
-#ifdef GUIDED
-        uint sector;
-        float p_sector;
-        local = mixture_sample(here, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
-        pdf = mixture_pdf_in(here, bsdf, wo, local, p_sector);
         prev_vertex = here;
         prev_sector = sector;
         prev_q = guide_q(here, sector, p_sector);
         guided_roulette = guide_covers(here);
-#else
-        vec2 square;
-        local = bsdf_sample(bsdf, wo, rng_next2(rng), square);
-        pdf = bsdf_pdf(bsdf, wo, local);
-#endif
-        pdf *= 1.0 - delta_share;
-        if (pdf <= 0.0) {
-            return false;
-        }
-        weight = bsdf_eval(bsdf, wo, local) / pdf;
-#if defined(GUIDED) && !defined(FROZEN)
-        mix = learn ? mixture_gradient(here, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
-        if (glossy && (learn || depth == 0u)) {
-            // What a glossy lobe reflects of the light the guide expects,
-            // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
-            // the mixture's own draw, Q of its sector times f cos / pdf
-            // (unbiased for Q constant over each sector). Q itself, not the
-            // sampling table's weight (prev_q), which with NEE leaves out
-            // NEE's share.
-            float estimate = luminance(weight) * guide_sector_q(here, sector);
-            land_reflected = estimate * land_scale;
-            if (depth == 0u) {
-                path_estimate = estimate;
-            }
-        }
-#endif
     }
+#endif
     throughput *= weight;
     prev_bsdf_pdf = pdf;
     dir = normalize(local.x * t + local.y * b + local.z * ns);

@@ -237,6 +237,8 @@ const LINES: &[&str] = &[
     "<default name=\"res\" value=\"$res\"/>",
     "<bsdf type=\"twosided\" id=\"x\"><bsdf type=\"twosided\"/></bsdf>",
     "<ref id=\"x\"/>",
+    "<bsdf type=\"roughdielectric\"><float name=\"alpha\" value=\"1e-30\"/></bsdf>",
+    "<bsdf type=\"roughplastic\"><float name=\"int_ior\" value=\"1e30\"/></bsdf>",
     "<transform name=\"to_world\"><scale value=\"0\"/></transform>",
     "<transform name=\"to_world\"><lookat origin=\"0,0,0\" target=\"0,0,0\"/></transform>",
     "<emitter type=\"area\"><rgb name=\"radiance\" value=\"1e39\"/></emitter>",

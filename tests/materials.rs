@@ -66,7 +66,7 @@ fn albedo(surface: Surface, wo: Vec3) -> f32 {
     for i in 0..n {
         for j in 0..n {
             let u = Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
-            if let Some((wi, _)) = bsdf.sample(wo, u) {
+            if let Some((wi, _)) = bsdf.sample(wo, u.extend(0.5)) {
                 sum += (bsdf.eval(wo, wi).x / bsdf.pdf(wo, wi)) as f64;
             }
         }

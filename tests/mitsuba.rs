@@ -111,6 +111,8 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
 <shape type="cube"><bsdf type="roughconductor"><string name="material" value="Au"/></bsdf></shape>
 <shape type="cube"><bsdf type="plastic"><boolean name="nonlinear" value="true"/></bsdf></shape>
 <shape type="sphere"><bsdf type="dielectric"/></shape>
+<shape type="cube"><bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf></shape>
+<shape type="cube"><bsdf type="roughplastic"><string name="distribution" value="ggx"/></bsdf></shape>
 <shape type="disk"><bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="$x"/></bsdf></bsdf></shape>
 <shape type="sphere"><bsdf type="null"/><emitter type="area"><rgb name="radiance" value="2"/></emitter></shape>"#,
     ))
@@ -167,7 +169,11 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         ("<shape type=\"hair\"/>", 5, "shape 'hair' is not supported"),
 
         ("<shape type=\"cube\"><bsdf type=\"null\"/></shape>", 5, "bsdf 'null' is not supported"),
-        ("<shape type=\"cube\"><bsdf type=\"roughplastic\"/></shape>", 5, "bsdf 'roughplastic'"),
+        (
+            "<shape type=\"cube\"><bsdf type=\"roughplastic\"><float name=\"alpha_u\" value=\"0.1\"/></bsdf></shape>",
+            5,
+            "roughplastic is isotropic",
+        ),
         (
             "<shape type=\"cube\">\n<bsdf type=\"diffuse\"><float name=\"roughness\" value=\"1\"/></bsdf></shape>",
             6,
@@ -367,6 +373,21 @@ fn coverage_scenes_agree_with_mitsuba() {
         &[("width", "96"), ("height", "64")],
         method(Method::Pt, true, 2048),
     );
+    // Rough glass and rough plastic, a light reached only through rough
+    // glass: every method, and plain path tracing without NEE.
+    for (m, nee) in [
+        (Method::Pt, true),
+        (Method::Pt, false),
+        (Method::Sarsa, true),
+        (Method::Neural, true),
+    ] {
+        check(
+            "coverage-d",
+            &dir.join("coverage-d.xml"),
+            &[("res", "64")],
+            method(m, nee, 1024),
+        );
+    }
     // Point, spot and directional lights (NEE's alone), and a lookat
     // without an up, with a plain and a guided method.
     for m in [Method::Pt, Method::Sarsa, Method::Neural] {

@@ -44,7 +44,7 @@ pub struct GpuScene {
 
 impl GpuScene {
     pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> gpu::Result<Self> {
-        let materials: Vec<shaders::Material> = scene.materials.iter().map(|m| m.gpu()).collect();
+        let materials = crate::scene::gpu_materials(&scene.materials);
         Ok(Self {
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,

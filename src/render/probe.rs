@@ -172,7 +172,10 @@ pub fn nearest_volumes(
 /// A shading point as the probes read it: the material's four texels, then
 /// (wo, 1 on the front side or 0).
 fn shading_texels(material: &crate::scene::Material, wo: Vec3, front: bool) -> [Vec4; 5] {
-    let m = material.gpu();
+    material_texels(material.gpu(), wo, front)
+}
+
+fn material_texels(m: shaders::Material, wo: Vec3, front: bool) -> [Vec4; 5] {
     [
         Vec4::from(m.color),
         Vec4::from(m.emission),
@@ -389,22 +392,24 @@ pub fn bsdf_samples(
     params.selector = shaders::PROBE_BSDF;
     let pipeline =
         ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
+    // The queries' materials take the scene's place, with the tables
+    // rough plastics read.
+    let materials: Vec<_> = queries.iter().map(|q| q.material.clone()).collect();
+    let materials = crate::scene::gpu_materials(&materials);
+    let material_buffer = Buffer::gpu_only_with(ctx, "probe materials", &materials)?;
+    let mut bindings = gpu_scene.bindings().to_vec();
+    bindings.retain(|(b, _)| *b != shaders::B_MATERIALS);
+    bindings.push((shaders::B_MATERIALS, &material_buffer));
     let input: Vec<Vec4> = queries
         .iter()
-        .flat_map(|q| {
-            let [color, emission, eta, k, side] = shading_texels(&q.material, q.wo, q.front);
+        .zip(&materials)
+        .flat_map(|(q, m)| {
+            let [color, emission, eta, k, side] = material_texels(*m, q.wo, q.front);
             [color, emission, eta, k, side, q.u.extend(0.0)]
         })
         .collect();
     let n = queries.len();
-    let out = launch(
-        ctx,
-        &pipeline,
-        &gpu_scene.bindings(),
-        params,
-        &input,
-        (n, 3),
-    )?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
     Ok((0..n)
         .map(|i| BsdfSample {
             wi: out[i].truncate(),

@@ -86,21 +86,19 @@ impl Material {
             code |= shaders::MATERIAL_ONE_SIDED;
         }
         let (mut eta, mut k) = (Vec3::ZERO, Vec3::ZERO);
+        if self.surface.distribution() == Some(Distribution::Beckmann) {
+            code |= shaders::MATERIAL_BECKMANN;
+        }
         if let Surface::Conductor {
-            distribution,
-            fresnel,
-            ..
+            fresnel: Some(ior), ..
         } = self.surface
         {
-            if distribution == Distribution::Beckmann {
-                code |= shaders::MATERIAL_BECKMANN;
-            }
-            if let Some(ior) = fresnel {
-                code |= shaders::MATERIAL_FRESNEL;
-                (eta, k) = (ior.eta, ior.k);
-            }
+            code |= shaders::MATERIAL_FRESNEL;
+            (eta, k) = (ior.eta, ior.k);
         }
-        if let Surface::Plastic { nonlinear, .. } = self.surface {
+        if let Surface::Plastic { nonlinear, .. } | Surface::RoughPlastic { nonlinear, .. } =
+            self.surface
+        {
             if nonlinear {
                 code |= shaders::MATERIAL_NONLINEAR;
             }
@@ -111,6 +109,12 @@ impl Material {
         if let Surface::Thin { reflectance, .. } = self.surface {
             eta = reflectance;
         }
+        if let Surface::RoughDielectric {
+            reflectance, alpha, ..
+        } = self.surface
+        {
+            (eta, k) = (reflectance, Vec3::new(0.0, 0.0, alpha));
+        }
         shaders::Material {
             color: color.extend(code as f32).into(),
             emission: self.emission.extend(parameter).into(),
@@ -118,6 +122,27 @@ impl Material {
             k: k.extend(0.0).into(),
         }
     }
+}
+
+/// The materials as the kernels read them: each one's `Material`, then the
+/// rough plastics' transmittance tables, 4 records each, which their
+/// `k.w` points to (as a word of the buffer).
+pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
+    let mut out: Vec<shaders::Material> = materials.iter().map(Material::gpu).collect();
+    for i in 0..materials.len() {
+        if let Surface::RoughPlastic { table, .. } = materials[i].surface {
+            out[i].k[3] = (4 * out.len()) as f32;
+            for c in table.transmittance.chunks_exact(16) {
+                out.push(shaders::Material {
+                    color: c[0..4].try_into().unwrap(),
+                    emission: c[4..8].try_into().unwrap(),
+                    eta: c[8..12].try_into().unwrap(),
+                    k: c[12..16].try_into().unwrap(),
+                });
+            }
+        }
+    }
+    out
 }
 
 /// Which extent of the image a camera's field of view spans (Mitsuba's
@@ -299,16 +324,21 @@ impl Scene {
     /// _NONLINEAR, FEATURE_PLASTIC) some material of the scene uses, as the
     /// kernels' SPEC_MATERIAL_FEATURES.
     pub fn material_features(&self) -> u32 {
-        self.materials
-            .iter()
-            .map(|m| m.gpu().color[3] as u32)
-            .fold(0, |acc, code| {
-                let flags = shaders::MATERIAL_BECKMANN
-                    | shaders::MATERIAL_FRESNEL
-                    | shaders::MATERIAL_NONLINEAR;
-                let plastic = code & (shaders::MATERIAL_ONE_SIDED - 1) == shaders::MATERIAL_PLASTIC;
-                acc | (code & flags) | if plastic { shaders::FEATURE_PLASTIC } else { 0 }
-            })
+        self.materials.iter().fold(0, |acc, m| {
+            let code = m.gpu().color[3] as u32;
+            let flags = shaders::MATERIAL_BECKMANN
+                | shaders::MATERIAL_FRESNEL
+                | shaders::MATERIAL_NONLINEAR;
+            let feature = match m.surface {
+                Surface::Plastic { .. } => shaders::FEATURE_PLASTIC,
+                Surface::RoughPlastic { .. } => {
+                    shaders::FEATURE_PLASTIC | shaders::FEATURE_ROUGH_PLASTIC
+                }
+                Surface::RoughDielectric { .. } => shaders::FEATURE_ROUGH_GLASS,
+                _ => 0,
+            };
+            acc | (code & flags) | feature
+        })
     }
 
     /// The scene's table of guide `name` (empty when it has none).

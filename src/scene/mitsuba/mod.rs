@@ -884,6 +884,39 @@ fn ior(el: &Element, p: &Props, name: &str, default: &str) -> Result<f32, SceneE
         })
 }
 
+/// A rough BSDF's `alpha` (or `alpha_u` and `alpha_v`, rendered isotropic
+/// with a warning) and `distribution`, Mitsuba's defaults 0.1 and Beckmann.
+fn roughness(el: &Element, p: &Props, kind: &str) -> Result<(f32, Distribution), SceneError> {
+    let distribution = match p.string("distribution")?.unwrap_or("beckmann") {
+        "beckmann" => Distribution::Beckmann,
+        "ggx" => Distribution::Ggx,
+        other => return Err(el.error(format!("distribution '{other}' is not beckmann or ggx"))),
+    };
+    // Sampling visible normals or all of them changes noise only.
+    p.ignore("sample_visible");
+    let (u, v) = (p.float("alpha_u")?, p.float("alpha_v")?);
+    let a = match (p.float("alpha")?, u, v) {
+        (Some(a), None, None) => a,
+        (None, None, None) => 0.1,
+        (None, Some(u), Some(v)) if u == v => u,
+        (None, Some(u), Some(v)) => {
+            // The isotropic lobe of the same area of normals.
+            let a = (u * v).sqrt();
+            log::warn!(
+                "{}:{}: qtrace's {kind} is isotropic: alpha_u {u} and alpha_v {v} render as alpha {a}",
+                el.file.display(),
+                el.line
+            );
+            a
+        }
+        _ => return Err(el.error("give alpha, or alpha_u and alpha_v together, not both")),
+    };
+    if !(a > 0.0 && a <= 1.0) {
+        return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
+    }
+    Ok((a, distribution))
+}
+
 /// A `<bsdf>` element as qtrace renders it.
 fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
     let kind = el.plugin()?;
@@ -950,42 +983,7 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             };
             let reflectance = reflectance(el, &p, "specular_reflectance", 1.0)?;
             let (alpha, distribution) = if kind == "roughconductor" {
-                let distribution = match p.string("distribution")?.unwrap_or("beckmann") {
-                    "beckmann" => Distribution::Beckmann,
-                    "ggx" => Distribution::Ggx,
-                    other => {
-                        return Err(el.error(format!(
-                            "distribution '{other}' is not beckmann or ggx"
-                        )))
-                    }
-                };
-                // Sampling visible normals or all of them changes noise only.
-                p.ignore("sample_visible");
-                let (u, v) = (p.float("alpha_u")?, p.float("alpha_v")?);
-                let a = match (p.float("alpha")?, u, v) {
-                    (Some(a), None, None) => a,
-                    (None, None, None) => 0.1,
-                    (None, Some(u), Some(v)) if u == v => u,
-                    (None, Some(u), Some(v)) => {
-                        // The isotropic lobe of the same area of normals.
-                        let a = (u * v).sqrt();
-                        log::warn!(
-                            "{}:{}: qtrace's rough conductors are isotropic: alpha_u {u} and alpha_v {v} render as alpha {a}",
-                            el.file.display(),
-                            el.line
-                        );
-                        a
-                    }
-                    _ => {
-                        return Err(el.error(
-                            "give alpha, or alpha_u and alpha_v together, not both",
-                        ))
-                    }
-                };
-                if !(a > 0.0 && a <= 1.0) {
-                    return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
-                }
-                (a, distribution)
+                roughness(el, &p, kind)?
             } else {
                 (0.0, Distribution::Ggx)
             };
@@ -1045,14 +1043,50 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             d.one_sided = false;
             d
         }
-        "roughdielectric" | "roughplastic" => {
-            return Err(el.error(format!("bsdf '{kind}' is not supported yet")))
+        "roughdielectric" => {
+            let int = ior(el, &p, "int_ior", "bk7")?;
+            let ext = ior(el, &p, "ext_ior", "air")?;
+            let (alpha, distribution) = roughness(el, &p, kind)?;
+            let mut d = one(Surface::RoughDielectric {
+                ior: int / ext,
+                reflectance: reflectance(el, &p, "specular_reflectance", 1.0)?,
+                transmittance: reflectance(el, &p, "specular_transmittance", 1.0)?,
+                alpha,
+                distribution,
+            });
+            d.one_sided = false;
+            d
+        }
+        "roughplastic" => {
+            let int = ior(el, &p, "int_ior", "polypropylene")?;
+            let ext = ior(el, &p, "ext_ior", "air")?;
+            if p.float("alpha_u")?.is_some() || p.float("alpha_v")?.is_some() {
+                return Err(el.error(
+                    "roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u and alpha_v",
+                ));
+            }
+            let (alpha, distribution) = roughness(el, &p, kind)?;
+            let diffuse = reflectance(el, &p, "diffuse_reflectance", 0.5)?;
+            let specular = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
+            if specular.min_element() < 0.0 {
+                return Err(el.error("roughplastic specular_reflectance must not be negative"));
+            }
+            let eta = int / ext;
+            one(Surface::RoughPlastic {
+                diffuse,
+                specular,
+                eta,
+                nonlinear: p.boolean("nonlinear")?.unwrap_or(false),
+                alpha,
+                distribution,
+                table: crate::bsdf::RoughTable::new(eta, alpha, distribution),
+            })
         }
         "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, thindielectric, plastic, twosided and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
