@@ -136,9 +136,9 @@ float microfacet_d(Bsdf bsdf, vec3 h) {
     return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) : ggx_d(bsdf.alpha, h);
 }
 
-// Smith's masking for a direction on either side (by its angle to the normal).
+// Smith's masking for a direction above the surface (rough glass passes
+// one below mirrored).
 float microfacet_g1(Bsdf bsdf, vec3 w) {
-    w.z = abs(w.z);
     return bsdf_beckmann(bsdf) ? beckmann_g1(bsdf.alpha, w) : ggx_g1(bsdf.alpha, w);
 }
 
@@ -310,7 +310,7 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         float oh = dot(wo, h);
         float ih = dot(wi, h);
         float f = fresnel_dielectric(oh, bsdf.eta);
-        float dg = microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi);
+        float dg = microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, vec3(wi.xy, abs(wi.z)));
         if (hr.w > 0.0) {
             return bsdf.ior_eta * (f * dg / (4.0 * wo.z));
         }
@@ -380,9 +380,11 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
         return wi.z * INV_PI;
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
-        // The normal's density over the reflection's Jacobian 4 wo.h.
+        // microfacet_sample_pdf over the reflection's Jacobian 4 wo.h,
+        // simplified.
         vec3 h = normalize(wo + wi);
-        return microfacet_sample_pdf(bsdf, wo, h) / (4.0 * dot(wo, h));
+        return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) * h.z / (4.0 * dot(wo, h))
+                                   : ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
     }
     return 0.0;
 }

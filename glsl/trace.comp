@@ -290,6 +290,34 @@ void pass_through_delta() {
 }
 #endif
 
+#ifdef GUIDED
+// After a bounce the guide did not sample (a delta lobe, rough glass) from
+// vertex g: guides learn along reflections, which stay in g's hemisphere.
+void follow_unguided(GuideVertex g, vec3 local, vec3 weight) {
+    bool up = local.z > 0.0;
+#ifdef FROZEN
+    // Not looked up (a pass that does not learn): the roulette keeps what
+    // the vertex before expected from this direction, per unit of the
+    // throughput it had then.
+    prev_q /= max(luminance(weight), 1e-6);
+#else
+    if (chaining) {
+        // As in FROZEN: the waiting transition's Q stands for the path.
+        prev_q /= max(luminance(weight), 1e-6);
+        chain_weight *= luminance(weight);
+    } else if (guide_covers(g)) {
+        prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
+        prev_q = up ? guide_sector_q(g, prev_sector) : 0.0;
+        guided_roulette = true;
+    } else {
+        // Not looked up (learn off) or no volume there: as in FROZEN.
+        prev_q /= max(luminance(weight), 1e-6);
+    }
+#endif
+    prev_vertex = up ? g : guide_none();
+}
+#endif
+
 // Traces the path's current ray and scatters once; false when the path ended.
 bool scatter() {
     Hit hit = trace_ray(origin, dir, FAR);
@@ -500,17 +528,22 @@ bool scatter() {
     // find it); else its base, of density (1 - share) times the sampler's.
     float delta_share = bsdf_delta_share(bsdf, wo);
     bool take_delta = delta || (delta_share > 0.0 && rng_next(rng) < delta_share);
-#ifdef GUIDED
-    uint sector = 0u;
-    float p_sector = 0.0;
-#endif
     if (take_delta) {
         local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
         weight /= delta ? 1.0 : delta_share;
+#ifdef GUIDED
+        follow_unguided(here, local, weight);
+#endif
     } else {
 #ifdef GUIDED
+        uint sector;
+        float p_sector;
         local = mixture_sample(sampled_from, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
         pdf = mixture_pdf_in(sampled_from, bsdf, wo, local, p_sector);
+        prev_vertex = here;
+        prev_sector = sector;
+        prev_q = guide_q(here, sector, p_sector);
+        guided_roulette = guide_covers(here);
 #else
         vec2 square;
         // The third number picks a rough lobe; drawn only where there is one.
@@ -523,6 +556,13 @@ bool scatter() {
             return false;
         }
         weight = bsdf_eval(bsdf, wo, local) / pdf;
+#ifdef GUIDED
+        if (transmits) {
+            // Rough glass: sampled by its BSDF alone, learned through as a
+            // delta vertex.
+            follow_unguided(here, local, weight);
+        }
+#endif
 #if defined(GUIDED) && !defined(FROZEN)
         mix = learn ? mixture_gradient(sampled_from, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
         if (glossy && (learn || depth == 0u)) {
@@ -540,38 +580,6 @@ bool scatter() {
         }
 #endif
     }
-#ifdef GUIDED
-    if (take_delta || transmits) {
-        // Guides learn along reflections, which stay in this vertex's
-        // hemisphere, and do not sample here.
-        bool up = local.z > 0.0;
-#ifdef FROZEN
-        // Not looked up (a pass that does not learn): the roulette keeps
-        // what the vertex before expected from this direction, per unit of
-        // the throughput it had then.
-        prev_q /= max(luminance(weight), 1e-6);
-#else
-        if (chaining) {
-            // As in FROZEN: the waiting transition's Q stands for the path.
-            prev_q /= max(luminance(weight), 1e-6);
-            chain_weight *= luminance(weight);
-        } else if (guide_covers(here)) {
-            prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
-            prev_q = up ? guide_sector_q(here, prev_sector) : 0.0;
-            guided_roulette = true;
-        } else {
-            // Not looked up (learn off) or no volume there: as in FROZEN.
-            prev_q /= max(luminance(weight), 1e-6);
-        }
-#endif
-        prev_vertex = up ? here : guide_none();
-    } else {
-        prev_vertex = here;
-        prev_sector = sector;
-        prev_q = guide_q(here, sector, p_sector);
-        guided_roulette = guide_covers(here);
-    }
-#endif
     throughput *= weight;
     prev_bsdf_pdf = pdf;
     dir = normalize(local.x * t + local.y * b + local.z * ns);
