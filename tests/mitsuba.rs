@@ -168,7 +168,6 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         ("<shape type=\"serialized\"/>", 5, "shape 'serialized' needs a filename"),
         ("<shape type=\"hair\"/>", 5, "shape 'hair' is not supported"),
 
-        ("<shape type=\"cube\"><bsdf type=\"null\"/></shape>", 5, "bsdf 'null' is not supported"),
         (
             "<shape type=\"cube\"><bsdf type=\"roughplastic\"><float name=\"alpha_u\" value=\"0.1\"/></bsdf></shape>",
             5,

@@ -502,12 +502,6 @@ impl Builder<'_, '_> {
             el.attr("id").unwrap_or("unnamed"),
             el.line
         );
-        if desc.null && emission.is_none() {
-            return Err(el.error(
-                "a shape with bsdf 'null' is not supported: Mitsuba's path integrator lets \
-                 paths through it yet blocks shadow rays with it",
-            ));
-        }
         if let Some(le) = emission {
             // qtrace's paths end at an emitter: exact for a black BSDF.
             let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
@@ -1011,9 +1005,16 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             d.one_sided = false;
             d
         }
+        // As Mitsuba's path integrator treats it: paths pass straight
+        // through (a bounce of a delta lobe, counted in the depth), shadow
+        // rays stop at it.
         "null" => BsdfDesc {
             name: name.clone(),
-            surface: Surface::Diffuse { albedo: Vec3::ZERO },
+            surface: Surface::Thin {
+                eta: 1.0,
+                reflectance: Vec3::ZERO,
+                transmittance: Vec3::ONE,
+            },
             one_sided: false,
             null: true,
         },
