@@ -426,7 +426,9 @@ impl Builder<'_, '_> {
                     return Err(el.error(format!("shape_index {index} is negative")));
                 }
                 if p.float("max_smooth_angle")?.is_some() {
-                    return Err(el.error("max_smooth_angle is not supported yet"));
+                    return Err(el.error(
+                        "max_smooth_angle is Mitsuba 0.6's; Mitsuba 3 does not read it (give the mesh its normals, or face_normals)",
+                    ));
                 }
                 self.serialized(el, name, index as u32, to_world, face_normals)?
             }
