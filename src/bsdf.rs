@@ -119,6 +119,10 @@ impl RoughTable {
             return *t;
         }
         let table = Self::with_nodes(eta, alpha, distribution, 64);
+        // A scene has a few coats; a long-lived process (the fuzzer) many.
+        if cache.len() >= 64 {
+            cache.clear();
+        }
         cache.push((key, table));
         table
     }
