@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Unpacks Mesa's lavapipe from Debian 12's bookworm-backports (Mesa 25) into a
 # folder of its own, beside the system's Mesa 22, for speed comparisons
-# (README, "Mesa versions"). Installs nothing system-wide. Prints the two
+# (docs/notebook.md, "Mesa versions"). Installs nothing system-wide. Prints the two
 # variables that make a qtrace run use it:
 #
 #   eval "$(scripts/mesa_backports.sh)"   # then: qtrace devices

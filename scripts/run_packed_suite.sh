@@ -58,7 +58,7 @@ echo "=== speed" >> "$log"
     --peer none scenes/cornell-box.toml scenes/indirect-room.toml scenes/door-ajar.toml 2>&1 | tee -a "$log"
 if [ -n "${EQUAL_TIME:-}" ]; then
     # On a fast GPU the bench's default size is over before the guides learn
-    # (README, "On a GPU"): equal time at 1024x1024 and 1024 spp instead.
+    # (docs/notebook.md, "On a GPU"): equal time at 1024x1024 and 1024 spp instead.
     echo "=== equal time" >> "$log"
     "$built_qtrace" bench --methods pt,pt+nee,sarsa,sarsa+nee,neural,neural+nee \
         --width 1024 --height 1024 --spp-list 4,16,64,256,1024 --reference-spp 4096 \

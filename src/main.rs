@@ -94,7 +94,7 @@ struct RenderArgs {
 #[derive(clap::Args, Clone)]
 struct GuideArgs {
     /// Guide settings: a TOML file of [sarsa] and [neural] tables (keys as
-    /// in the scene file's tables; README lists them).
+    /// in the scene file's tables; docs/guides.md lists them).
     #[arg(long, value_name = "FILE")]
     guide_config: Option<PathBuf>,
     /// One guide setting, e.g. sarsa.epsilon=0.3 or neural.grid=[8,8]

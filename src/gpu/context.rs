@@ -46,7 +46,7 @@ impl Reads {
     /// storage buffer lane by lane (texel reads halved its trace pass);
     /// Mesa 25.0's inlines storage reads and calls a slower texel fetch, so
     /// there storage reads made `pt` 1.5–2.4× and `pt --nee` 1.2–1.8× as
-    /// fast (README, "Mesa versions"). Versions between were not measured
+    /// fast (docs/notebook.md, "Mesa versions"). Versions between were not measured
     /// and keep texel reads, as do other drivers.
     pub fn for_driver(driver: vk::DriverId, driver_info: &str) -> Self {
         // lavapipe's driverVersion is 1 whatever the release; its driver info

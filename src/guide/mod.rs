@@ -255,7 +255,7 @@ impl GuideSettings {
 
     /// Whether the guide learns in pass `index` (see `Common::thin_after`).
     pub fn learns_in_pass(&self, index: u32) -> bool {
-        // Measured at 128×128, 256 spp (README, Evaluation): Sarsa learning
+        // Measured at 128×128, 256 spp (docs/notebook.md): Sarsa learning
         // only in the first 16 passes kept its error at equal samples within
         // 10% on the indirectly lit and glossy rooms and cut it 1.4–1.6× at
         // equal time; thinning instead of stopping keeps longer renders learning.

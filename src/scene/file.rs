@@ -1,4 +1,4 @@
-//! The scene TOML format (README.md, "Scenes"). Unknown keys are an error.
+//! The scene TOML format (docs/scenes.md). Unknown keys are an error.
 
 use serde::{Deserialize, Serialize};
 

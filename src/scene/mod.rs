@@ -899,7 +899,7 @@ impl Default for Loader<'_> {
     }
 }
 
-/// The surface an MTL material describes (README.md, "Scenes"): glass for
+/// The surface an MTL material describes (docs/scenes.md): glass for
 /// `d 0` with `Ni` > 1, a conductor for `Pm 1`, else diffuse. Keys the
 /// chosen surface does not use draw one warning per material; values out of
 /// range are errors naming the file and the material.
@@ -975,7 +975,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     ignored.dedup();
     if !ignored.is_empty() {
         log::warn!(
-            "{}: material '{}' ({}): ignoring {} (see README.md, \"Scenes\")",
+            "{}: material '{}' ({}): ignoring {} (see docs/scenes.md)",
             obj_path.display(),
             m.name,
             surface.name(),

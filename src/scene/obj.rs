@@ -5,7 +5,7 @@
 use glam::Vec3;
 
 /// A material as the MTL file gives it; keys the renderer does not use are
-/// kept out (`scene` turns these into a surface: README.md, "Scenes").
+/// kept out (`scene` turns these into a surface: docs/scenes.md).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MtlMaterial {
     pub name: String,
