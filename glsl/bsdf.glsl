@@ -24,7 +24,7 @@ layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     FEATURE_ROUGH_PLASTIC;
 
 // A material's scattering at a surface point, seen from one side
-// (SPEC 3, "Materials").
+// (docs/scenes.md).
 struct Bsdf {
     uint kind;   // MATERIAL_*
     vec3 color;  // Kd, Ks or Tf

@@ -121,7 +121,7 @@ float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_secto
 }
 
 // Luminance the vertex g reflects toward wo of the light the guide expects
-// there: the target a transition that reached g learns (SPEC 4.2, 4.3:
+// there: the target a transition that reached g learns (docs/guides.md:
 // (2 pi / n) sum_j Q_j f_s(w_j, wo) cos(theta_j)).
 // - Diffuse: exact, from the guide's irradiance-like sum.
 // - Rough conductor and rough plastic: 0 here; trace.comp estimates it from the bounce's own

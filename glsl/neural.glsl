@@ -1,4 +1,4 @@
-// The Neural-Q guide (SPEC 4.3) behind the guide seam of guide.glsl: the
+// The Neural-Q guide (docs/guides.md) behind the guide seam of guide.glsl: the
 // state encoding, inference of every sector's Q at a path vertex and sector
 // sampling from it; neural_offer.glsl offers the transitions to training.
 // Needs shared.h, sampling.glsl, bsdf.glsl and the `params` push constants;

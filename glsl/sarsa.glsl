@@ -1,4 +1,4 @@
-// The Expected Sarsa guide (SPEC 4.2) behind the guide seam of guide.glsl:
+// The Expected Sarsa guide (docs/guides.md) behind the guide seam of guide.glsl:
 // the tables of volumes.glsl, learned by atomic updates in the trace kernel.
 // Needs shared.h, sampling.glsl, bsdf.glsl and the `params` push constants.
 #ifndef QTRACE_SARSA_GLSL

@@ -219,7 +219,7 @@ struct Triangle {
     float area;
 };
 
-// Material kinds (SPEC 3, "Materials"), in Material.color.w.
+// Material kinds (docs/scenes.md), in Material.color.w.
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
 // A dielectric of index emission.w; rough (Mitsuba's roughdielectric) where

@@ -1,4 +1,4 @@
-// Radiance volumes and the tables that guide sampling in them (SPEC 4.2):
+// Radiance volumes and the tables that guide sampling in them (docs/guides.md):
 // the nearest-volume lookup, each volume's alias table over sectors, its
 // sums and Q. The reading side of the guide seam (guide.glsl) for the guides
 // that sample from these tables: Expected Sarsa (sarsa.glsl), which learns

@@ -396,12 +396,12 @@ def make_furnace():
 
 
 def conductor(ks, pr):
-    """MTL lines of a GGX conductor (SPEC 3): reflectance Ks, roughness Pr."""
+    """MTL lines of a GGX conductor (docs/scenes.md): reflectance Ks, roughness Pr."""
     return ("Pm 1", "Ks %s" % " ".join(fmt(v) for v in ks), "Pr %s" % fmt(pr))
 
 
 def glass(ni, tf=(1.0, 1.0, 1.0)):
-    """MTL lines of a smooth dielectric (SPEC 3)."""
+    """MTL lines of a smooth dielectric (docs/scenes.md)."""
     return ("Ni %s" % fmt(ni), "d 0", "Tf %s" % " ".join(fmt(v) for v in tf))
 
 

@@ -18,7 +18,7 @@ The scene is rebuilt to match qtrace's estimator in expectation:
     bumpy spheres regenerated), flat-shaded, one mesh per material;
   * diffuse surfaces and conductors scatter on both sides (qtrace shades
     with the normal facing the ray), so their BSDFs are wrapped in
-    `twosided`; materials as SPEC §3 maps them: `Pm 1` is `roughconductor`
+    `twosided`; materials as docs/scenes.md maps them: `Pm 1` is `roughconductor`
     (GGX, alpha = Pr^2, `material none`, `specular_reflectance` Ks) or
     `conductor` for Pr 0, and `d 0` with `Ni` > 1 is `dielectric`
     (`int_ior` Ni, `specular_transmittance` Tf; the normal's side is outside);
@@ -168,7 +168,7 @@ def read_scene_file(path):
 
 
 def surface_of(keys):
-    """The surface SPEC §3 gives an MTL material's keys, as a hashable tuple:
+    """The surface docs/scenes.md gives an MTL material's keys, as a hashable tuple:
     ("diffuse", Kd), ("conductor", Ks, alpha) or ("dielectric", Ni, Tf)."""
     if keys.get("d", 1.0) == 0.0 and keys.get("Ni", 1.0) > 1.0:
         return ("dielectric", keys["Ni"], keys.get("Tf", (1.0, 1.0, 1.0)))

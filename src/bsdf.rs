@@ -25,7 +25,7 @@ pub fn luminance(c: Vec3) -> f32 {
 /// to every purpose, and its D would lose float precision.
 pub const MIN_ALPHA: f32 = 1e-4;
 
-/// How a surface scatters, as SPEC §3 ("Materials") fixes it; the same for
+/// How a surface scatters, as docs/scenes.md describes it; the same for
 /// both sides except for a dielectric's orientation.
 // A rough plastic carries its table by value: a material has one Surface,
 // and copies stay cheap enough to keep the type Copy.

@@ -1,4 +1,4 @@
-//! Every bad input of SPEC §2 through the real binary: a one-line error that
+//! Every kind of bad input through the real binary: a one-line error that
 //! names the file and the problem, a non-zero exit, no panic, no output file.
 
 mod common;

@@ -1,4 +1,4 @@
-//! Glossy and specular materials (SPEC §3) on lavapipe: furnaces with
+//! Glossy and specular materials on lavapipe: furnaces with
 //! analytic answers for every BSDF, a mirror's analytic image, and every
 //! method converging to the same image on the shipped glossy scenes.
 

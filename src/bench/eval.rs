@@ -1,4 +1,4 @@
-//! The evaluation of SPEC §6: every method on every scene, images and error
+//! The evaluation (docs/benchmark.md): every method on every scene, images and error
 //! at a list of sample counts, error at equal time, per-pass statistics and
 //! pictures of what was learned.
 

@@ -1,5 +1,5 @@
 //! Measurements: the speed table (samples/s, rays/s, GPU time per pass from
-//! timestamp queries) and the evaluation report of SPEC §6.
+//! timestamp queries) and the evaluation report (docs/benchmark.md).
 
 pub mod charts;
 pub mod eval;

@@ -1,4 +1,4 @@
-//! Neural-Q guiding (SPEC §4.3): an MLP maps the encoded state (position,
+//! Neural-Q guiding (docs/guides.md): an MLP maps the encoded state (position,
 //! normal) to the Q of every hemisphere sector. The trace kernel infers it at
 //! each path vertex and samples from it, or (`inference = "volumes"`) samples
 //! from tables the network's Q at the radiance volumes fills after each

@@ -1,4 +1,4 @@
-//! Expected Sarsa guiding (SPEC §4.2): Q-values in radiance volumes, updated
+//! Expected Sarsa guiding (docs/guides.md): Q-values in radiance volumes, updated
 //! by atomic accumulation during a sample pass and folded between passes.
 
 use super::lookup::VolumeLookup;

@@ -224,7 +224,7 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     }
 }
 
-/// Error of an image against a reference (SPEC §6).
+/// Error of an image against a reference (docs/benchmark.md).
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct ErrorMetrics {
     pub mse: f64,

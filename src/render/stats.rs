@@ -1,4 +1,4 @@
-//! What a render reports (SPEC §6). The top-level keys are fixed.
+//! What a render reports (docs/usage.md, "Stats JSON"). The top-level keys are fixed.
 
 use crate::gpu::PassTiming;
 use serde::Serialize;
