@@ -135,18 +135,7 @@ pub fn render(
     device: &DeviceChoice,
 ) -> Result<i32> {
     // Check everything the user gave before any GPU work.
-    check_output(&out.exr, "exr")?;
-    if let Some(t) = out.checkpoint {
-        if !(t.is_finite() && t > 0.0) {
-            bail!("--checkpoint {t} must be a positive number of seconds");
-        }
-    }
-    if let Some(p) = &out.png {
-        check_output(p, "png")?;
-    }
-    if let Some(p) = &out.stats {
-        check_output(p, "json")?;
-    }
+    check_outputs(out)?;
     let scene = Scene::load_defined(scene_path, defines)?;
     if !overrides.nee && !scene.delta_lights.is_empty() {
         log::warn!(
@@ -233,6 +222,43 @@ pub fn render(
     }
     out.write(&scene, &result.image, &result.stats)?;
     let s = &result.stats;
+    print_summary(s, out.profile);
+    check_validation(&ctx)?;
+    if s.interrupted {
+        eprintln!(
+            "interrupted: wrote the {} samples per pixel done",
+            s.image_spp
+        );
+        return Ok(if by_term.load(Ordering::Relaxed) {
+            EXIT_SIGTERM
+        } else {
+            EXIT_SIGINT
+        });
+    }
+    Ok(0)
+}
+
+/// The output paths and checkpoint interval a render was given, checked
+/// before any work.
+fn check_outputs(out: &RenderOutputs) -> Result<()> {
+    check_output(&out.exr, "exr")?;
+    if let Some(t) = out.checkpoint {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--checkpoint {t} must be a positive number of seconds");
+        }
+    }
+    if let Some(p) = &out.png {
+        check_output(p, "png")?;
+    }
+    if let Some(p) = &out.stats {
+        check_output(p, "json")?;
+    }
+    Ok(())
+}
+
+/// The lines a finished render prints: its figures, and what the user
+/// should know of it.
+fn print_summary(s: &render::RenderStats, profile: bool) {
     // Start-up the clock leaves out, where it is worth a mention.
     let compile = if s.compile_seconds >= 0.05 {
         format!(" (+{:.2} s compiling kernels)", s.compile_seconds)
@@ -262,22 +288,9 @@ pub fn render(
             s.invalid_paths
         );
     }
-    if out.profile {
+    if profile {
         eprint!("{}", s.profile_table());
     }
-    check_validation(&ctx)?;
-    if s.interrupted {
-        eprintln!(
-            "interrupted: wrote the {} samples per pixel done",
-            s.image_spp
-        );
-        return Ok(if by_term.load(Ordering::Relaxed) {
-            EXIT_SIGTERM
-        } else {
-            EXIT_SIGINT
-        });
-    }
-    Ok(0)
 }
 
 /// `qtrace merge`: averages parts by their sample counts.

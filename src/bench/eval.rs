@@ -478,6 +478,413 @@ fn write_image(
     Ok((rel(&png), rel(&exr)))
 }
 
+/// Every configuration's render of a scene, to its last checkpoint, with
+/// each checkpoint's error against `reference` and images kept.
+/// Every configuration's render, stepped a batch each in turn, so
+/// that a change in the machine's speed (this one drifts by 15-30%
+/// over minutes) falls on all of them alike rather than on whichever
+/// rendered then: each render's clock counts its own batches only.
+fn render_configs(
+    ctx: &Arc<GpuContext>,
+    plan: &EvalPlan,
+    (scene, name, dir): (&Scene, &str, &Path),
+    reference: &Image,
+    checkpoints: &[u32],
+    (done, total): (&mut u64, u64),
+    progress: &mut dyn FnMut(&EvalProgress<'_>),
+) -> Result<Vec<Stepped>, BenchError> {
+    let max_spp = *plan.spp_list.iter().max().unwrap_or(&1);
+    let mut renders = Vec::new();
+    for config in &plan.configs {
+        let label = config.label();
+        let run_dir = dir.join(&label);
+        std::fs::create_dir_all(&run_dir)
+            .map_err(|e| BenchError::Io(run_dir.clone(), e.to_string()))?;
+        let settings = render_settings(scene, plan, config, max_spp, plan.seed)?;
+        let mut renderer = Renderer::new(ctx, scene, settings)?;
+        let run = renderer.start();
+        renders.push(Stepped {
+            message: format!("{name}: {label}"),
+            label,
+            run_dir,
+            renderer,
+            run,
+            rows: Vec::new(),
+            kept: Vec::new(),
+        });
+    }
+    let control = Control {
+        at_passes: checkpoints,
+        ..Default::default()
+    };
+    while renders.iter().any(|r| !r.run.finished()) {
+        for r in renders.iter_mut().filter(|r| !r.run.finished()) {
+            let mut failure: Option<BenchError> = None;
+            let (rows, kept, run_dir) = (&mut r.rows, &mut r.kept, &r.run_dir);
+            let before = r.run.passes_done();
+            r.renderer.step(
+                &mut r.run,
+                &mut |pr| {
+                    *done += (pr.passes_done - before) as u64;
+                    progress(&EvalProgress {
+                        message: &r.message,
+                        done: *done,
+                        total,
+                    })
+                },
+                &control,
+                &mut |c: &Checkpoint| {
+                    let error = match image::compare(&c.image, reference) {
+                        Ok(e) => e,
+                        Err(e) => {
+                            failure.get_or_insert(e.into());
+                            return;
+                        }
+                    };
+                    let (png, exr) = if plan.spp_list.contains(&c.spp) {
+                        match write_image(
+                            &c.image,
+                            run_dir,
+                            &format!("spp-{:04}", c.spp),
+                            &plan.out,
+                        ) {
+                            Ok((p, e)) => (Some(p), Some(e)),
+                            Err(e) => {
+                                failure.get_or_insert(e);
+                                (None, None)
+                            }
+                        }
+                    } else {
+                        (None, None)
+                    };
+                    kept.push(c.image.clone());
+                    rows.push(CheckpointRow {
+                        spp: c.spp,
+                        seconds: c.seconds,
+                        error,
+                        zero_contribution_fraction: c.zero_contribution_fraction,
+                        png,
+                        exr,
+                    });
+                },
+            )?;
+            if let Some(e) = failure {
+                return Err(e);
+            }
+        }
+    }
+    Ok(renders)
+}
+
+/// Pictures of what a finished render's guide learned, if it has one.
+fn learned_pictures(
+    ctx: &Arc<GpuContext>,
+    plan: &EvalPlan,
+    scene: &Scene,
+    renderer: &Renderer,
+    run_dir: &Path,
+) -> Result<Option<LearnedPictures>, BenchError> {
+    Ok(match renderer.guide() {
+        Some(Guide::Sarsa(guide)) => {
+            let (vpng, light_choice) = write_volume_pictures(ctx, scene, guide, plan, run_dir)?;
+            let volumes = learned::volumes_near_light(scene, guide, 6);
+            let q = guide
+                .download_q()
+                .map_err(|e| BenchError::Render(e.into()))?;
+            let rows = learned::volume_rows(guide, &q, &volumes);
+            let hemis = learned::hemispheres(guide.settings.common.grid, &rows, 96);
+            let (hpng, _) = write_image(&hemis, run_dir, "hemispheres", &plan.out)?;
+            Some(LearnedPictures {
+                voronoi: Some(vpng),
+                light_choice,
+                hemispheres: hpng,
+                hemispheres_at: format!(
+                    "the {} volumes nearest the brightest light (volumes {})",
+                    volumes.len(),
+                    volumes
+                        .iter()
+                        .map(|v| v.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+        }
+        Some(Guide::Neural(neural)) => {
+            // With inference at the volumes, its tables' pictures too.
+            let (voronoi, light_choice) = match neural.table() {
+                Some(table) => {
+                    let (vpng, choice) = write_volume_pictures(ctx, scene, table, plan, run_dir)?;
+                    (Some(vpng), choice)
+                }
+                None => (None, None),
+            };
+            let rows = learned::neural_rows(ctx, scene, neural, 6)?;
+            let hemis = learned::hemispheres(neural.settings.common.grid, &rows, 96);
+            let (hpng, _) = write_image(&hemis, run_dir, "hemispheres", &plan.out)?;
+            Some(LearnedPictures {
+                voronoi,
+                light_choice,
+                hemispheres: hpng,
+                hemispheres_at: format!(
+                    "the {} points the camera sees nearest the brightest light, as the network infers them",
+                    rows.len()
+                ),
+            })
+        }
+        None => None,
+    })
+}
+
+/// A reference rendered here is refined until its own error is under
+/// a tenth of the smallest error measured against it (or it has 8x
+/// its samples and a doubling would be slow: `refinement`); then
+/// every error is measured again.
+/// Whether it was refined.
+fn refine_reference(
+    ctx: &Arc<GpuContext>,
+    plan: &EvalPlan,
+    (scene, name, dir): (&Scene, &str, &Path),
+    reference: &mut SceneReference,
+    (runs, images): (&mut [RunReport], &[Vec<Image>]),
+    (done, total): (&u64, u64),
+    progress: &mut dyn FnMut(&EvalProgress<'_>),
+) -> Result<bool, BenchError> {
+    let pt = Config {
+        method: Method::Pt,
+        nee: true,
+    };
+    if let (Some(first_floor), Some(first_spp), None) =
+        (reference.rel_mse, reference.spp, plan.reference.as_ref())
+    {
+        let smallest = |runs: &[RunReport]| {
+            runs.iter()
+                .filter_map(|r| r.checkpoints.last().map(|c| c.error.rel_mse))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let (mut floor, mut spp, mut seconds) = (first_floor, first_spp, reference.seconds);
+        let cap = plan.reference_spp.saturating_mul(8);
+        while let Some(more) = refinement(floor, smallest(runs), spp, cap, seconds) {
+            let settings = render_settings(
+                scene,
+                plan,
+                &pt,
+                more,
+                plan.seed.wrapping_add(7919).wrapping_add(spp),
+            )?;
+            let message = format!("{name}: refining the reference to {} spp", spp + more);
+            let out = Renderer::new(ctx, scene, settings)?.run(&mut |pr| {
+                progress(&EvalProgress {
+                    message: &message,
+                    done: *done,
+                    total: total.max(*done + pr.passes_done as u64),
+                })
+            })?;
+            let added = image::expected_rel_mse(&out.image, &out.variance, more);
+            let (n1, n2) = (spp as f64, more as f64);
+            for (p, q) in reference.image.pixels.iter_mut().zip(&out.image.pixels) {
+                for c in 0..3 {
+                    p[c] = ((p[c] as f64 * n1 + q[c] as f64 * n2) / (n1 + n2)) as f32;
+                }
+            }
+            // Each floor is a variance over a sample count: pool them.
+            floor = (n1 * n1 * floor + n2 * n2 * added) / ((n1 + n2) * (n1 + n2));
+            // A reference cached without its time: its own, estimated
+            // from this refinement's.
+            let took = out.stats.wall_seconds;
+            seconds = Some(seconds.unwrap_or(took * n1 / n2) + took);
+            spp += more;
+            for (run, kept) in runs.iter_mut().zip(images) {
+                for (row, img) in run.checkpoints.iter_mut().zip(kept) {
+                    row.error = image::compare(img, &reference.image)?;
+                }
+            }
+        }
+        if spp != first_spp {
+            let cached = PathBuf::from(&reference.label);
+            reference.image.write_exr(&cached)?;
+            write_floor(&cached.with_extension("relmse"), floor, spp, seconds)?;
+            write_image(&reference.image, dir, "reference", &plan.out)?;
+        }
+        reference.rel_mse = Some(floor);
+        reference.spp = Some(spp);
+        return Ok(spp != first_spp);
+    }
+    Ok(false)
+}
+
+/// Each run against the others: its error at equal time (the budget the
+/// fastest configuration needed for all its samples), its cost and its
+/// error over plain path tracing's; and which runs win.
+fn compare_runs(plan: &EvalPlan, runs: &mut [RunReport]) -> (f64, Summary) {
+    let equal_time = runs
+        .iter()
+        .filter_map(|r| r.checkpoints.last().map(|c| c.seconds))
+        .fold(f64::INFINITY, f64::min);
+    let first: Vec<CheckpointRow> = runs
+        .first()
+        .map(|r| r.checkpoints.clone())
+        .unwrap_or_default();
+    for r in runs.iter_mut() {
+        r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
+        r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
+        r.later_half_cost = later_half_cost(&r.checkpoints, &first);
+    }
+    for (i, c) in plan.configs.iter().enumerate() {
+        let label = Config {
+            method: Method::Pt,
+            nee: c.nee,
+        }
+        .label();
+        if c.method != Method::Pt {
+            runs[i].over_plain = runs
+                .iter()
+                .find(|r| r.config == label)
+                .and_then(|p| over_plain(&runs[i].checkpoints, &p.checkpoints));
+        }
+    }
+    let best = |key: &dyn Fn(&RunReport) -> f64| {
+        runs.iter()
+            .min_by(|a, b| key(a).total_cmp(&key(b)))
+            .map(|r| r.config.clone())
+            .unwrap_or_default()
+    };
+    let summary = Summary {
+        fewest_zero_contribution: best(&|r| r.zero_contribution_fraction),
+        lowest_error_equal_spp: best(&|r| {
+            r.checkpoints
+                .last()
+                .map_or(f64::INFINITY, |c| c.error.rel_mse)
+        }),
+        lowest_error_equal_time: best(&|r| r.error_at_equal_time.rel_mse),
+    };
+    (equal_time, summary)
+}
+
+/// A finished run's report, before it is compared with the others.
+fn run_report(
+    config: String,
+    checkpoints: Vec<CheckpointRow>,
+    s: crate::render::RenderStats,
+    learned: Option<LearnedPictures>,
+) -> RunReport {
+    let because = s.stood_back_because();
+    RunReport {
+        config,
+        checkpoints,
+        passes: s.passes,
+        gpu_passes: s.gpu_passes,
+        wall_seconds: s.wall_seconds,
+        rays_per_second: s.rays_per_second,
+        samples_per_second: s.samples_per_second,
+        zero_contribution_fraction: s.zero_contribution_fraction,
+        mean_path_length: s.mean_path_length,
+        guide_bytes: s.guide_bytes,
+        guide_stood_back_after: s.guide_stood_back_after,
+        guide_stood_back_because: because,
+        error_at_equal_time: ErrorMetrics {
+            mse: 0.0,
+            rel_mse: 0.0,
+            mape: 0.0,
+        },
+        equal_time_extrapolated: false,
+        later_half_cost: None,
+        over_plain: None,
+        learned,
+    }
+}
+
+/// A scene's reference and what is known of it.
+struct SceneReference {
+    image: Image,
+    /// The file it was read from.
+    label: String,
+    /// Its samples per pixel and own relMSE, where qtrace rendered it.
+    spp: Option<u32>,
+    rel_mse: Option<f64>,
+    seconds: Option<f64>,
+}
+
+/// The reference of scene `name` at `path`: given, cached, or rendered now
+/// with pt + NEE (counted in `done` of `total` passes).
+fn scene_reference(
+    ctx: &Arc<GpuContext>,
+    plan: &EvalPlan,
+    (path, scene, name): (&Path, &Scene, &str),
+    (done, total): (&mut u64, u64),
+    progress: &mut dyn FnMut(&EvalProgress<'_>),
+) -> Result<SceneReference, BenchError> {
+    let pt = Config {
+        method: Method::Pt,
+        nee: true,
+    };
+    let ref_settings = render_settings(
+        scene,
+        plan,
+        &pt,
+        plan.reference_spp,
+        plan.seed.wrapping_add(7919),
+    )?;
+    let reference_passes = plan.reference_spp as u64;
+    let (image, label, spp, rel_mse, seconds) = match &plan.reference {
+        Some(r) => (
+            Image::read_exr(r)?,
+            r.display().to_string(),
+            None,
+            None,
+            None,
+        ),
+        None => {
+            std::fs::create_dir_all(&plan.cache_dir)
+                .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
+            let key = scene_key(path, scene, plan, ref_settings.max_depth);
+            let cached = plan
+                .cache_dir
+                .join(format!("reference-{name}-{key:016x}.exr"));
+            let floor_file = cached.with_extension("relmse");
+            let cached_floor = read_floor(&floor_file);
+            let (image, floor) = match Image::read_exr(&cached) {
+                Ok(img) => {
+                    *done += reference_passes;
+                    (img, cached_floor)
+                }
+                Err(_) => {
+                    let message = format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
+                    let start = *done;
+                    let mut renderer = Renderer::new(ctx, scene, ref_settings)?;
+                    let out = renderer.run(&mut |pr| {
+                        progress(&EvalProgress {
+                            message: &message,
+                            done: start + pr.passes_done as u64,
+                            total,
+                        })
+                    })?;
+                    *done += reference_passes;
+                    out.image.write_exr(&cached)?;
+                    let spp = out.stats.image_spp;
+                    let floor = image::expected_rel_mse(&out.image, &out.variance, spp);
+                    let seconds = Some(out.stats.wall_seconds);
+                    write_floor(&floor_file, floor, spp, seconds)?;
+                    (out.image, Some((floor, spp, seconds)))
+                }
+            };
+            (
+                image,
+                cached.display().to_string(),
+                Some(floor.map_or(plan.reference_spp, |f| f.1)),
+                floor.map(|f| f.0),
+                floor.and_then(|f| f.2),
+            )
+        }
+    };
+    Ok(SceneReference {
+        image,
+        label,
+        spp,
+        rel_mse,
+        seconds,
+    })
+}
+
 /// Runs the plan, writing images and pictures under `plan.out`; the report
 /// files themselves are written by [`super::report::write`].
 pub fn evaluate(
@@ -516,170 +923,39 @@ pub fn evaluate(
         let dir = plan.out.join(&name);
         std::fs::create_dir_all(&dir).map_err(|e| BenchError::Io(dir.clone(), e.to_string()))?;
 
-        // The reference: given, cached, or rendered now with pt + NEE.
-        let pt = Config {
-            method: Method::Pt,
-            nee: true,
-        };
-        let ref_settings = render_settings(
-            &scene,
+        let mut reference = scene_reference(
+            ctx,
             plan,
-            &pt,
-            plan.reference_spp,
-            plan.seed.wrapping_add(7919),
+            (path, &scene, &name),
+            (&mut done, total),
+            progress,
         )?;
-        let (
-            mut reference,
-            reference_label,
-            mut reference_spp,
-            mut reference_rel_mse,
-            reference_seconds,
-        ) = match &plan.reference {
-            Some(r) => (
-                Image::read_exr(r)?,
-                r.display().to_string(),
-                None,
-                None,
-                None,
-            ),
-            None => {
-                std::fs::create_dir_all(&plan.cache_dir)
-                    .map_err(|e| BenchError::Io(plan.cache_dir.clone(), e.to_string()))?;
-                let key = scene_key(path, &scene, plan, ref_settings.max_depth);
-                let cached = plan
-                    .cache_dir
-                    .join(format!("reference-{name}-{key:016x}.exr"));
-                let floor_file = cached.with_extension("relmse");
-                let cached_floor = read_floor(&floor_file);
-                let (image, floor) = match Image::read_exr(&cached) {
-                    Ok(img) => {
-                        done += reference_passes;
-                        (img, cached_floor)
-                    }
-                    Err(_) => {
-                        let message =
-                            format!("{name}: reference (pt+nee, {} spp)", plan.reference_spp);
-                        let start = done;
-                        let mut renderer = Renderer::new(ctx, &scene, ref_settings)?;
-                        let out = renderer.run(&mut |pr| {
-                            progress(&EvalProgress {
-                                message: &message,
-                                done: start + pr.passes_done as u64,
-                                total,
-                            })
-                        })?;
-                        done += reference_passes;
-                        out.image.write_exr(&cached)?;
-                        let spp = out.stats.image_spp;
-                        let floor = image::expected_rel_mse(&out.image, &out.variance, spp);
-                        let seconds = Some(out.stats.wall_seconds);
-                        write_floor(&floor_file, floor, spp, seconds)?;
-                        (out.image, Some((floor, spp, seconds)))
-                    }
-                };
-                (
-                    image,
-                    cached.display().to_string(),
-                    Some(floor.map_or(plan.reference_spp, |f| f.1)),
-                    floor.map(|f| f.0),
-                    floor.and_then(|f| f.2),
-                )
-            }
-        };
-        if (reference.width, reference.height) != (plan.width as usize, plan.height as usize) {
+        if (reference.image.width, reference.image.height)
+            != (plan.width as usize, plan.height as usize)
+        {
             return Err(BenchError::Io(
-                PathBuf::from(&reference_label),
+                PathBuf::from(&reference.label),
                 format!(
                     "reference is {}x{}, the bench renders {}x{}",
-                    reference.width, reference.height, plan.width, plan.height
+                    reference.image.width, reference.image.height, plan.width, plan.height
                 ),
             ));
         }
-        write_image(&reference, &dir, "reference", &plan.out)?;
+        write_image(&reference.image, &dir, "reference", &plan.out)?;
 
-        // Every configuration's render, stepped a batch each in turn, so
-        // that a change in the machine's speed (this one drifts by 15-30%
-        // over minutes) falls on all of them alike rather than on whichever
-        // rendered then: each render's clock counts its own batches only.
-        let mut renders = Vec::new();
-        for config in &plan.configs {
-            let label = config.label();
-            let run_dir = dir.join(&label);
-            std::fs::create_dir_all(&run_dir)
-                .map_err(|e| BenchError::Io(run_dir.clone(), e.to_string()))?;
-            let settings = render_settings(&scene, plan, config, max_spp, plan.seed)?;
-            let mut renderer = Renderer::new(ctx, &scene, settings)?;
-            let run = renderer.start();
-            renders.push(Stepped {
-                message: format!("{name}: {label}"),
-                label,
-                run_dir,
-                renderer,
-                run,
-                rows: Vec::new(),
-                kept: Vec::new(),
-            });
-        }
+        let renders = render_configs(
+            ctx,
+            plan,
+            (&scene, &name, &dir),
+            &reference.image,
+            &checkpoints,
+            (&mut done, total),
+            progress,
+        )?;
         let control = Control {
             at_passes: &checkpoints,
             ..Default::default()
         };
-        while renders.iter().any(|r| !r.run.finished()) {
-            for r in renders.iter_mut().filter(|r| !r.run.finished()) {
-                let mut failure: Option<BenchError> = None;
-                let (rows, kept, run_dir) = (&mut r.rows, &mut r.kept, &r.run_dir);
-                let before = r.run.passes_done();
-                r.renderer.step(
-                    &mut r.run,
-                    &mut |pr| {
-                        done += (pr.passes_done - before) as u64;
-                        progress(&EvalProgress {
-                            message: &r.message,
-                            done,
-                            total,
-                        })
-                    },
-                    &control,
-                    &mut |c: &Checkpoint| {
-                        let error = match image::compare(&c.image, &reference) {
-                            Ok(e) => e,
-                            Err(e) => {
-                                failure.get_or_insert(e.into());
-                                return;
-                            }
-                        };
-                        let (png, exr) = if plan.spp_list.contains(&c.spp) {
-                            match write_image(
-                                &c.image,
-                                run_dir,
-                                &format!("spp-{:04}", c.spp),
-                                &plan.out,
-                            ) {
-                                Ok((p, e)) => (Some(p), Some(e)),
-                                Err(e) => {
-                                    failure.get_or_insert(e);
-                                    (None, None)
-                                }
-                            }
-                        } else {
-                            (None, None)
-                        };
-                        kept.push(c.image.clone());
-                        rows.push(CheckpointRow {
-                            spp: c.spp,
-                            seconds: c.seconds,
-                            error,
-                            zero_contribution_fraction: c.zero_contribution_fraction,
-                            png,
-                            exr,
-                        });
-                    },
-                )?;
-                if let Some(e) = failure {
-                    return Err(e);
-                }
-            }
-        }
 
         let mut runs = Vec::new();
         // Every checkpoint's image, to measure again if the reference is refined.
@@ -697,200 +973,37 @@ pub fn evaluate(
             } = r;
             let out = renderer.finish(run, &control)?;
             if runs.is_empty() {
-                crop_centre = worst_block(&out.image, &reference);
+                crop_centre = worst_block(&out.image, &reference.image);
             }
-            let learned = match renderer.guide() {
-                Some(Guide::Sarsa(guide)) => {
-                    let (vpng, light_choice) =
-                        write_volume_pictures(ctx, &scene, guide, plan, &run_dir)?;
-                    let volumes = learned::volumes_near_light(&scene, guide, 6);
-                    let q = guide
-                        .download_q()
-                        .map_err(|e| BenchError::Render(e.into()))?;
-                    let rows = learned::volume_rows(guide, &q, &volumes);
-                    let hemis = learned::hemispheres(guide.settings.common.grid, &rows, 96);
-                    let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
-                    Some(LearnedPictures {
-                        voronoi: Some(vpng),
-                        light_choice,
-                        hemispheres: hpng,
-                        hemispheres_at: format!(
-                            "the {} volumes nearest the brightest light (volumes {})",
-                            volumes.len(),
-                            volumes
-                                .iter()
-                                .map(|v| v.to_string())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
-                    })
-                }
-                Some(Guide::Neural(neural)) => {
-                    // With inference at the volumes, its tables' pictures too.
-                    let (voronoi, light_choice) = match neural.table() {
-                        Some(table) => {
-                            let (vpng, choice) =
-                                write_volume_pictures(ctx, &scene, table, plan, &run_dir)?;
-                            (Some(vpng), choice)
-                        }
-                        None => (None, None),
-                    };
-                    let rows = learned::neural_rows(ctx, &scene, neural, 6)?;
-                    let hemis = learned::hemispheres(neural.settings.common.grid, &rows, 96);
-                    let (hpng, _) = write_image(&hemis, &run_dir, "hemispheres", &plan.out)?;
-                    Some(LearnedPictures {
-                        voronoi,
-                        light_choice,
-                        hemispheres: hpng,
-                        hemispheres_at: format!(
-                            "the {} points the camera sees nearest the brightest light, as the network infers them",
-                            rows.len()
-                        ),
-                    })
-                }
-                None => None,
-            };
+            let learned = learned_pictures(ctx, plan, &scene, &renderer, &run_dir)?;
             images.push(kept);
-            let s = out.stats;
-            let because = s.stood_back_because();
-            runs.push(RunReport {
-                config: label,
-                checkpoints: rows,
-                passes: s.passes,
-                gpu_passes: s.gpu_passes,
-                wall_seconds: s.wall_seconds,
-                rays_per_second: s.rays_per_second,
-                samples_per_second: s.samples_per_second,
-                zero_contribution_fraction: s.zero_contribution_fraction,
-                mean_path_length: s.mean_path_length,
-                guide_bytes: s.guide_bytes,
-                guide_stood_back_after: s.guide_stood_back_after,
-                guide_stood_back_because: because,
-                error_at_equal_time: ErrorMetrics {
-                    mse: 0.0,
-                    rel_mse: 0.0,
-                    mape: 0.0,
-                },
-                equal_time_extrapolated: false,
-                later_half_cost: None,
-                over_plain: None,
-                learned,
-            });
+            runs.push(run_report(label, rows, out.stats, learned));
         }
 
-        // A reference rendered here is refined until its own error is under
-        // a tenth of the smallest error measured against it (or it has 8x
-        // its samples and a doubling would be slow: `refinement`); then
-        // every error is measured again.
-        if let (Some(first_floor), Some(first_spp), None) =
-            (reference_rel_mse, reference_spp, plan.reference.as_ref())
-        {
-            let smallest = |runs: &[RunReport]| {
-                runs.iter()
-                    .filter_map(|r| r.checkpoints.last().map(|c| c.error.rel_mse))
-                    .fold(f64::INFINITY, f64::min)
-            };
-            let (mut floor, mut spp, mut seconds) = (first_floor, first_spp, reference_seconds);
-            let cap = plan.reference_spp.saturating_mul(8);
-            while let Some(more) = refinement(floor, smallest(&runs), spp, cap, seconds) {
-                let settings = render_settings(
-                    &scene,
-                    plan,
-                    &pt,
-                    more,
-                    plan.seed.wrapping_add(7919).wrapping_add(spp),
-                )?;
-                let message = format!("{name}: refining the reference to {} spp", spp + more);
-                let out = Renderer::new(ctx, &scene, settings)?.run(&mut |pr| {
-                    progress(&EvalProgress {
-                        message: &message,
-                        done,
-                        total: total.max(done + pr.passes_done as u64),
-                    })
-                })?;
-                let added = image::expected_rel_mse(&out.image, &out.variance, more);
-                let (n1, n2) = (spp as f64, more as f64);
-                for (p, q) in reference.pixels.iter_mut().zip(&out.image.pixels) {
-                    for c in 0..3 {
-                        p[c] = ((p[c] as f64 * n1 + q[c] as f64 * n2) / (n1 + n2)) as f32;
-                    }
-                }
-                // Each floor is a variance over a sample count: pool them.
-                floor = (n1 * n1 * floor + n2 * n2 * added) / ((n1 + n2) * (n1 + n2));
-                // A reference cached without its time: its own, estimated
-                // from this refinement's.
-                let took = out.stats.wall_seconds;
-                seconds = Some(seconds.unwrap_or(took * n1 / n2) + took);
-                spp += more;
-                for (run, kept) in runs.iter_mut().zip(&images) {
-                    for (row, img) in run.checkpoints.iter_mut().zip(kept) {
-                        row.error = image::compare(img, &reference)?;
-                    }
-                }
+        let refined = refine_reference(
+            ctx,
+            plan,
+            (&scene, &name, &dir),
+            &mut reference,
+            (&mut runs, &images),
+            (&done, total),
+            progress,
+        )?;
+        if refined {
+            if let Some(last) = images.first().and_then(|k| k.last()) {
+                crop_centre = worst_block(last, &reference.image);
             }
-            if spp != first_spp {
-                let cached = PathBuf::from(&reference_label);
-                reference.write_exr(&cached)?;
-                write_floor(&cached.with_extension("relmse"), floor, spp, seconds)?;
-                write_image(&reference, &dir, "reference", &plan.out)?;
-                if let Some(last) = images.first().and_then(|k| k.last()) {
-                    crop_centre = worst_block(last, &reference);
-                }
-            }
-            reference_rel_mse = Some(floor);
-            reference_spp = Some(spp);
         }
 
-        // Equal time: the budget the fastest configuration needed for all its samples.
-        let equal_time = runs
-            .iter()
-            .filter_map(|r| r.checkpoints.last().map(|c| c.seconds))
-            .fold(f64::INFINITY, f64::min);
-        let first: Vec<CheckpointRow> = runs
-            .first()
-            .map(|r| r.checkpoints.clone())
-            .unwrap_or_default();
-        for r in &mut runs {
-            r.error_at_equal_time = error_at_time(&r.checkpoints, equal_time);
-            r.equal_time_extrapolated = t_extrapolated(&r.checkpoints, equal_time);
-            r.later_half_cost = later_half_cost(&r.checkpoints, &first);
-        }
-        for (i, c) in plan.configs.iter().enumerate() {
-            let label = Config {
-                method: Method::Pt,
-                nee: c.nee,
-            }
-            .label();
-            if c.method != Method::Pt {
-                runs[i].over_plain = runs
-                    .iter()
-                    .find(|r| r.config == label)
-                    .and_then(|p| over_plain(&runs[i].checkpoints, &p.checkpoints));
-            }
-        }
-        let best = |key: &dyn Fn(&RunReport) -> f64| {
-            runs.iter()
-                .min_by(|a, b| key(a).total_cmp(&key(b)))
-                .map(|r| r.config.clone())
-                .unwrap_or_default()
-        };
-        let summary = Summary {
-            fewest_zero_contribution: best(&|r| r.zero_contribution_fraction),
-            lowest_error_equal_spp: best(&|r| {
-                r.checkpoints
-                    .last()
-                    .map_or(f64::INFINITY, |c| c.error.rel_mse)
-            }),
-            lowest_error_equal_time: best(&|r| r.error_at_equal_time.rel_mse),
-        };
+        let (equal_time, summary) = compare_runs(plan, &mut runs);
         scenes.push(SceneReport {
             scene: path.display().to_string(),
             name,
             width: plan.width,
             height: plan.height,
-            reference: reference_label,
-            reference_spp,
-            reference_rel_mse,
+            reference: reference.label,
+            reference_spp: reference.spp,
+            reference_rel_mse: reference.rel_mse,
             smallest_rel_mse: runs
                 .iter()
                 .flat_map(|r| {

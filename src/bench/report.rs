@@ -245,6 +245,137 @@ fn crop(src: &str, width: u32, height: u32, centre: [f64; 2]) -> String {
     )
 }
 
+/// A scene's table of its methods' figures, winners marked.
+fn runs_table(h: &mut String, s: &SceneReport) {
+    *h += "<table><tr><th>method</th><th>zero-contribution</th><th>mean path length</th><th>Mrays/s</th><th>samples/s</th>\
+          <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>time of the later half of samples, over the first method's</th><th>relMSE at plain path tracing's time (with NEE as it has) over its</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
+    for r in &s.runs {
+        let last = r.checkpoints.last();
+        let win = |cond: bool, text: String| {
+            if cond {
+                format!("<span class=\"win\">{text}</span>")
+            } else {
+                text
+            }
+        };
+        let gpu: Vec<String> = r
+            .gpu_passes
+            .iter()
+            .map(|t| format!("{} {:.2}", t.name, t.median_ms))
+            .collect();
+        // A guide that stood back rendered the rest as plain path tracing.
+        let method = match r.guide_stood_back_after {
+            Some(n) => format!(
+                "{} <small>(stood back after {n} passes: {})</small>",
+                esc(&r.config),
+                esc(r.guide_stood_back_because.as_deref().unwrap_or("")),
+            ),
+            None => esc(&r.config),
+        };
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{:.1} MiB</td><td>{}</td></tr>",
+            method,
+            win(r.config == s.summary.fewest_zero_contribution, format!("{:.1}%", 100.0 * r.zero_contribution_fraction)),
+            r.mean_path_length,
+            r.rays_per_second / 1e6,
+            r.samples_per_second,
+            win(r.config == s.summary.lowest_error_equal_spp, format!("{:.4}", last.map_or(f64::NAN, |c| c.error.rel_mse))),
+            last.map_or(f64::NAN, |c| c.error.mape),
+            win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}{}", r.error_at_equal_time.rel_mse, if r.equal_time_extrapolated { "*" } else { "" })),
+            r.error_at_equal_time.mape,
+            r.later_half_cost.map_or("-".to_string(), |c| format!("{c:.2}×")),
+            r.over_plain.map_or("-".to_string(), |c| format!("{c:.2}×")),
+            r.guide_bytes as f64 / (1024.0 * 1024.0),
+            esc(&gpu.join(", "))
+        );
+    }
+    *h += "</table>";
+}
+
+/// A scene's images side by side per sample count, with crops, and its
+/// reference beside them.
+fn images_table(h: &mut String, spp_list: &[u32], s: &SceneReport) {
+    let spps: Vec<u32> = spp_list.to_vec();
+    *h += "<h3>Images</h3><table><tr><th>spp</th>";
+    for r in &s.runs {
+        let _ = write!(h, "<th>{}</th>", esc(&r.config));
+    }
+    *h += "<th>reference</th></tr>";
+    let reference = format!("{}/reference.png", s.name);
+    for (row, spp) in spps.iter().rev().enumerate() {
+        let _ = write!(h, "<tr><td>{spp}</td>");
+        for r in &s.runs {
+            match r
+                .checkpoints
+                .iter()
+                .find(|c| c.spp == *spp && c.png.is_some())
+            {
+                Some(c) => {
+                    let png = c.png.as_deref().unwrap_or_default();
+                    let _ = write!(
+                        h,
+                        "<td><div class=\"row\"><div class=\"cell\"><img src=\"{0}\" width=\"192\" height=\"192\"><br>relMSE {1:.4} · MAPE {2:.4}</div>{3}</div></td>",
+                        esc(png),
+                        c.error.rel_mse,
+                        c.error.mape,
+                        crop(png, s.width, s.height, s.crop_centre)
+                    );
+                }
+                None => *h += "<td></td>",
+            }
+        }
+        // The reference once, beside all rows.
+        if row == 0 {
+            let _ = write!(
+                h,
+                "<td rowspan=\"{0}\" style=\"vertical-align:top\"><div class=\"cell\"><img src=\"{1}\" width=\"192\" height=\"192\"><br>{2}</div>{3}</td>",
+                spps.len(),
+                esc(&reference),
+                s.reference_spp.map_or("given".to_string(), |n| format!("pt+nee, {n} spp")),
+                crop(&reference, s.width, s.height, s.crop_centre)
+            );
+        }
+        *h += "</tr>";
+    }
+}
+
+/// Pictures of what each guide of a scene learned.
+fn learned_pictures(h: &mut String, s: &SceneReport) {
+    for r in s.runs.iter().filter(|r| r.learned.is_some()) {
+        let l = r.learned.as_ref().unwrap();
+        let _ = write!(
+            h,
+            "<h3>What {} learned</h3><div class=\"row\">",
+            esc(&r.config)
+        );
+        if let Some(voronoi) = &l.voronoi {
+            let _ = write!(
+                h,
+                "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Voronoi regions: \
+                 each pixel coloured by the radiance volume its first hit uses</div>",
+                esc(voronoi)
+            );
+        }
+        if let Some((choice, legend)) = &l.light_choice {
+            let _ = write!(
+                h,
+                "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Which light NEE picks: \
+                 each pixel in the lights' colours ({}), mixed by the probabilities its volume learned</div>",
+                esc(choice),
+                esc(legend)
+            );
+        }
+        let _ = write!(
+            h,
+            "<div class=\"cell\"><img src=\"{}\" height=\"120\"><br>Q hemispheres at {}, \
+             seen from above; brighter = more incoming radiance, relative to each one's largest</div></div>",
+            esc(&l.hemispheres),
+            esc(&l.hemispheres_at)
+        );
+    }
+}
+
 fn write_html(
     report: &Report,
     charts: &[Vec<(String, String)>],
@@ -306,93 +437,8 @@ fn write_html(
                 )
             )
         );
-        h += "<table><tr><th>method</th><th>zero-contribution</th><th>mean path length</th><th>Mrays/s</th><th>samples/s</th>\
-              <th>relMSE (final)</th><th>MAPE (final)</th><th>relMSE at equal time</th><th>MAPE at equal time</th><th>time of the later half of samples, over the first method's</th><th>relMSE at plain path tracing's time (with NEE as it has) over its</th><th>guide memory</th><th>GPU ms per pass</th></tr>";
-        for r in &s.runs {
-            let last = r.checkpoints.last();
-            let win = |cond: bool, text: String| {
-                if cond {
-                    format!("<span class=\"win\">{text}</span>")
-                } else {
-                    text
-                }
-            };
-            let gpu: Vec<String> = r
-                .gpu_passes
-                .iter()
-                .map(|t| format!("{} {:.2}", t.name, t.median_ms))
-                .collect();
-            // A guide that stood back rendered the rest as plain path tracing.
-            let method = match r.guide_stood_back_after {
-                Some(n) => format!(
-                    "{} <small>(stood back after {n} passes: {})</small>",
-                    esc(&r.config),
-                    esc(r.guide_stood_back_because.as_deref().unwrap_or("")),
-                ),
-                None => esc(&r.config),
-            };
-            let _ = write!(
-                h,
-                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.0}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{:.1} MiB</td><td>{}</td></tr>",
-                method,
-                win(r.config == s.summary.fewest_zero_contribution, format!("{:.1}%", 100.0 * r.zero_contribution_fraction)),
-                r.mean_path_length,
-                r.rays_per_second / 1e6,
-                r.samples_per_second,
-                win(r.config == s.summary.lowest_error_equal_spp, format!("{:.4}", last.map_or(f64::NAN, |c| c.error.rel_mse))),
-                last.map_or(f64::NAN, |c| c.error.mape),
-                win(r.config == s.summary.lowest_error_equal_time, format!("{:.4}{}", r.error_at_equal_time.rel_mse, if r.equal_time_extrapolated { "*" } else { "" })),
-                r.error_at_equal_time.mape,
-                r.later_half_cost.map_or("-".to_string(), |c| format!("{c:.2}×")),
-                r.over_plain.map_or("-".to_string(), |c| format!("{c:.2}×")),
-                r.guide_bytes as f64 / (1024.0 * 1024.0),
-                esc(&gpu.join(", "))
-            );
-        }
-        h += "</table>";
-        // Images side by side per sample count, with crops.
-        let spps: Vec<u32> = report.spp_list.clone();
-        h += "<h3>Images</h3><table><tr><th>spp</th>";
-        for r in &s.runs {
-            let _ = write!(h, "<th>{}</th>", esc(&r.config));
-        }
-        h += "<th>reference</th></tr>";
-        let reference = format!("{}/reference.png", s.name);
-        for (row, spp) in spps.iter().rev().enumerate() {
-            let _ = write!(h, "<tr><td>{spp}</td>");
-            for r in &s.runs {
-                match r
-                    .checkpoints
-                    .iter()
-                    .find(|c| c.spp == *spp && c.png.is_some())
-                {
-                    Some(c) => {
-                        let png = c.png.as_deref().unwrap_or_default();
-                        let _ = write!(
-                            h,
-                            "<td><div class=\"row\"><div class=\"cell\"><img src=\"{0}\" width=\"192\" height=\"192\"><br>relMSE {1:.4} · MAPE {2:.4}</div>{3}</div></td>",
-                            esc(png),
-                            c.error.rel_mse,
-                            c.error.mape,
-                            crop(png, s.width, s.height, s.crop_centre)
-                        );
-                    }
-                    None => h += "<td></td>",
-                }
-            }
-            // The reference once, beside all rows.
-            if row == 0 {
-                let _ = write!(
-                    h,
-                    "<td rowspan=\"{0}\" style=\"vertical-align:top\"><div class=\"cell\"><img src=\"{1}\" width=\"192\" height=\"192\"><br>{2}</div>{3}</td>",
-                    spps.len(),
-                    esc(&reference),
-                    s.reference_spp.map_or("given".to_string(), |n| format!("pt+nee, {n} spp")),
-                    crop(&reference, s.width, s.height, s.crop_centre)
-                );
-            }
-            h += "</tr>";
-        }
+        runs_table(&mut h, s);
+        images_table(&mut h, &report.spp_list, s);
         h += "</table><h3>Charts</h3><div class=\"row\">";
         for (title, path) in scene_charts {
             let _ = write!(
@@ -403,38 +449,7 @@ fn write_html(
             );
         }
         h += "</div>";
-        for r in s.runs.iter().filter(|r| r.learned.is_some()) {
-            let l = r.learned.as_ref().unwrap();
-            let _ = write!(
-                h,
-                "<h3>What {} learned</h3><div class=\"row\">",
-                esc(&r.config)
-            );
-            if let Some(voronoi) = &l.voronoi {
-                let _ = write!(
-                    h,
-                    "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Voronoi regions: \
-                     each pixel coloured by the radiance volume its first hit uses</div>",
-                    esc(voronoi)
-                );
-            }
-            if let Some((choice, legend)) = &l.light_choice {
-                let _ = write!(
-                    h,
-                    "<div class=\"cell\"><img src=\"{}\" width=\"256\"><br>Which light NEE picks: \
-                     each pixel in the lights' colours ({}), mixed by the probabilities its volume learned</div>",
-                    esc(choice),
-                    esc(legend)
-                );
-            }
-            let _ = write!(
-                h,
-                "<div class=\"cell\"><img src=\"{}\" height=\"120\"><br>Q hemispheres at {}, \
-                 seen from above; brighter = more incoming radiance, relative to each one's largest</div></div>",
-                esc(&l.hemispheres),
-                esc(&l.hemispheres_at)
-            );
-        }
+        learned_pictures(&mut h, s);
     }
     h += "</body></html>\n";
     write_text(&out.join("index.html"), &h)

@@ -434,7 +434,7 @@ impl Builder<'_, '_> {
             }
             other => {
                 return Err(el.error(format!(
-                    "shape '{other}' is not supported; qtrace has obj, rectangle, cube, disk and sphere"
+                    "shape '{other}' is not supported; qtrace has obj, ply, serialized, rectangle, cube, disk and sphere"
                 )))
             }
         };
@@ -447,27 +447,7 @@ impl Builder<'_, '_> {
             (triangles, normals)
         };
 
-        let mut emission = None;
-        for e in p.nested("emitter") {
-            if e.plugin()? != "area" {
-                return Err(e.error(format!(
-                    "{} inside a shape: a shape emits with 'area'",
-                    plugin_name(e)
-                )));
-            }
-            if emission.is_some() {
-                return Err(e.error("a shape has one area emitter"));
-            }
-            let ep = Props::new(e);
-            let radiance = ep
-                .radiance("radiance")?
-                .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?;
-            if radiance.min_element() < 0.0 {
-                return Err(e.error("the area emitter's radiance is negative"));
-            }
-            ep.finish()?;
-            emission = Some(radiance);
-        }
+        let emission = area_emission(&p)?;
         let mut desc = None;
         let mut shared = None;
         for b in p.nested("bsdf") {
@@ -880,6 +860,32 @@ fn ior(el: &Element, p: &Props, name: &str, default: &str) -> Result<f32, SceneE
         })
 }
 
+/// The radiance of a shape's nested `area` emitter, if it has one.
+fn area_emission(p: &Props) -> Result<Option<Vec3>, SceneError> {
+    let mut emission = None;
+    for e in p.nested("emitter") {
+        if e.plugin()? != "area" {
+            return Err(e.error(format!(
+                "{} inside a shape: a shape emits with 'area'",
+                plugin_name(e)
+            )));
+        }
+        if emission.is_some() {
+            return Err(e.error("a shape has one area emitter"));
+        }
+        let ep = Props::new(e);
+        let radiance = ep
+            .radiance("radiance")?
+            .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?;
+        if radiance.min_element() < 0.0 {
+            return Err(e.error("the area emitter's radiance is negative"));
+        }
+        ep.finish()?;
+        emission = Some(radiance);
+    }
+    Ok(emission)
+}
+
 /// A rough BSDF's `alpha` (or `alpha_u` and `alpha_v`, rendered isotropic
 /// with a warning) and `distribution`, Mitsuba's defaults 0.1 and Beckmann.
 fn roughness(el: &Element, p: &Props, kind: &str) -> Result<(f32, Distribution), SceneError> {
@@ -911,6 +917,81 @@ fn roughness(el: &Element, p: &Props, kind: &str) -> Result<(f32, Distribution),
         return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
     }
     Ok((a, distribution))
+}
+
+/// A `conductor` or `roughconductor`: its Fresnel term (a named metal, or
+/// eta and k), reflectance and roughness.
+fn conductor(el: &Element, p: &Props, kind: &str) -> Result<Surface, SceneError> {
+    let material = p.string("material")?;
+    let (eta, k) = (p.color("eta")?, p.color("k")?);
+    // Mitsuba's default, and material "none", is η 0, k 1: a
+    // Fresnel term of 1 at every angle.
+    let fresnel = match (material, eta, k) {
+        (None | Some("none"), None, None) => None,
+        (Some(name), None, None) => {
+            let Some((_, eta, k)) = CONDUCTOR_TABLE.iter().find(|(n, _, _)| *n == name) else {
+                return Err(el.error(format!(
+                    "{kind} material '{name}' is not one of Mitsuba's conductors"
+                )));
+            };
+            Some(ComplexIor {
+                eta: Vec3::from(*eta),
+                k: Vec3::from(*k),
+            })
+        }
+        (Some(name), _, _) => {
+            return Err(el.error(format!(
+                "{kind}: give material '{name}' or eta and k, not both"
+            )))
+        }
+        (None, eta, k) => {
+            let eta = eta.unwrap_or(Vec3::ZERO);
+            let k = k.unwrap_or(Vec3::ONE);
+            if eta.min_element() < 0.0 || k.min_element() < 0.0 {
+                return Err(el.error(format!("{kind}: eta and k must be non-negative")));
+            }
+            Some(ComplexIor { eta, k })
+        }
+    };
+    let reflectance = reflectance(el, p, "specular_reflectance", 1.0)?;
+    let (alpha, distribution) = if kind == "roughconductor" {
+        roughness(el, p, kind)?
+    } else {
+        (0.0, Distribution::Ggx)
+    };
+    Ok(Surface::Conductor {
+        reflectance,
+        alpha,
+        distribution,
+        fresnel,
+    })
+}
+
+/// A `roughplastic`: `plastic` under a microfacet coat.
+fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
+    let int = ior(el, p, "int_ior", "polypropylene")?;
+    let ext = ior(el, p, "ext_ior", "air")?;
+    if p.float("alpha_u")?.is_some() || p.float("alpha_v")?.is_some() {
+        return Err(el.error(
+            "roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u and alpha_v",
+        ));
+    }
+    let (alpha, distribution) = roughness(el, p, "roughplastic")?;
+    let diffuse = reflectance(el, p, "diffuse_reflectance", 0.5)?;
+    let specular = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
+    if specular.min_element() < 0.0 {
+        return Err(el.error("roughplastic specular_reflectance must not be negative"));
+    }
+    let eta = int / ext;
+    Ok(Surface::RoughPlastic {
+        diffuse,
+        specular,
+        eta,
+        nonlinear: p.boolean("nonlinear")?.unwrap_or(false),
+        alpha,
+        distribution,
+        table: crate::bsdf::RoughTable::new(eta, alpha, distribution),
+    })
 }
 
 /// A `<bsdf>` element as qtrace renders it.
@@ -945,51 +1026,7 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
         "diffuse" => one(Surface::Diffuse {
             albedo: reflectance(el, &p, "reflectance", 0.5)?,
         }),
-        "conductor" | "roughconductor" => {
-            let material = p.string("material")?;
-            let (eta, k) = (p.color("eta")?, p.color("k")?);
-            // Mitsuba's default, and material "none", is η 0, k 1: a
-            // Fresnel term of 1 at every angle.
-            let fresnel = match (material, eta, k) {
-                (None | Some("none"), None, None) => None,
-                (Some(name), None, None) => {
-                    let Some((_, eta, k)) = CONDUCTOR_TABLE.iter().find(|(n, _, _)| *n == name) else {
-                        return Err(el.error(format!(
-                            "{kind} material '{name}' is not one of Mitsuba's conductors"
-                        )));
-                    };
-                    Some(ComplexIor {
-                        eta: Vec3::from(*eta),
-                        k: Vec3::from(*k),
-                    })
-                }
-                (Some(name), _, _) => {
-                    return Err(el.error(format!(
-                        "{kind}: give material '{name}' or eta and k, not both"
-                    )))
-                }
-                (None, eta, k) => {
-                    let eta = eta.unwrap_or(Vec3::ZERO);
-                    let k = k.unwrap_or(Vec3::ONE);
-                    if eta.min_element() < 0.0 || k.min_element() < 0.0 {
-                        return Err(el.error(format!("{kind}: eta and k must be non-negative")));
-                    }
-                    Some(ComplexIor { eta, k })
-                }
-            };
-            let reflectance = reflectance(el, &p, "specular_reflectance", 1.0)?;
-            let (alpha, distribution) = if kind == "roughconductor" {
-                roughness(el, &p, kind)?
-            } else {
-                (0.0, Distribution::Ggx)
-            };
-            one(Surface::Conductor {
-                reflectance,
-                alpha,
-                distribution,
-                fresnel,
-            })
-        }
+        "conductor" | "roughconductor" => one(conductor(el, &p, kind)?),
         "dielectric" => {
             let int = ior(el, &p, "int_ior", "bk7")?;
             let ext = ior(el, &p, "ext_ior", "air")?;
@@ -1060,31 +1097,7 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             d.one_sided = false;
             d
         }
-        "roughplastic" => {
-            let int = ior(el, &p, "int_ior", "polypropylene")?;
-            let ext = ior(el, &p, "ext_ior", "air")?;
-            if p.float("alpha_u")?.is_some() || p.float("alpha_v")?.is_some() {
-                return Err(el.error(
-                    "roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u and alpha_v",
-                ));
-            }
-            let (alpha, distribution) = roughness(el, &p, kind)?;
-            let diffuse = reflectance(el, &p, "diffuse_reflectance", 0.5)?;
-            let specular = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
-            if specular.min_element() < 0.0 {
-                return Err(el.error("roughplastic specular_reflectance must not be negative"));
-            }
-            let eta = int / ext;
-            one(Surface::RoughPlastic {
-                diffuse,
-                specular,
-                eta,
-                nonlinear: p.boolean("nonlinear")?.unwrap_or(false),
-                alpha,
-                distribution,
-                table: crate::bsdf::RoughTable::new(eta, alpha, distribution),
-            })
-        }
+        "roughplastic" => one(rough_plastic(el, &p)?),
         "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
