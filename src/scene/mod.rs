@@ -8,6 +8,7 @@ pub mod obj;
 pub mod ply;
 pub mod procedural;
 pub mod serialized;
+pub mod texture;
 
 use crate::bsdf::{luminance, Distribution, Surface};
 use crate::shaders;
