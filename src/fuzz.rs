@@ -76,6 +76,8 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "scenes/mitsuba/veach-mis/scene.xml",
         "tests/fixtures/mitsuba/coverage-a.xml",
         "tests/fixtures/mitsuba/coverage-b.xml",
+        "tests/fixtures/mitsuba/coverage-c.xml",
+        "tests/fixtures/mitsuba/coverage-d.xml",
     ]
     .iter()
     .map(PathBuf::from)
