@@ -174,6 +174,11 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "roughplastic is isotropic",
         ),
         (
+            "<shape type=\"cube\"><bsdf type=\"roughdielectric\"><float name=\"int_ior\" value=\"1.000277\"/></bsdf></shape>",
+            5,
+            "they must differ",
+        ),
+        (
             "<shape type=\"cube\">\n<bsdf type=\"diffuse\"><float name=\"roughness\" value=\"1\"/></bsdf></shape>",
             6,
             "parameter 'roughness'",

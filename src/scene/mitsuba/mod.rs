@@ -967,10 +967,23 @@ fn conductor(el: &Element, p: &Props, kind: &str) -> Result<Surface, SceneError>
     })
 }
 
+/// A rough interface between equal indices bends nothing: every
+/// microfacet passes light straight on, a delta lobe no rough model has
+/// (Mitsuba refuses it too).
+fn distinct_iors(el: &Element, kind: &str, int: f32, ext: f32) -> Result<(), SceneError> {
+    if int == ext {
+        return Err(el.error(format!(
+            "{kind}: int_ior and ext_ior are both {int}; they must differ"
+        )));
+    }
+    Ok(())
+}
+
 /// A `roughplastic`: `plastic` under a microfacet coat.
 fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     let int = ior(el, p, "int_ior", "polypropylene")?;
     let ext = ior(el, p, "ext_ior", "air")?;
+    distinct_iors(el, "roughplastic", int, ext)?;
     if p.float("alpha_u")?.is_some() || p.float("alpha_v")?.is_some() {
         return Err(el.error(
             "roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u and alpha_v",
@@ -1086,6 +1099,7 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
         "roughdielectric" => {
             let int = ior(el, &p, "int_ior", "bk7")?;
             let ext = ior(el, &p, "ext_ior", "air")?;
+            distinct_iors(el, kind, int, ext)?;
             let (alpha, distribution) = roughness(el, &p, kind)?;
             let mut d = one(Surface::RoughDielectric {
                 ior: int / ext,
