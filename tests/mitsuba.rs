@@ -5,7 +5,7 @@
 
 mod common;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use qtrace::image::Image;
 use qtrace::render::{Method, Overrides, RenderOutput};
 use qtrace::scene::{FovAxis, Loader, PixelFilter};
@@ -74,6 +74,8 @@ fn load_text(text: &str) -> Result<Scene, String> {
             Some("m.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec()),
             // One triangle of zero area among two.
             Some("d.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n".to_vec()),
+            // A quad with texture coordinates.
+            Some("q.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0 0 0\n1 -1 0 1 0\n1 1 0 1 1\n-1 1 0 0 1\n3 0 1 2\n3 0 2 3\n".to_vec()),
             Some("inc.xml") => {
                 Ok(br#"<scene version="3.0.0"><bsdf type="diffuse" id="inc"/></scene>"#.to_vec())
             }
@@ -120,6 +122,48 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     // The spheres and the disk are tessellated.
     assert!(scene.triangles.len() > 2 + 1 + 12 + 2000);
     assert!(scene.has_non_diffuse());
+}
+
+/// The texture coordinates of the built-in shapes and of a PLY mesh are
+/// Mitsuba's: 3.9.1's `si.uv` where a ray meets each (the curved shapes'
+/// interpolated across their tessellation, so nearly).
+#[test]
+fn texture_coordinates_are_mitsubas() {
+    let moved = r#"<transform name="to_world"><translate x="10"/></transform>"#;
+    let cases: [(&str, Vec3, Vec3, [f32; 2], f32); 12] = [
+        ("<shape type=\"rectangle\">{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
+        ("<shape type=\"disk\">{}</shape>", Vec3::new(0.3, -0.4, 2.0), -Vec3::Z, [0.5, 0.85242], 2e-3),
+        ("<shape type=\"sphere\">{}</shape>", Vec3::new(0.3, -0.4, 3.0), -Vec3::Z, [0.85242, 0.16667], 2e-3),
+        ("<shape type=\"sphere\">{}</shape>", Vec3::new(3.0, 0.2, 0.5), -Vec3::X, [0.03709, 0.33333], 2e-3),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, -0.6, 3.0), -Vec3::Z, [0.2, 0.65], 1e-5),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(3.0, 0.3, -0.6), -Vec3::X, [0.65, 0.8], 1e-5),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, 3.0, -0.6), -Vec3::Y, [0.35, 0.8], 1e-5),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, -0.6, -3.0), Vec3::Z, [0.8, 0.65], 1e-5),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(-3.0, 0.3, -0.6), Vec3::X, [0.65, 0.2], 1e-5),
+        ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, -3.0, -0.6), Vec3::Y, [0.2, 0.65], 1e-5),
+        ("<shape type=\"ply\"><string name=\"filename\" value=\"q.ply\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
+        ("<shape type=\"ply\"><string name=\"filename\" value=\"q.ply\"/><boolean name=\"flip_tex_coords\" value=\"true\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.8], 1e-5),
+    ];
+    for (shape, o, d, want, tolerance) in cases {
+        let body = shape.replace("{}", moved);
+        let scene = load_text(&with_body(&body)).unwrap();
+        let o = o + Vec3::new(10.0, 0.0, 0.0);
+        let (t, i) = scene.intersect_brute(o, d).unwrap();
+        let tri = &scene.triangles[i as usize];
+        let p = o + t * d - Vec3::from(tri.v0);
+        let (e1, e2) = (Vec3::from(tri.e1), Vec3::from(tri.e2));
+        // Barycentric coordinates of p in the triangle.
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (p1, p2) = (p.dot(e1), p.dot(e2));
+        let det = d11 * d22 - d12 * d12;
+        let (b1, b2) = ((d22 * p1 - d12 * p2) / det, (d11 * p2 - d12 * p1) / det);
+        let [a, b, c] = scene.uvs[i as usize];
+        let uv = a * (1.0 - b1 - b2) + b * b1 + c * b2;
+        assert!(
+            (uv - Vec2::from(want)).abs().max_element() < tolerance,
+            "{body}: {uv} vs Mitsuba's {want:?}"
+        );
+    }
 }
 
 /// wavelength:value spectra become the RGB Mitsuba 3.9.1's RGB variants

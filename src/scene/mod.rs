@@ -13,7 +13,7 @@ pub mod texture;
 use crate::bsdf::{luminance, Distribution, Surface};
 use crate::shaders;
 use file::{CameraDesc, RenderDefaults, SceneFile};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use std::path::{Path, PathBuf};
 
 /// Everything that can be wrong with a scene; each names the file.
@@ -270,6 +270,9 @@ pub struct Scene {
     /// [`pack_normal`] (the fourth word unused), in the triangles' order;
     /// empty where every triangle is shaded flat.
     pub normals: Vec<[u32; 4]>,
+    /// Texture coordinates at each triangle's corners, in `triangles`'
+    /// order; empty where no shape has them.
+    pub uvs: Vec<[Vec2; 3]>,
     pub lights: Vec<shaders::Light>,
     /// Point, spot and directional lights, and their entries of NEE's light
     /// list, which follow `lights` on the GPU (`LIGHT_DELTA | index`).
@@ -446,6 +449,7 @@ impl Scene {
         let Geometry {
             positions,
             normals,
+            uvs,
             material_of,
             sources,
             source_of,
@@ -477,17 +481,17 @@ impl Scene {
         let zero_area = |t: &[Vec3; 3]| {
             0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() <= 1e-12 * extent * extent
         };
-        let (positions, normals, material_of, source_of) = if drop_degenerate {
+        let (positions, (normals, uvs), material_of, source_of) = if drop_degenerate {
             drop_zero_area(
                 positions,
-                normals,
+                (normals, uvs),
                 material_of,
                 source_of,
                 &sources,
                 zero_area,
             )
         } else {
-            (positions, normals, material_of, source_of)
+            (positions, (normals, uvs), material_of, source_of)
         };
         if positions.is_empty() {
             return Err(invalid(
@@ -543,6 +547,11 @@ impl Scene {
                 })
                 .collect()
         };
+        let uvs = bvh
+            .order
+            .iter()
+            .filter_map(|&i| uvs.get(i as usize).copied())
+            .collect();
         Ok(Self {
             path: path.to_path_buf(),
             fingerprint,
@@ -554,6 +563,7 @@ impl Scene {
             materials,
             triangles,
             normals,
+            uvs,
             lights,
             delta_lights: delta_lights.into_iter().map(|(l, _)| l).collect(),
             delta_entries,
@@ -664,12 +674,17 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
 #[allow(clippy::type_complexity)]
 fn drop_zero_area(
     positions: Vec<[Vec3; 3]>,
-    normals: Vec<[Vec3; 3]>,
+    (normals, uvs): (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>),
     material_of: Vec<u32>,
     source_of: Vec<u32>,
     sources: &[(PathBuf, String)],
     zero_area: impl Fn(&[Vec3; 3]) -> bool,
-) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<u32>, Vec<u32>) {
+) -> (
+    Vec<[Vec3; 3]>,
+    (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>),
+    Vec<u32>,
+    Vec<u32>,
+) {
     let mut dropped = vec![0usize; sources.len()];
     let keep: Vec<bool> = positions
         .iter()
@@ -681,7 +696,7 @@ fn drop_zero_area(
         })
         .collect();
     if dropped.iter().all(|&n| n == 0) {
-        return (positions, normals, material_of, source_of);
+        return (positions, (normals, uvs), material_of, source_of);
     }
     for ((path, what), &n) in sources.iter().zip(&dropped) {
         if n > 0 {
@@ -703,9 +718,14 @@ fn drop_zero_area(
     } else {
         filter(normals, &keep)
     };
+    let uvs = if uvs.is_empty() {
+        uvs
+    } else {
+        filter(uvs, &keep)
+    };
     (
         filter(positions, &keep),
-        normals,
+        (normals, uvs),
         filter(material_of, &keep),
         filter(source_of, &keep),
     )
@@ -784,10 +804,18 @@ struct Geometry {
     /// Shading normals at each triangle's corners; empty while every
     /// triangle is shaded flat (then faces' normals fill in for them).
     normals: Vec<[Vec3; 3]>,
+    /// Texture coordinates at each triangle's corners; empty while no shape
+    /// has them (then a triangle's barycentric coordinates, as in
+    /// Mitsuba, fill in for them).
+    uvs: Vec<[Vec2; 3]>,
     material_of: Vec<u32>,
     sources: Vec<(PathBuf, String)>,
     source_of: Vec<u32>,
 }
+
+/// A triangle's texture coordinates where its shape has none: Mitsuba's,
+/// the barycentric coordinates of its corners.
+const BARYCENTRIC_UVS: [Vec2; 3] = [Vec2::ZERO, Vec2::X, Vec2::Y];
 
 /// A triangle's own normal at each corner: flat shading.
 fn face_normals(t: &[Vec3; 3]) -> [Vec3; 3] {
@@ -802,8 +830,21 @@ impl Geometry {
         source: (PathBuf, String),
         triangles: Vec<[Vec3; 3]>,
         normals: Option<Vec<[Vec3; 3]>>,
+        uvs: Option<Vec<[Vec2; 3]>>,
         material: u32,
     ) {
+        match uvs {
+            Some(uv) => {
+                if self.uvs.is_empty() {
+                    self.uvs = vec![BARYCENTRIC_UVS; self.positions.len()];
+                }
+                self.uvs.extend(uv);
+            }
+            None if !self.uvs.is_empty() => self
+                .uvs
+                .extend(std::iter::repeat_n(BARYCENTRIC_UVS, triangles.len())),
+            None => {}
+        }
         if normals.is_some() && self.normals.is_empty() {
             self.normals = self.positions.iter().map(face_normals).collect();
         }

@@ -12,7 +12,7 @@ use super::file::RenderDefaults;
 use super::{obj, ply, serialized};
 use super::{Camera, FovAxis, Geometry, Loader, Material, Parts, PixelFilter, SceneError};
 use crate::bsdf::{ComplexIor, Distribution, Surface};
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use xml::{plugin_name, Element, Props};
@@ -85,9 +85,13 @@ pub(super) fn read(
     })
 }
 
-/// A shape's triangles in world space, and its shading normals at their
-/// corners if it has them.
-type Mesh = (Vec<[Vec3; 3]>, Option<Vec<[Vec3; 3]>>);
+/// A shape's triangles in world space, and its shading normals and
+/// texture coordinates at their corners if it has them.
+type Mesh = (
+    Vec<[Vec3; 3]>,
+    Option<Vec<[Vec3; 3]>>,
+    Option<Vec<[Vec2; 3]>>,
+);
 
 /// A BSDF as a shape uses it: the surface, and whether its back is black
 /// (Mitsuba's BSDFs reflect on the front only unless wrapped in `twosided`).
@@ -397,28 +401,41 @@ impl Builder<'_, '_> {
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip = p.boolean("flip_normals")?.unwrap_or(false);
         let face_normals = p.boolean("face_normals")?.unwrap_or(false);
-        // A mesh file's name (texture coordinates' orientation aside: no
-        // textures yet).
+        // A mesh file's name; Mitsuba turns an OBJ's v over by default.
         let filename = || {
-            p.boolean("flip_tex_coords")?;
             p.string("filename")?
                 .ok_or_else(|| el.error(format!("shape '{kind}' needs a filename")))
         };
-        let (triangles, normals) = match kind {
-            "rectangle" => (shapes::rectangle(to_world), None),
-            "cube" => (shapes::cube(to_world), None),
-            "disk" => (shapes::disk(to_world), None),
+        let flip_v = || -> Result<bool, SceneError> {
+            Ok(p.boolean("flip_tex_coords")?.unwrap_or(kind == "obj"))
+        };
+        let (triangles, normals, uvs) = match kind {
+            "rectangle" => {
+                let (t, uv) = shapes::rectangle(to_world);
+                (t, None, Some(uv))
+            }
+            "cube" => {
+                let (t, uv) = shapes::cube(to_world);
+                (t, None, Some(uv))
+            }
+            "disk" => {
+                let (t, uv) = shapes::disk(to_world);
+                (t, None, Some(uv))
+            }
             "sphere" => {
                 let center = p.point("center")?.unwrap_or(Vec3::ZERO);
                 let radius = p.float_or("radius", 1.0)?;
                 if radius <= 0.0 {
                     return Err(el.error(format!("sphere radius {radius} must be positive")));
                 }
-                let (t, n) = shapes::sphere(to_world, center, radius);
-                (t, Some(n))
+                let (t, n, uv) = shapes::sphere(to_world, center, radius);
+                (t, Some(n), Some(uv))
             }
-            "obj" => self.obj(el, filename()?, to_world, face_normals)?,
-            "ply" => self.ply(el, filename()?, to_world, face_normals)?,
+            "obj" => {
+                flip_v()?;
+                self.obj(el, filename()?, to_world, face_normals)?
+            }
+            "ply" => self.ply(el, filename()?, to_world, (face_normals, flip_v()?))?,
             "serialized" => {
                 let name = filename()?;
                 let index = p.integer("shape_index")?.unwrap_or(0);
@@ -430,7 +447,7 @@ impl Builder<'_, '_> {
                         "max_smooth_angle is Mitsuba 0.6's; Mitsuba 3 does not read it (give the mesh its normals, or face_normals)",
                     ));
                 }
-                self.serialized(el, name, index as u32, to_world, face_normals)?
+                self.serialized(el, name, index as u32, to_world, (face_normals, flip_v()?))?
             }
             other => {
                 return Err(el.error(format!(
@@ -438,13 +455,14 @@ impl Builder<'_, '_> {
                 )))
             }
         };
-        let (triangles, normals) = if flip {
+        let (triangles, normals, uvs) = if flip {
             (
                 triangles.into_iter().map(|[a, b, c]| [a, c, b]).collect(),
                 normals.map(|n| n.into_iter().map(|[a, b, c]| [-a, -c, -b]).collect()),
+                uvs.map(|uv| uv.into_iter().map(|[a, b, c]| [a, c, b]).collect()),
             )
         } else {
-            (triangles, normals)
+            (triangles, normals, uvs)
         };
 
         let emission = area_emission(&p)?;
@@ -507,7 +525,7 @@ impl Builder<'_, '_> {
                 emission: le,
                 one_sided: desc.one_sided,
             });
-            self.add(el, &label, triangles, normals, m);
+            self.add(el, &label, (triangles, normals, uvs), m);
             return Ok(());
         }
         let m = match shared {
@@ -528,20 +546,13 @@ impl Builder<'_, '_> {
                 m
             }
         };
-        self.add(el, &label, triangles, normals, m);
+        self.add(el, &label, (triangles, normals, uvs), m);
         Ok(())
     }
 
-    fn add(
-        &mut self,
-        el: &Element,
-        label: &str,
-        triangles: Vec<[Vec3; 3]>,
-        normals: Option<Vec<[Vec3; 3]>>,
-        material: u32,
-    ) {
+    fn add(&mut self, el: &Element, label: &str, (triangles, normals, uvs): Mesh, material: u32) {
         let source = (el.file.as_ref().clone(), label.to_string());
-        self.geometry.add(source, triangles, normals, material);
+        self.geometry.add(source, triangles, normals, uvs, material);
     }
 
     /// An OBJ mesh in world space, with Mitsuba's shading normals unless
@@ -578,7 +589,7 @@ impl Builder<'_, '_> {
             normal_corners.extend(g.normal_corners);
         }
         if face_normals {
-            return Ok((triangles, None));
+            return Ok((triangles, None, None));
         }
         let normal_matrix = glam::Mat3::from_mat4(to_world).inverse().transpose();
         let file_normals: Vec<Vec3> = parsed
@@ -598,7 +609,7 @@ impl Builder<'_, '_> {
                 }
             })
             .collect();
-        Ok((triangles, Some(normals)))
+        Ok((triangles, Some(normals), None))
     }
 }
 
@@ -624,12 +635,12 @@ impl Builder<'_, '_> {
         el: &Element,
         name: &str,
         to_world: Mat4,
-        face_normals: bool,
+        (face_normals, flip_v): (bool, bool),
     ) -> Result<Mesh, SceneError> {
         let (path, bytes) = self.mesh_file(el, name)?;
         let mesh = ply::parse_ply(&bytes, self.triangle_budget())
             .map_err(|m| malformed(&path, "PLY", &m, el))?;
-        Ok(placed_mesh(&mesh, to_world, face_normals))
+        Ok(placed_mesh(&mesh, to_world, face_normals, flip_v))
     }
 
     /// Shape `index` of a serialized file in world space; the file's own
@@ -640,13 +651,13 @@ impl Builder<'_, '_> {
         name: &str,
         index: u32,
         to_world: Mat4,
-        face_normals: bool,
+        (face_normals, flip_v): (bool, bool),
     ) -> Result<Mesh, SceneError> {
         let (path, bytes) = self.mesh_file(el, name)?;
         let shape = serialized::parse_serialized(&bytes, index, self.triangle_budget())
             .map_err(|m| malformed(&path, "serialized mesh", &m, el))?;
         let flat = face_normals || shape.flags & serialized::FACE_NORMALS != 0;
-        Ok(placed_mesh(&shape.mesh, to_world, flat))
+        Ok(placed_mesh(&shape.mesh, to_world, flat, flip_v))
     }
 }
 
@@ -663,8 +674,9 @@ fn malformed(path: &Path, what: &str, message: &str, el: &Element) -> SceneError
 }
 
 /// An indexed mesh in world space, with Mitsuba's shading normals unless
-/// `face_normals`: the file's where it has them, else computed.
-fn placed_mesh(mesh: &ply::IndexedMesh, to_world: Mat4, face_normals: bool) -> Mesh {
+/// `face_normals`: the file's where it has them, else computed; and its
+/// texture coordinates if it has them (v turned over with `flip_v`).
+fn placed_mesh(mesh: &ply::IndexedMesh, to_world: Mat4, face_normals: bool, flip_v: bool) -> Mesh {
     let positions: Vec<Vec3> = mesh
         .positions
         .iter()
@@ -675,8 +687,23 @@ fn placed_mesh(mesh: &ply::IndexedMesh, to_world: Mat4, face_normals: bool) -> M
         .iter()
         .map(|t| t.map(|i| positions[i as usize]))
         .collect();
+    let uvs = mesh.uvs.as_ref().map(|uv| {
+        mesh.triangles
+            .iter()
+            .map(|t| {
+                t.map(|i| {
+                    let p = uv[i as usize];
+                    if flip_v {
+                        Vec2::new(p.x, 1.0 - p.y)
+                    } else {
+                        p
+                    }
+                })
+            })
+            .collect()
+    });
     if face_normals {
-        return (triangles, None);
+        return (triangles, None, uvs);
     }
     let normals = match &mesh.normals {
         Some(n) => {
@@ -689,7 +716,7 @@ fn placed_mesh(mesh: &ply::IndexedMesh, to_world: Mat4, face_normals: bool) -> M
         }
         None => smooth_normals(&triangles, &mesh.triangles),
     };
-    (triangles, Some(normals))
+    (triangles, Some(normals), uvs)
 }
 
 /// Mitsuba's normals for a mesh without its own: at each vertex the sum of

@@ -2,7 +2,7 @@
 //! are tessellated finely and scaled so that their area is the true shape's
 //! (an emitter's power, a sphere's silhouette stay right).
 
-use glam::{Mat3, Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec2, Vec3};
 use std::f32::consts::PI;
 
 /// Segments around a disk or a sphere's equator.
@@ -28,6 +28,14 @@ fn placed(to_world: Mat4, triangles: Vec<[Vec3; 3]>) -> Vec<[Vec3; 3]> {
         .collect()
 }
 
+/// Texture coordinates wound as [`placed`] winds.
+fn placed_uvs(to_world: Mat4, uvs: Vec<[Vec2; 3]>) -> Vec<[Vec2; 3]> {
+    let mirrors = Mat3::from_mat4(to_world).determinant() < 0.0;
+    uvs.into_iter()
+        .map(|[a, b, c]| if mirrors { [a, c, b] } else { [a, b, c] })
+        .collect()
+}
+
 /// Normals at `local`'s corners (a unit sphere's points are their own
 /// normals), transformed as normals and wound as [`placed`] winds.
 fn placed_normals(to_world: Mat4, local: &[[Vec3; 3]]) -> Vec<[Vec3; 3]> {
@@ -47,22 +55,28 @@ fn placed_normals(to_world: Mat4, local: &[[Vec3; 3]]) -> Vec<[Vec3; 3]> {
         .collect()
 }
 
-/// [-1, 1]² in the plane z = 0, facing +z.
-pub fn rectangle(to_world: Mat4) -> Vec<[Vec3; 3]> {
+/// [-1, 1]² in the plane z = 0, facing +z; Mitsuba's (u, v) is
+/// ((x + 1) / 2, (y + 1) / 2).
+pub fn rectangle(to_world: Mat4) -> (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
     let p = |x: f32, y: f32| Vec3::new(x, y, 0.0);
-    placed(
-        to_world,
-        vec![
-            [p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0)],
-            [p(-1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)],
-        ],
-    )
+    let local = vec![
+        [p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0)],
+        [p(-1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)],
+    ];
+    let uvs = local
+        .iter()
+        .map(|t| t.map(|v| Vec2::new(0.5 * (v.x + 1.0), 0.5 * (v.y + 1.0))))
+        .collect();
+    (placed(to_world, local), placed_uvs(to_world, uvs))
 }
 
 /// [-1, 1]³, its faces facing out. A mesh in Mitsuba: the winding, not
-/// the transformed normal, says which side is out.
-pub fn cube(to_world: Mat4) -> Vec<[Vec3; 3]> {
+/// the transformed normal, says which side is out. Each face's (u, v) is
+/// Mitsuba's: two of ((1 ± x) / 2, (1 ± y) / 2, (1 ± z) / 2) per face
+/// (`cube_uv`).
+pub fn cube(to_world: Mat4) -> (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
     let mut out = Vec::with_capacity(12);
+    let mut uvs = Vec::with_capacity(12);
     for axis in 0..3 {
         for sign in [-1.0f32, 1.0] {
             let mut n = Vec3::ZERO;
@@ -71,16 +85,35 @@ pub fn cube(to_world: Mat4) -> Vec<[Vec3; 3]> {
             let mut u = Vec3::ZERO;
             u[(axis + 1) % 3] = 1.0;
             let v = n.cross(u);
-            let corner = |a: f32, b: f32| to_world.transform_point3(n + a * u + b * v);
-            out.push([corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0)]);
-            out.push([corner(-1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]);
+            let local = |a: f32, b: f32| n + a * u + b * v;
+            for t in [
+                [local(-1.0, -1.0), local(1.0, -1.0), local(1.0, 1.0)],
+                [local(-1.0, -1.0), local(1.0, 1.0), local(-1.0, 1.0)],
+            ] {
+                out.push(t.map(|p| to_world.transform_point3(p)));
+                uvs.push(t.map(|p| cube_uv(axis, sign, p)));
+            }
         }
     }
-    out
+    (out, uvs)
 }
 
-/// The unit disk in the plane z = 0, facing +z.
-pub fn disk(to_world: Mat4) -> Vec<[Vec3; 3]> {
+/// Mitsuba's (u, v) on the cube's face along `axis` on side `sign`.
+fn cube_uv(axis: usize, sign: f32, p: Vec3) -> Vec2 {
+    let h = |c: f32| 0.5 * (1.0 + c);
+    match (axis, sign > 0.0) {
+        (2, true) => Vec2::new(h(p.y), h(p.x)),
+        (2, false) => Vec2::new(h(-p.y), h(p.x)),
+        (0, true) => Vec2::new(h(p.y), h(-p.z)),
+        (0, false) => Vec2::new(h(p.y), h(p.z)),
+        (1, true) => Vec2::new(h(-p.x), h(-p.z)),
+        _ => Vec2::new(h(p.z), h(p.x)),
+    }
+}
+
+/// The unit disk in the plane z = 0, facing +z; Mitsuba's (u, v) is the
+/// radius and the angle over 2π, interpolated across each triangle.
+pub fn disk(to_world: Mat4) -> (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
     let n = SEGMENTS as f32;
     // The polygon's area n/2 sin(2 pi / n) r² made pi r².
     let r = (PI / (0.5 * n * (2.0 * PI / n).sin())).sqrt();
@@ -91,11 +124,28 @@ pub fn disk(to_world: Mat4) -> Vec<[Vec3; 3]> {
     let triangles = (0..SEGMENTS)
         .map(|i| [Vec3::ZERO, rim(i), rim(i + 1)])
         .collect();
-    placed(to_world, triangles)
+    // The centre takes the angle of its triangle's middle.
+    let uvs = (0..SEGMENTS)
+        .map(|i| {
+            let v = |k: f32| k / n;
+            [
+                Vec2::new(0.0, v(i as f32 + 0.5)),
+                Vec2::new(1.0, v(i as f32)),
+                Vec2::new(1.0, v(i as f32 + 1.0)),
+            ]
+        })
+        .collect();
+    (placed(to_world, triangles), placed_uvs(to_world, uvs))
 }
 
-/// A sphere, its faces facing out, and its normals at their corners.
-pub fn sphere(to_world: Mat4, center: Vec3, radius: f32) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>) {
+/// A sphere, its faces facing out, its normals at their corners, and
+/// Mitsuba's (u, v): the angle about z over 2π and from +z over π.
+#[allow(clippy::type_complexity)]
+pub fn sphere(
+    to_world: Mat4,
+    center: Vec3,
+    radius: f32,
+) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
     let point = |ring: u32, seg: u32| {
         let theta = PI * ring as f32 / RINGS as f32;
         let phi = 2.0 * PI * (seg % SEGMENTS) as f32 / SEGMENTS as f32;
@@ -105,7 +155,10 @@ pub fn sphere(to_world: Mat4, center: Vec3, radius: f32) -> (Vec<[Vec3; 3]>, Vec
             theta.cos(),
         )
     };
+    let uv =
+        |ring: u32, seg: u32| Vec2::new(seg as f32 / SEGMENTS as f32, ring as f32 / RINGS as f32);
     let mut unit = Vec::with_capacity((2 * SEGMENTS * (RINGS - 1)) as usize);
+    let mut uvs = Vec::with_capacity(unit.capacity());
     for ring in 0..RINGS {
         for seg in 0..SEGMENTS {
             let (a, b) = (point(ring, seg), point(ring, seg + 1));
@@ -113,9 +166,11 @@ pub fn sphere(to_world: Mat4, center: Vec3, radius: f32) -> (Vec<[Vec3; 3]>, Vec
             // Counter-clockwise seen from outside; the poles' rings have one.
             if ring > 0 {
                 unit.push([a, c, b]);
+                uvs.push([uv(ring, seg), uv(ring + 1, seg), uv(ring, seg + 1)]);
             }
             if ring + 1 < RINGS {
                 unit.push([b, c, d]);
+                uvs.push([uv(ring, seg + 1), uv(ring + 1, seg), uv(ring + 1, seg + 1)]);
             }
         }
     }
@@ -126,7 +181,11 @@ pub fn sphere(to_world: Mat4, center: Vec3, radius: f32) -> (Vec<[Vec3; 3]>, Vec
     let scale = radius * (4.0 * PI / area).sqrt();
     let local = Mat4::from_translation(center) * Mat4::from_scale(Vec3::splat(scale));
     let normals = placed_normals(to_world, &unit);
-    (placed(to_world * local, unit), normals)
+    (
+        placed(to_world * local, unit),
+        normals,
+        placed_uvs(to_world, uvs),
+    )
 }
 
 #[cfg(test)]
@@ -146,10 +205,10 @@ mod tests {
     #[test]
     fn shapes_have_their_true_area_and_face_out() {
         let m = Mat4::IDENTITY;
-        assert!((area(&rectangle(m)) - 4.0).abs() < 1e-5);
-        assert!((area(&cube(m)) - 24.0).abs() < 1e-4);
-        assert!((area(&disk(m)) - PI).abs() < 1e-4);
-        let (s, normals) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5);
+        assert!((area(&rectangle(m).0) - 4.0).abs() < 1e-5);
+        assert!((area(&cube(m).0) - 24.0).abs() < 1e-4);
+        assert!((area(&disk(m).0) - PI).abs() < 1e-4);
+        let (s, normals, _) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5);
         assert!((area(&s) - PI).abs() < 1e-3 * PI, "{}", area(&s));
         for (t, n) in s.iter().zip(&normals) {
             let c = (t[0] + t[1] + t[2]) / 3.0 - Vec3::new(1.0, 2.0, 3.0);
@@ -159,11 +218,11 @@ mod tests {
                 assert!((*v - Vec3::new(1.0, 2.0, 3.0)).normalize().dot(*n) > 0.9999);
             }
         }
-        for t in &cube(m) {
+        for t in &cube(m).0 {
             assert!(normal(t).dot(t[0] + t[1] + t[2]) > 0.0);
         }
-        assert!(rectangle(m).iter().all(|t| normal(t).z > 0.99));
-        assert!(disk(m).iter().all(|t| normal(t).z > 0.99));
+        assert!(rectangle(m).0.iter().all(|t| normal(t).z > 0.99));
+        assert!(disk(m).0.iter().all(|t| normal(t).z > 0.99));
     }
 
     #[test]
@@ -171,8 +230,8 @@ mod tests {
         // Mirrored in x, the rectangle's normal (a normal transformed by
         // the inverse transpose) still points to +z.
         let m = Mat4::from_scale(Vec3::new(-1.0, 1.0, 1.0));
-        assert!(rectangle(m).iter().all(|t| normal(t).z > 0.99));
-        let (s, n) = sphere(m, Vec3::ZERO, 1.0);
+        assert!(rectangle(m).0.iter().all(|t| normal(t).z > 0.99));
+        let (s, n, _) = sphere(m, Vec3::ZERO, 1.0);
         assert!(s.iter().all(|t| normal(t).dot(t[0] + t[1] + t[2]) > 0.0));
         assert!(s.iter().zip(&n).all(|(t, n)| n[1].dot(t[1]) > 0.99));
     }
