@@ -74,7 +74,8 @@ fn load_text(text: &str) -> Result<Scene, String> {
             Some("m.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec()),
             // One triangle of zero area among two.
             Some("d.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n".to_vec()),
-            // A quad with texture coordinates.
+            // Quads with texture coordinates.
+            Some("qt.obj") => Ok(b"v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n".to_vec()),
             Some("q.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0 0 0\n1 -1 0 1 0\n1 1 0 1 1\n-1 1 0 0 1\n3 0 1 2\n3 0 2 3\n".to_vec()),
             Some("inc.xml") => {
                 Ok(br#"<scene version="3.0.0"><bsdf type="diffuse" id="inc"/></scene>"#.to_vec())
@@ -124,13 +125,13 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     assert!(scene.has_non_diffuse());
 }
 
-/// The texture coordinates of the built-in shapes and of a PLY mesh are
+/// The texture coordinates of the built-in shapes and of PLY and OBJ meshes are
 /// Mitsuba's: 3.9.1's `si.uv` where a ray meets each (the curved shapes'
 /// interpolated across their tessellation, so nearly).
 #[test]
 fn texture_coordinates_are_mitsubas() {
     let moved = r#"<transform name="to_world"><translate x="10"/></transform>"#;
-    let cases: [(&str, Vec3, Vec3, [f32; 2], f32); 12] = [
+    let cases: [(&str, Vec3, Vec3, [f32; 2], f32); 14] = [
         ("<shape type=\"rectangle\">{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
         ("<shape type=\"disk\">{}</shape>", Vec3::new(0.3, -0.4, 2.0), -Vec3::Z, [0.5, 0.85242], 2e-3),
         ("<shape type=\"sphere\">{}</shape>", Vec3::new(0.3, -0.4, 3.0), -Vec3::Z, [0.85242, 0.16667], 2e-3),
@@ -142,6 +143,8 @@ fn texture_coordinates_are_mitsubas() {
         ("<shape type=\"cube\">{}</shape>", Vec3::new(-3.0, 0.3, -0.6), Vec3::X, [0.65, 0.2], 1e-5),
         ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, -3.0, -0.6), Vec3::Y, [0.2, 0.65], 1e-5),
         ("<shape type=\"ply\"><string name=\"filename\" value=\"q.ply\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
+        ("<shape type=\"obj\"><string name=\"filename\" value=\"qt.obj\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.8], 1e-5),
+        ("<shape type=\"obj\"><string name=\"filename\" value=\"qt.obj\"/><boolean name=\"flip_tex_coords\" value=\"false\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
         ("<shape type=\"ply\"><string name=\"filename\" value=\"q.ply\"/><boolean name=\"flip_tex_coords\" value=\"true\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.8], 1e-5),
     ];
     for (shape, o, d, want, tolerance) in cases {

@@ -2,7 +2,7 @@
 //! needs. Every malformed line is an error naming its line; nothing in a
 //! file can make the parser panic or allocate beyond the file's own size.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 /// A material as the MTL file gives it; keys the renderer does not use are
 /// kept out (`scene` turns these into a surface: docs/scenes.md).
@@ -41,6 +41,9 @@ pub struct ObjGroup {
     /// into its `vn` normals (NO_NORMAL where a corner has none).
     pub corners: Vec<[u32; 3]>,
     pub normal_corners: Vec<[u32; 3]>,
+    /// Each corner's index into the `vt` texture coordinates (NO_NORMAL
+    /// where it has none).
+    pub uv_corners: Vec<[u32; 3]>,
 }
 
 /// A face corner without a `vn` normal.
@@ -52,6 +55,8 @@ pub struct Obj {
     pub groups: Vec<ObjGroup>,
     /// The file's `vn` normals, as written.
     pub normals: Vec<Vec3>,
+    /// The file's `vt` texture coordinates (u, v), as written.
+    pub uvs: Vec<Vec2>,
     pub materials: Vec<MtlMaterial>,
     /// `usemtl` names no MTL defines (their faces get the default material).
     pub unknown_materials: Vec<String>,
@@ -155,9 +160,33 @@ pub fn parse_mtl(text: &str) -> Result<Vec<MtlMaterial>, (usize, String)> {
     Ok(materials)
 }
 
-/// One `f` corner: the position index (1-based, or negative from the end)
-/// and the `vn` index after `/vt/`, if any.
-fn corner(word: &str, positions: usize, normals: usize) -> Result<(usize, u32), String> {
+/// An `f` corner's optional index (1-based, or negative from the end) into
+/// `count` items defined so far, or NO_NORMAL where it has none.
+fn optional_index(word: &str, part: Option<&str>, what: &str, count: usize) -> Result<u32, String> {
+    match part.filter(|n| !n.is_empty()) {
+        None => Ok(NO_NORMAL),
+        Some(n) => {
+            let k: i64 = n
+                .parse()
+                .map_err(|_| format!("face corner '{word}': '{n}' is not a {what} index"))?;
+            let at = if k > 0 { k - 1 } else { count as i64 + k };
+            if k == 0 || at < 0 || at >= count as i64 {
+                return Err(format!(
+                    "face corner '{word}' names {what} {k}, but {count} are defined so far"
+                ));
+            }
+            Ok(at as u32)
+        }
+    }
+}
+
+/// One `f` corner: the position index (1-based, or negative from the end),
+/// and the `vt` and `vn` indices after it, if any.
+fn corner(
+    word: &str,
+    positions: usize,
+    (uvs, normals): (usize, usize),
+) -> Result<(usize, u32, u32), String> {
     let mut parts = word.split('/');
     let v = parts.next().unwrap_or("");
     let i: i64 = v
@@ -169,22 +198,11 @@ fn corner(word: &str, positions: usize, normals: usize) -> Result<(usize, u32), 
             "face corner '{word}' names vertex {i}, but {positions} are defined so far"
         ));
     }
-    let normal = match parts.nth(1).filter(|n| !n.is_empty()) {
-        None => NO_NORMAL,
-        Some(n) => {
-            let k: i64 = n
-                .parse()
-                .map_err(|_| format!("face corner '{word}': '{n}' is not a normal index"))?;
-            let at = if k > 0 { k - 1 } else { normals as i64 + k };
-            if k == 0 || at < 0 || at >= normals as i64 {
-                return Err(format!(
-                    "face corner '{word}' names normal {k}, but {normals} are defined so far"
-                ));
-            }
-            at as u32
-        }
-    };
-    Ok((index as usize, normal))
+    // A vt index that names none is left out, as before vt was read:
+    // files that refer to texture coordinates they do not define exist.
+    let uv = optional_index(word, parts.next(), "texture coordinate", uvs).unwrap_or(NO_NORMAL);
+    let normal = optional_index(word, parts.next(), "normal", normals)?;
+    Ok((index as usize, uv, normal))
 }
 
 /// Parses an OBJ file's text, refusing more than `max_triangles` triangles
@@ -203,7 +221,7 @@ pub fn parse_obj(
         name: "unnamed".into(),
         ..Default::default()
     };
-    let mut corners: Vec<(usize, u32)> = Vec::new();
+    let mut corners: Vec<(usize, u32, u32)> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let fail = |message: String| ParseError {
             mtl: None,
@@ -230,10 +248,22 @@ pub fn parse_obj(
                 }
                 obj.normals.push(Vec3::from(n));
             }
+            "vt" => {
+                let u = number(words.next(), "texture coordinate u").map_err(fail)?;
+                // v may be left out (a 1D texture): 0.
+                let v = match words.next() {
+                    Some(w) => number(Some(w), "texture coordinate v").map_err(fail)?,
+                    None => 0.0,
+                };
+                obj.uvs.push(Vec2::new(u, v));
+            }
             "f" => {
                 corners.clear();
                 for w in words {
-                    corners.push(corner(w, positions.len(), obj.normals.len()).map_err(fail)?);
+                    corners.push(
+                        corner(w, positions.len(), (obj.uvs.len(), obj.normals.len()))
+                            .map_err(fail)?,
+                    );
                 }
                 if corners.len() < 3 {
                     return Err(fail(format!(
@@ -250,9 +280,10 @@ pub fn parse_obj(
                 // A fan, as every OBJ reader triangulates a convex polygon.
                 for k in 1..corners.len() - 1 {
                     let c = [corners[0], corners[k], corners[k + 1]];
-                    group.triangles.push(c.map(|(p, _)| positions[p]));
-                    group.corners.push(c.map(|(p, _)| p as u32));
-                    group.normal_corners.push(c.map(|(_, n)| n));
+                    group.triangles.push(c.map(|(p, _, _)| positions[p]));
+                    group.corners.push(c.map(|(p, _, _)| p as u32));
+                    group.uv_corners.push(c.map(|(_, t, _)| t));
+                    group.normal_corners.push(c.map(|(_, _, n)| n));
                     group.material.push(current);
                 }
             }
@@ -292,8 +323,8 @@ pub fn parse_obj(
                     obj.materials.extend(parsed);
                 }
             }
-            // Texture coordinates, smoothing groups, lines, points, curves:
-            // nothing the renderer uses.
+            // Smoothing groups, lines, points, curves: nothing the
+            // renderer uses.
             _ => {}
         }
     }

@@ -431,10 +431,7 @@ impl Builder<'_, '_> {
                 let (t, n, uv) = shapes::sphere(to_world, center, radius);
                 (t, Some(n), Some(uv))
             }
-            "obj" => {
-                flip_v()?;
-                self.obj(el, filename()?, to_world, face_normals)?
-            }
+            "obj" => self.obj(el, filename()?, to_world, (face_normals, flip_v()?))?,
             "ply" => self.ply(el, filename()?, to_world, (face_normals, flip_v()?))?,
             "serialized" => {
                 let name = filename()?;
@@ -563,7 +560,7 @@ impl Builder<'_, '_> {
         el: &Element,
         name: &str,
         to_world: Mat4,
-        face_normals: bool,
+        (face_normals, flip_v): (bool, bool),
     ) -> Result<Mesh, SceneError> {
         let (path, bytes) = self.mesh_file(el, name)?;
         let text = String::from_utf8(bytes)
@@ -579,6 +576,7 @@ impl Builder<'_, '_> {
         let mut triangles = Vec::new();
         let mut corners = Vec::new();
         let mut normal_corners = Vec::new();
+        let mut uv_corners = Vec::new();
         for g in parsed.groups {
             triangles.extend(
                 g.triangles
@@ -587,9 +585,27 @@ impl Builder<'_, '_> {
             );
             corners.extend(g.corners);
             normal_corners.extend(g.normal_corners);
+            uv_corners.extend(g.uv_corners);
         }
+        // The file's vt where a face gives them (v turned over with
+        // `flip_v`, as Mitsuba does by default), else barycentric.
+        let uvs = (!parsed.uvs.is_empty()).then(|| {
+            uv_corners
+                .iter()
+                .map(|c: &[u32; 3]| {
+                    if c.iter().all(|&i| i != obj::NO_NORMAL) {
+                        c.map(|i| {
+                            let p = parsed.uvs[i as usize];
+                            Vec2::new(p.x, if flip_v { 1.0 - p.y } else { p.y })
+                        })
+                    } else {
+                        [Vec2::ZERO, Vec2::X, Vec2::Y]
+                    }
+                })
+                .collect()
+        });
         if face_normals {
-            return Ok((triangles, None, None));
+            return Ok((triangles, None, uvs));
         }
         let normal_matrix = glam::Mat3::from_mat4(to_world).inverse().transpose();
         let file_normals: Vec<Vec3> = parsed
@@ -609,7 +625,7 @@ impl Builder<'_, '_> {
                 }
             })
             .collect();
-        Ok((triangles, Some(normals), None))
+        Ok((triangles, Some(normals), uvs))
     }
 }
 
