@@ -16,10 +16,10 @@ float luminance(vec3 c) {
 // False where the scene's materials are all diffuse: the kernel is then built
 // without the other lobes, whose code costs on lavapipe even when no lane
 // takes it (measured: 10-40% of a trace pass on the diffuse scenes).
-layout(constant_id = SPEC_NON_DIFFUSE) const bool NON_DIFFUSE = true;
+layout(constant_id = CONSTANT_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // The lobes' options some material of the scene uses (MATERIAL_BECKMANN,
 // MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
-layout(constant_id = SPEC_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
+layout(constant_id = CONSTANT_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
     FEATURE_ROUGH_PLASTIC;
 

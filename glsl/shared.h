@@ -92,7 +92,7 @@
 #define B_LIGHT_SEEN 43
 #define B_LIGHT_POWER 44
 // Shading normals at each triangle's corners, three packed normals a texel
-// (pack_normal in src/scene/mod.rs), where SPEC_SHADING_NORMALS says so.
+// (pack_normal in src/scene/mod.rs), where CONSTANT_SHADING_NORMALS says so.
 #define B_NORMALS 45
 // Point, spot and directional lights (DeltaLight), which only NEE reaches;
 // the light list names one by LIGHT_DELTA | its index here.
@@ -247,25 +247,25 @@ struct Triangle {
 // Added to a plastic's kind: its internal scattering per colour (Mitsuba's
 // `nonlinear`).
 #define MATERIAL_NONLINEAR 64
-// In SPEC_MATERIAL_FEATURES only: the scene has a plastic, a rough glass,
+// In CONSTANT_MATERIAL_FEATURES only: the scene has a plastic, a rough glass,
 // a rough plastic.
 #define FEATURE_PLASTIC 128
 #define FEATURE_ROUGH_GLASS 256
 #define FEATURE_ROUGH_PLASTIC 512
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
-#define SPEC_NON_DIFFUSE 4
+#define CONSTANT_NON_DIFFUSE 4
 // Specialization constant of Sarsa's trace kernels: the guide picks the
 // light for NEE (FLAG_GUIDE_LIGHTS), so the code is left out where not.
-#define SPEC_GUIDE_LIGHTS 5
+#define CONSTANT_GUIDE_LIGHTS 5
 // Specialization constant of the trace kernels: the scene has shading
 // normals (B_NORMALS), so the code that reads them is built in.
-#define SPEC_SHADING_NORMALS 6
+#define CONSTANT_SHADING_NORMALS 6
 // Specialization constant of the trace kernels: how a camera ray's point in
 // its pixel is drawn (PixelFilter in src/scene/mod.rs): uniformly, from a
 // tent of radius cam_forward.w, or from a Gaussian of standard deviation
 // cam_forward.w. A constant, so the box filter's kernel has no other's code.
-#define SPEC_PIXEL_FILTER 7
+#define CONSTANT_PIXEL_FILTER 7
 #define FILTER_BOX 0
 #define FILTER_TENT 1
 #define FILTER_GAUSSIAN 2
@@ -273,10 +273,10 @@ struct Triangle {
 // MATERIAL_FRESNEL and MATERIAL_NONLINEAR flags some material of the scene
 // has, and FEATURE_PLASTIC (all, where not given), so that a scene without
 // them runs no code for them.
-#define SPEC_MATERIAL_FEATURES 8
+#define CONSTANT_MATERIAL_FEATURES 8
 // Specialization constant of the trace kernels: the scene has delta lights
 // (B_DELTA_LIGHTS).
-#define SPEC_DELTA_LIGHTS 9
+#define CONSTANT_DELTA_LIGHTS 9
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

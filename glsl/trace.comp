@@ -32,10 +32,10 @@ WORDS(light_texels, B_LIGHTS) // 1 per Light
 
 // Whether the scene has shading normals (B_NORMALS): without, the kernel
 // is built without the code that reads them.
-layout(constant_id = SPEC_SHADING_NORMALS) const bool SHADING_NORMALS = false;
-layout(constant_id = SPEC_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX;
+layout(constant_id = CONSTANT_SHADING_NORMALS) const bool SHADING_NORMALS = false;
+layout(constant_id = CONSTANT_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX;
 // Whether the scene has lights only NEE reaches (B_DELTA_LIGHTS).
-layout(constant_id = SPEC_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
+layout(constant_id = CONSTANT_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -62,7 +62,7 @@ uint pick_light(float u) {
 
 #ifdef METHOD_SARSA
 // Sarsa's tables pick NEE's light (FLAG_GUIDE_LIGHTS): built in only then.
-layout(constant_id = SPEC_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
+layout(constant_id = CONSTANT_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
 
 // Index of the light that is triangle `triangle` (lights are in triangle order).
 uint light_of(uint triangle) {

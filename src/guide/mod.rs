@@ -560,7 +560,7 @@ impl Guide {
     }
 
     /// Whether its trace kernels pick NEE's light from its tables
-    /// (the SPEC_GUIDE_LIGHTS specialization constant).
+    /// (the CONSTANT_GUIDE_LIGHTS specialization constant).
     pub fn chooses_lights(&self) -> bool {
         match self {
             Self::Sarsa(s) => s.chooses_lights(),

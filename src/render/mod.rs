@@ -356,8 +356,8 @@ impl Renderer {
         // A guide's kernel may be built for its shape (the network's); every
         // trace kernel, for whether the scene has materials beyond diffuse.
         let mut constants = guide.as_ref().map_or(Vec::new(), |g| g.constants());
-        debug_assert!(constants.len() <= shaders::SPEC_NON_DIFFUSE as usize);
-        constants.resize(shaders::SPEC_NON_DIFFUSE as usize, 0);
+        debug_assert!(constants.len() <= shaders::CONSTANT_NON_DIFFUSE as usize);
+        constants.resize(shaders::CONSTANT_NON_DIFFUSE as usize, 0);
         constants.push(scene.has_non_diffuse() as u32);
         constants.push(guide.as_ref().is_some_and(|g| g.chooses_lights()) as u32);
         constants.push(!scene.normals.is_empty() as u32);

@@ -326,7 +326,7 @@ impl Scene {
 
     /// The conductor and plastic options (MATERIAL_BECKMANN, _FRESNEL,
     /// _NONLINEAR, FEATURE_PLASTIC) some material of the scene uses, as the
-    /// kernels' SPEC_MATERIAL_FEATURES.
+    /// kernels' CONSTANT_MATERIAL_FEATURES.
     pub fn material_features(&self) -> u32 {
         self.materials.iter().fold(0, |acc, m| {
             let code = m.gpu().color[3] as u32;
