@@ -142,6 +142,12 @@ float microfacet_g1(Bsdf bsdf, vec3 w) {
     return bsdf_beckmann(bsdf) ? beckmann_g1(bsdf.alpha, w) : ggx_g1(bsdf.alpha, w);
 }
 
+// D(h) G1(wo) G1(wi) of a microfacet lobe, wi on either side; over
+// 4 wo.z, a reflection's f cos without its Fresnel term.
+float microfacet_dg(Bsdf bsdf, vec3 wo, vec3 wi, vec3 h) {
+    return microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, vec3(wi.xy, abs(wi.z)));
+}
+
 // A microfacet normal for a path arriving from wo: GGX draws the normals wo
 // sees (spherical caps, Dupuy & Benyoub 2023), Beckmann all of them by
 // D(m) m.z.
@@ -310,7 +316,7 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         float oh = dot(wo, h);
         float ih = dot(wi, h);
         float f = fresnel_dielectric(oh, bsdf.eta);
-        float dg = microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, vec3(wi.xy, abs(wi.z)));
+        float dg = microfacet_dg(bsdf, wo, wi, h);
         if (hr.w > 0.0) {
             return bsdf.ior_eta * (f * dg / (4.0 * wo.z));
         }
@@ -325,8 +331,7 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_rough_plastic(bsdf)) {
         vec3 h = normalize(wo + wi);
-        vec3 coat = bsdf.ior_eta * (fresnel_dielectric(dot(wo, h), bsdf.eta) * microfacet_d(bsdf, h) *
-                                    microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi) / (4.0 * wo.z));
+        vec3 coat = bsdf.ior_eta * (fresnel_dielectric(dot(wo, h), bsdf.eta) * microfacet_dg(bsdf, wo, wi, h) / (4.0 * wo.z));
         bool nonlinear = (MATERIAL_FEATURES & MATERIAL_NONLINEAR) != 0u && (bsdf.flags & MATERIAL_NONLINEAR) != 0u;
         float fdr = bsdf.ior_k.x;
         vec3 inside = nonlinear ? 1.0 - bsdf.color * fdr : vec3(1.0 - fdr);
@@ -338,8 +343,7 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
-        return conductor_reflectance(bsdf, dot(wo, h)) *
-               (microfacet_d(bsdf, h) * microfacet_g1(bsdf, wo) * microfacet_g1(bsdf, wi) / (4.0 * wo.z));
+        return conductor_reflectance(bsdf, dot(wo, h)) * (microfacet_dg(bsdf, wo, wi, h) / (4.0 * wo.z));
     }
     return vec3(0.0);
 }

@@ -526,6 +526,12 @@ impl Distribution {
         }
     }
 
+    /// D(h) G1(wo) G1(wi), wi on either side; over 4 wo.z, a reflection's
+    /// f cos without its Fresnel term.
+    fn dg(self, alpha: f32, wo: Vec3, wi: Vec3, h: Vec3) -> f32 {
+        self.d(alpha, h) * self.g1(alpha, wo) * self.g1(alpha, Vec3::new(wi.x, wi.y, wi.z.abs()))
+    }
+
     /// A microfacet normal for a path arriving from wo: GGX draws the
     /// normals wo sees (spherical caps, Dupuy & Benyoub 2023), Beckmann
     /// all of them by D(m) m.z.
@@ -762,19 +768,16 @@ impl Bsdf {
             return match rough_glass_half(wo, wi, eta) {
                 Some((h, true)) => {
                     reflectance
-                        * (fresnel_dielectric(wo.dot(h), eta).0
-                            * m.d(alpha, h)
-                            * m.g1(alpha, wo)
-                            * m.g1(alpha, wi)
+                        * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(alpha, wo, wi, h)
                             / (4.0 * wo.z))
                 }
                 Some((h, false)) => {
                     let (oh, ih) = (wo.dot(h), wi.dot(h));
                     let f = fresnel_dielectric(oh, eta).0;
-                    let g = m.g1(alpha, wo) * m.g1(alpha, Vec3::new(wi.x, wi.y, -wi.z));
                     let denom = oh + eta * ih;
                     self.color
-                        * ((1.0 - f) * m.d(alpha, h) * g * (oh * ih).abs() / (wo.z * denom * denom))
+                        * ((1.0 - f) * m.dg(alpha, wo, wi, h) * (oh * ih).abs()
+                            / (wo.z * denom * denom))
                 }
                 None => Vec3::ZERO,
             };
@@ -794,10 +797,7 @@ impl Bsdf {
             } => {
                 let h = (wo + wi).normalize();
                 let coat = specular
-                    * (fresnel_dielectric(wo.dot(h), eta).0
-                        * m.d(alpha, h)
-                        * m.g1(alpha, wo)
-                        * m.g1(alpha, wi)
+                    * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(alpha, wo, wi, h)
                         / (4.0 * wo.z));
                 let d = self.color;
                 let inside = if nonlinear {
@@ -835,7 +835,7 @@ impl Bsdf {
                 let h = (wo + wi).normalize();
                 self.color
                     * self.fresnel(fresnel, wo.dot(h))
-                    * (m.d(alpha, h) * m.g1(alpha, wo) * m.g1(alpha, wi) / (4.0 * wo.z))
+                    * (m.dg(alpha, wo, wi, h) / (4.0 * wo.z))
             }
             _ => Vec3::ZERO,
         }
