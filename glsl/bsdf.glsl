@@ -21,7 +21,7 @@ layout(constant_id = CONSTANT_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
 layout(constant_id = CONSTANT_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
-    FEATURE_ROUGH_PLASTIC;
+    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES;
 
 // A material's scattering at a surface point, seen from one side
 // (docs/scenes.md).

@@ -1,7 +1,7 @@
 #version 460
 // Runs the scene's GLSL building blocks on host-given inputs so tests can
-// compare them with CPU references: BVH traversal, the hemisphere map and
-// the BSDF.
+// compare them with CPU references: BVH traversal, the hemisphere map, the
+// BSDF and its textures.
 // (sarsa_probe.comp does the same for the Sarsa guide.)
 
 #include "shared.h"
@@ -13,6 +13,7 @@ layout(local_size_x = LINEAR_GROUP) in;
 layout(push_constant) uniform Push { PassParams params; };
 
 #include "bsdf.glsl"
+#include "texture.glsl"
 
 layout(std430, set = 0, binding = B_PROBE_IN) readonly buffer ProbeIn { vec4 probe_in[]; };
 layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
@@ -62,5 +63,16 @@ void main() {
             probe_out[i] = vec4(wi, bsdf_pdf(bsdf, wo, wi));
             probe_out[params.item_count + i] = vec4(bsdf_eval(bsdf, wo, wi), bsdf_reflect(bsdf, wo, 1.0));
         }
+    } else if (params.selector == PROBE_TEXTURE) {
+        // in[5i..5i+4] = a Material; in[5i+4] = (u, v, front side? 1 : 0, 0).
+        // out[i] = (its textured BSDF's colour, alpha), out[count + i] =
+        // (its second colour, 0).
+        uint b = 5u * i;
+        Material m = Material(probe_in[b], probe_in[b + 1u], probe_in[b + 2u], probe_in[b + 3u]);
+        vec4 at = probe_in[b + 4u];
+        bool front = at.z > 0.5;
+        Bsdf bsdf = bsdf_textured(bsdf_of(m, front), m, front, at.xy);
+        probe_out[i] = vec4(bsdf.color, bsdf.alpha);
+        probe_out[params.item_count + i] = vec4(bsdf.ior_eta, 0.0);
     }
 }

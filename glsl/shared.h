@@ -97,6 +97,10 @@
 // Point, spot and directional lights (DeltaLight), which only NEE reaches;
 // the light list names one by LIGHT_DELTA | its index here.
 #define B_DELTA_LIGHTS 46
+// Texture coordinates at each triangle's corners (two texels: u0 v0 u1 v1,
+// u2 v2), and the textures (TEXTURE_*), where FEATURE_TEXTURES says so.
+#define B_UVS 47
+#define B_TEXTURES 48
 #define LIGHT_DELTA 0x80000000u
 #define DELTA_POINT 0
 #define DELTA_SPOT 1
@@ -140,6 +144,7 @@
 #define PROBE_BSDF 5
 #define PROBE_LIGHT_CHOICE 6
 #define PROBE_LIGHT_TRY 7
+#define PROBE_TEXTURE 8
 
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu
@@ -252,6 +257,8 @@ struct Triangle {
 #define FEATURE_PLASTIC 128
 #define FEATURE_ROUGH_GLASS 256
 #define FEATURE_ROUGH_PLASTIC 512
+// ... a textured material (its texture slots in Material.eta.w).
+#define FEATURE_TEXTURES 1024
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4
@@ -282,9 +289,32 @@ struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)
     vec4 emission;     // rgb: radiance, emitted on the front side only;
                        // w: alpha (conductor; 0 is a mirror) or Ni (dielectric)
-    vec4 eta;          // rgb: a conductor's eta (with MATERIAL_FRESNEL); w: unused
-    vec4 k;            // rgb: a conductor's k (with MATERIAL_FRESNEL); w: unused
+    vec4 eta;          // rgb: a conductor's eta (with MATERIAL_FRESNEL); w: its texture slots (as bits)
+    vec4 k;            // rgb: a conductor's k (with MATERIAL_FRESNEL); w: see MATERIAL_PLASTIC
 };
+
+// Textures (glsl/texture.glsl). A material's slots, TEXTURE_SLOT_BITS each
+// in the bits of eta.w, hold 1 + the index of the texture that replaces its
+// colour (Bsdf.color), its second colour (Bsdf.ior_eta where it is one) and
+// its alpha, or 0. The texture buffer holds TEXTURE_HEADER_WORDS words per
+// texture: (flags, first word of its texels, width, height) and the two
+// rows of its to_uv; then the texels: one float RGB a word, or four 8-bit
+// RGB a word (TEXTURE_BYTES), or a checkerboard's two colours.
+#define TEXTURE_SLOT_BITS 9
+// Set in every word of slots, so that it reads as a normal float.
+#define TEXTURE_SLOT_MARK 0x40000000u
+#define TEXTURE_SLOT_COLOR 0
+#define TEXTURE_SLOT_SECOND 1
+#define TEXTURE_SLOT_ALPHA 2
+#define TEXTURE_HEADER_WORDS 3
+#define TEXTURE_FLOATS 0
+#define TEXTURE_BYTES 1
+#define TEXTURE_CHECKERBOARD 2
+#define TEXTURE_SRGB 4
+#define TEXTURE_NEAREST 8
+#define TEXTURE_REPEAT 0
+#define TEXTURE_MIRROR 16
+#define TEXTURE_CLAMP 32
 
 // Emissive triangle for next-event estimation; chosen by `cdf` (inclusive).
 struct Light {

@@ -15,6 +15,7 @@ layout(local_size_x = TILE_X, local_size_y = TILE_Y) in;
 layout(push_constant) uniform Push { PassParams params; };
 
 #include "bsdf.glsl"
+#include "texture.glsl"
 
 #if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
 #define GUIDED
@@ -377,6 +378,10 @@ bool scatter() {
         ns = front ? sn : -sn;
     }
     Bsdf bsdf = bsdf_of(mat, front);
+    if (scene_textured()) {
+        vec2 b = clamp(barycentric(tri, surface_point), vec2(0.0), vec2(1.0));
+        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
+    }
     bool delta = bsdf_is_delta(bsdf);
     // Rough glass: sampled and reached by NEE on both sides, not guided.
     bool transmits = bsdf_transmits(bsdf);

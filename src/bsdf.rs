@@ -316,6 +316,52 @@ impl Surface {
         }
     }
 
+    /// The surface with textures' means in place of its colour, second
+    /// colour and alpha (see [`Bsdf::textured`]): what a textured
+    /// material's lobe weights and the guides' host-side estimates use.
+    pub fn with_means(mut self, color: Option<Vec3>, second: Option<Vec3>, a: Option<f32>) -> Self {
+        match &mut self {
+            Surface::Diffuse { albedo } => *albedo = color.unwrap_or(*albedo),
+            Surface::Conductor {
+                reflectance, alpha, ..
+            } => {
+                *reflectance = color.unwrap_or(*reflectance);
+                *alpha = a.unwrap_or(*alpha);
+            }
+            Surface::Dielectric { transmittance, .. } => {
+                *transmittance = color.unwrap_or(*transmittance)
+            }
+            Surface::Thin {
+                reflectance,
+                transmittance,
+                ..
+            } => {
+                *transmittance = color.unwrap_or(*transmittance);
+                *reflectance = second.unwrap_or(*reflectance);
+            }
+            Surface::RoughDielectric {
+                reflectance,
+                transmittance,
+                alpha,
+                ..
+            } => {
+                *transmittance = color.unwrap_or(*transmittance);
+                *reflectance = second.unwrap_or(*reflectance);
+                *alpha = a.unwrap_or(*alpha);
+            }
+            Surface::Plastic {
+                diffuse, specular, ..
+            }
+            | Surface::RoughPlastic {
+                diffuse, specular, ..
+            } => {
+                *diffuse = color.unwrap_or(*diffuse);
+                *specular = second.unwrap_or(*specular);
+            }
+        }
+        self
+    }
+
     /// A plastic's specular colour and (internal diffuse reflectance,
     /// probability weight of the specular lobe, α: 0 for a smooth coat):
     /// the GPU `Material`'s `eta` and `k`.
@@ -695,6 +741,58 @@ impl Bsdf {
             _ => {}
         }
         self
+    }
+
+    /// The BSDF with a texture's values in place of its colour, its second
+    /// colour (a plastic's specular, a sheet's or rough glass's reflection)
+    /// and its alpha (the CPU twin of `bsdf_textured` in
+    /// glsl/texture.glsl).
+    pub fn textured(
+        mut self,
+        color: Option<Vec3>,
+        second: Option<Vec3>,
+        alpha: Option<f32>,
+    ) -> Self {
+        if let Some(c) = color {
+            self.color = c;
+        }
+        match &mut self.lobe {
+            Lobe::Plastic { specular, .. } | Lobe::RoughPlastic { specular, .. } => {
+                *specular = second.unwrap_or(*specular)
+            }
+            Lobe::Thin { reflectance, .. } | Lobe::RoughDielectric { reflectance, .. } => {
+                *reflectance = second.unwrap_or(*reflectance)
+            }
+            _ => {}
+        }
+        if let (Some(a), Lobe::Conductor { alpha, .. } | Lobe::RoughDielectric { alpha, .. }) =
+            (alpha, &mut self.lobe)
+        {
+            *alpha = a.max(MIN_ALPHA);
+        }
+        self
+    }
+
+    /// Its second colour where it has one (as `textured` sets it), for
+    /// probes.
+    pub fn second_color(&self) -> Option<Vec3> {
+        match self.lobe {
+            Lobe::Plastic { specular, .. } | Lobe::RoughPlastic { specular, .. } => Some(specular),
+            Lobe::Thin { reflectance, .. } | Lobe::RoughDielectric { reflectance, .. } => {
+                Some(reflectance)
+            }
+            _ => None,
+        }
+    }
+
+    /// Its alpha where it is rough, for probes.
+    pub fn alpha(&self) -> Option<f32> {
+        match self.lobe {
+            Lobe::Conductor { alpha, .. }
+            | Lobe::RoughDielectric { alpha, .. }
+            | Lobe::RoughPlastic { alpha, .. } => Some(alpha),
+            _ => None,
+        }
     }
 
     /// The probability that a bounce from wo takes the BSDF's delta lobe:

@@ -255,6 +255,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                     emission: Vec3::ZERO,
                     // Mitsuba's BSDFs outside `twosided` are black from behind.
                     one_sided: rng.next() < 0.25,
+                    textures: [None; 3],
                 },
                 front: rng.next() < 0.5,
                 wo: Vec3::new(r * phi.cos(), r * phi.sin(), z),
@@ -331,4 +332,128 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             }
         }
     }
+}
+
+/// The GPU's texture lookups (`bsdf_textured` in glsl/texture.glsl) against
+/// the CPU twin: 8-bit sRGB and raw bitmaps, float texels, a checkerboard,
+/// every filter and wrap mode, `to_uv`, in every slot of the BSDFs that
+/// take textures, on both sides of one-sided and two-sided materials.
+#[test]
+fn gpu_textures_match_their_cpu_twin() {
+    use qtrace::scene::texture::{Filter, Pattern, Texels, Texture, Wrap};
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let png = common::repo("tests/fixtures/textures/small.png");
+    let bitmap = |filter, wrap, raw| Texture {
+        name: "small.png".into(),
+        pattern: Texture::read_bitmap(&png, filter, wrap, raw).unwrap(),
+        to_uv: glam::Mat3::IDENTITY,
+    };
+    let mut rng = Lcg(11);
+    let floats = (0..5 * 7)
+        .map(|_| Vec3::new(rng.next(), 2.0 * rng.next(), 0.5 * rng.next()))
+        .collect();
+    let textures = vec![
+        bitmap(Filter::Bilinear, Wrap::Repeat, false),
+        bitmap(Filter::Nearest, Wrap::Mirror, true),
+        Texture {
+            to_uv: glam::Mat3::from_scale(Vec2::new(2.0, 3.0))
+                * glam::Mat3::from_translation(Vec2::new(0.1, 0.2)),
+            ..bitmap(Filter::Bilinear, Wrap::Clamp, false)
+        },
+        Texture {
+            name: "floats".into(),
+            pattern: Pattern::Bitmap {
+                width: 5,
+                height: 7,
+                texels: Texels::Floats(floats),
+                filter: Filter::Bilinear,
+                wrap: Wrap::Mirror,
+            },
+            to_uv: glam::Mat3::IDENTITY,
+        },
+        Texture {
+            name: "checkerboard".into(),
+            pattern: Pattern::Checkerboard {
+                color0: Vec3::new(0.1, 0.2, 0.3),
+                color1: Vec3::new(0.8, 0.7, 0.6),
+            },
+            to_uv: glam::Mat3::from_scale(Vec2::splat(4.0)),
+        },
+    ];
+    let surfaces = [
+        Surface::Diffuse { albedo: Vec3::ONE },
+        Surface::conductor(Vec3::ONE, 0.2),
+        Surface::Plastic {
+            diffuse: Vec3::splat(0.5),
+            specular: Vec3::ONE,
+            eta: 1.5,
+            nonlinear: false,
+        },
+        Surface::Thin {
+            eta: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+        },
+        Surface::RoughDielectric {
+            ior: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+            alpha: 0.3,
+            distribution: Distribution::Ggx,
+        },
+    ];
+    let mut queries = Vec::new();
+    for _ in 0..400 {
+        let surface = surfaces[(rng.next() * surfaces.len() as f32) as usize % surfaces.len()];
+        let mut pick = || {
+            let t = (rng.next() * 7.0) as u32;
+            (t < textures.len() as u32).then_some(t)
+        };
+        let mut slots = [pick(), pick(), pick()];
+        if surface.kind() == qtrace::shaders::MATERIAL_PLASTIC {
+            slots[2] = None;
+        }
+        queries.push(probe::TextureQuery {
+            material: Material {
+                name: "probe".into(),
+                surface,
+                emission: Vec3::ZERO,
+                one_sided: rng.next() < 0.3,
+                textures: slots,
+            },
+            front: rng.next() < 0.7,
+            uv: Vec2::new(4.0 * rng.next() - 1.5, 4.0 * rng.next() - 1.5),
+        });
+    }
+    let gpu = probe::texture_lookups(&ctx, &scene, &textures, &queries).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let mut textured = 0;
+    for (q, (color, second, alpha)) in queries.iter().zip(gpu) {
+        let cpu = q
+            .material
+            .bsdf_at(q.front, q.uv, &textures, Sampling::Cosine);
+        let close =
+            |a: Vec3, b: Vec3| (a - b).abs().max_element() <= 1e-5 * b.max_element().max(1.0);
+        let what = format!("{:?} at {} front {}", q.material, q.uv, q.front);
+        assert!(
+            close(color, cpu.color),
+            "{what}: colour {color} vs CPU {}",
+            cpu.color
+        );
+        if let Some(s) = cpu.second_color() {
+            assert!(
+                close(second, s),
+                "{what}: second colour {second} vs CPU {s}"
+            );
+        }
+        if let Some(a) = cpu.alpha() {
+            assert!(
+                (alpha - a).abs() <= 1e-5,
+                "{what}: alpha {alpha} vs CPU {a}"
+            );
+        }
+        textured += usize::from(q.material.textured() && (q.front || !q.material.one_sided));
+    }
+    assert!(textured > 200, "only {textured} textured lookups");
 }

@@ -246,6 +246,7 @@ fn guided_sampler_matches_its_pdf() {
             surface,
             emission: Vec3::ZERO,
             one_sided: false,
+            textures: [None; 3],
         };
         let samples =
             probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms)

@@ -208,6 +208,26 @@ impl Image {
         Ok(image.layer_data.channel_data.pixels)
     }
 
+    /// Reads the first RGB(A) layer of OpenEXR bytes.
+    pub fn exr_from_bytes(bytes: &[u8]) -> Result<Self, String> {
+        use exr::prelude::{read, ReadChannels, ReadLayers};
+        let image = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .rgba_channels(
+                |size, _| Image::new(size.width(), size.height()),
+                |img: &mut Image, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                    let w = img.width;
+                    img.pixels[pos.y() * w + pos.x()] = [r, g, b];
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(std::io::Cursor::new(bytes))
+            .map_err(|e| e.to_string())?;
+        Ok(image.layer_data.channel_data.pixels)
+    }
+
     /// Mean over pixels and channels.
     pub fn mean(&self) -> f64 {
         let sum: f64 = self.pixels.iter().flatten().map(|&v| v as f64).sum();

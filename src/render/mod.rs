@@ -28,6 +28,8 @@ pub enum RenderError {
     Settings(#[from] SettingsError),
     #[error(transparent)]
     Write(#[from] crate::image::ImageError),
+    #[error("{0}: {1}")]
+    Textures(std::path::PathBuf, crate::scene::texture::TextureTooLarge),
 }
 
 /// The scene's buffers on the device.
@@ -40,12 +42,41 @@ pub struct GpuScene {
     pub normals: Buffer,
     /// Point, spot and directional lights; one unused where none.
     pub delta_lights: Buffer,
+    /// Texture coordinates and textures; one unused texel each where no
+    /// material is textured.
+    pub uvs: Buffer,
+    pub textures: Buffer,
 }
 
 impl GpuScene {
-    pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> gpu::Result<Self> {
+    pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<Self, RenderError> {
         let materials = crate::scene::gpu_materials(&scene.materials);
+        let textured = scene.materials.iter().any(|m| m.textured());
+        let (uvs, textures) = if textured {
+            let info = ctx.info();
+            let limit = info
+                .max_storage_buffer_range
+                .min(16 * info.max_texel_buffer_elements);
+            let textures = crate::scene::texture::pack(&scene.textures, limit)
+                .map_err(|e| RenderError::Textures(scene.path.clone(), e))?;
+            let uvs: Vec<[[f32; 2]; 4]> = scene
+                .uvs
+                .iter()
+                .map(|[a, b, c]| [a.to_array(), b.to_array(), c.to_array(), [0.0; 2]])
+                .collect();
+            (
+                Buffer::gpu_only_with(ctx, "texture coordinates", &uvs)?,
+                Buffer::gpu_only_with(ctx, "textures", &textures)?,
+            )
+        } else {
+            (
+                Buffer::gpu_only_with(ctx, "texture coordinates", &[[0u32; 4]])?,
+                Buffer::gpu_only_with(ctx, "textures", &[[0u32; 4]])?,
+            )
+        };
         Ok(Self {
+            uvs,
+            textures,
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
@@ -68,8 +99,10 @@ impl GpuScene {
     }
 
     /// Bindings every kernel that traces rays uses.
-    pub fn bindings(&self) -> [(u32, &Buffer); 6] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 8] {
         [
+            (shaders::B_UVS, &self.uvs),
+            (shaders::B_TEXTURES, &self.textures),
             (shaders::B_NODES, &self.nodes),
             (shaders::B_TRIANGLES, &self.triangles),
             (shaders::B_MATERIALS, &self.materials),

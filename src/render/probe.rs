@@ -422,6 +422,55 @@ pub fn bsdf_samples(
         .collect())
 }
 
+/// A material's BSDF at texture coordinates `uv` on the front side or the
+/// back: the GPU's `bsdf_textured`.
+#[derive(Clone, Debug)]
+pub struct TextureQuery {
+    pub material: crate::scene::Material,
+    pub front: bool,
+    pub uv: glam::Vec2,
+}
+
+/// The colour, second colour and alpha (`Bsdf.color`, `.ior_eta`, `.alpha`)
+/// of each query's BSDF, textured on the GPU with `textures`.
+pub fn texture_lookups(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    textures: &[crate::scene::texture::Texture],
+    queries: &[TextureQuery],
+) -> Result<Vec<(Vec3, Vec3, f32)>, RenderError> {
+    let gpu_scene = GpuScene::upload(ctx, scene)?;
+    let settings = RenderSettings::resolve(scene, &Default::default())?;
+    let mut params = pass_params(scene, &settings);
+    params.selector = shaders::PROBE_TEXTURE;
+    let pipeline =
+        ComputePipeline::new(ctx, "probe", spirv::PROBE, size_of::<PassParams>() as u32)?;
+    let materials: Vec<_> = queries.iter().map(|q| q.material.clone()).collect();
+    let materials = crate::scene::gpu_materials(&materials);
+    let material_buffer = Buffer::gpu_only_with(ctx, "probe materials", &materials)?;
+    let packed = crate::scene::texture::pack(textures, u64::MAX)
+        .map_err(|e| RenderError::Textures(scene.path.clone(), e))?;
+    let texture_buffer = Buffer::gpu_only_with(ctx, "probe textures", &packed)?;
+    let mut bindings = gpu_scene.bindings().to_vec();
+    bindings.retain(|(b, _)| *b != shaders::B_MATERIALS && *b != shaders::B_TEXTURES);
+    bindings.push((shaders::B_MATERIALS, &material_buffer));
+    bindings.push((shaders::B_TEXTURES, &texture_buffer));
+    let input: Vec<Vec4> = queries
+        .iter()
+        .zip(&materials)
+        .flat_map(|(q, m)| {
+            let [color, emission, eta, k, _] = material_texels(*m, Vec3::Z, q.front);
+            let at = Vec4::new(q.uv.x, q.uv.y, if q.front { 1.0 } else { 0.0 }, 0.0);
+            [color, emission, eta, k, at]
+        })
+        .collect();
+    let n = queries.len();
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 2))?;
+    Ok((0..n)
+        .map(|i| (out[i].truncate(), out[n + i].truncate(), out[i].w))
+        .collect())
+}
+
 /// One ray for [`walk_timed`]: origin, direction, tmax, any hit.
 pub type WalkRay = (Vec3, Vec3, f32, bool);
 

@@ -56,6 +56,10 @@ pub struct Material {
     /// Black on the side the triangle's normal does not face (Mitsuba's
     /// BSDFs outside `twosided`); MTL materials reflect on both sides.
     pub one_sided: bool,
+    /// The textures (indices into `Scene::textures`) that replace its
+    /// colour, its second colour and its alpha (`TEXTURE_SLOT_*`); the
+    /// surface holds each texture's mean there.
+    pub textures: [Option<u32>; 3],
 }
 
 impl Material {
@@ -65,7 +69,33 @@ impl Material {
             surface: Surface::Diffuse { albedo },
             emission: Vec3::ZERO,
             one_sided: false,
+            textures: [None; 3],
         }
+    }
+
+    pub fn textured(&self) -> bool {
+        self.textures.iter().any(Option::is_some)
+    }
+
+    /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
+    /// then `bsdf_textured`).
+    pub fn bsdf_at(
+        &self,
+        front: bool,
+        uv: Vec2,
+        textures: &[texture::Texture],
+        sampling: crate::bsdf::Sampling,
+    ) -> crate::bsdf::Bsdf {
+        let bsdf = self.bsdf(front, sampling);
+        if self.one_sided && !front {
+            return bsdf;
+        }
+        let look = |slot: u32| self.textures[slot as usize].map(|t| textures[t as usize].eval(uv));
+        bsdf.textured(
+            look(shaders::TEXTURE_SLOT_COLOR),
+            look(shaders::TEXTURE_SLOT_SECOND),
+            look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
+        )
     }
 
     /// Its BSDF for a path arriving on the front side or the back (the CPU
@@ -116,10 +146,19 @@ impl Material {
         {
             (eta, k) = (reflectance, Vec3::new(0.0, 0.0, alpha));
         }
+        let slots = self.textures.iter().enumerate().fold(0, |acc, (s, t)| {
+            let t = t.map_or(0, |t| t + 1);
+            acc | t << (shaders::TEXTURE_SLOT_BITS * s as u32)
+        });
+        let slots = if slots == 0 {
+            0.0
+        } else {
+            f32::from_bits(slots | shaders::TEXTURE_SLOT_MARK)
+        };
         shaders::Material {
             color: color.extend(code as f32).into(),
             emission: self.emission.extend(parameter).into(),
-            eta: eta.extend(0.0).into(),
+            eta: eta.extend(slots).into(),
             k: k.extend(0.0).into(),
         }
     }
@@ -273,6 +312,8 @@ pub struct Scene {
     /// Texture coordinates at each triangle's corners, in `triangles`'
     /// order; empty where no shape has them.
     pub uvs: Vec<[Vec2; 3]>,
+    /// What textured materials' slots index.
+    pub textures: Vec<texture::Texture>,
     pub lights: Vec<shaders::Light>,
     /// Point, spot and directional lights, and their entries of NEE's light
     /// list, which follow `lights` on the GPU (`LIGHT_DELTA | index`).
@@ -341,7 +382,12 @@ impl Scene {
                 Surface::RoughDielectric { .. } => shaders::FEATURE_ROUGH_GLASS,
                 _ => 0,
             };
-            acc | (code & flags) | feature
+            let textured = if m.textured() {
+                shaders::FEATURE_TEXTURES
+            } else {
+                0
+            };
+            acc | (code & flags) | feature | textured
         })
     }
 
@@ -443,6 +489,7 @@ impl Scene {
             guide_tables,
             environment,
             materials,
+            textures,
             geometry,
             delta_lights,
         } = parts;
@@ -547,11 +594,14 @@ impl Scene {
                 })
                 .collect()
         };
-        let uvs = bvh
+        let mut uvs: Vec<_> = bvh
             .order
             .iter()
             .filter_map(|&i| uvs.get(i as usize).copied())
             .collect();
+        if uvs.is_empty() && materials.iter().any(Material::textured) {
+            uvs = vec![BARYCENTRIC_UVS; triangles.len()];
+        }
         Ok(Self {
             path: path.to_path_buf(),
             fingerprint,
@@ -561,6 +611,7 @@ impl Scene {
             guide_tables,
             environment,
             materials,
+            textures,
             triangles,
             normals,
             uvs,
@@ -600,6 +651,7 @@ struct Parts {
     guide_tables: [(&'static str, toml::Table); 2],
     environment: Vec3,
     materials: Vec<Material>,
+    textures: Vec<texture::Texture>,
     geometry: Geometry,
     /// Lights only NEE reaches, each with its weight in NEE's choice.
     delta_lights: Vec<(shaders::DeltaLight, f32)>,
@@ -656,6 +708,7 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         ));
     }
 
+    let textures = Vec::new();
     Ok(Parts {
         camera,
         filter: PixelFilter::Box,
@@ -664,6 +717,7 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
         environment,
         materials,
+        textures,
         geometry,
         delta_lights: Vec::new(),
     })
@@ -1080,6 +1134,7 @@ fn load_obj(
                 m.emission.unwrap_or([0.0; 3]),
             )?,
             one_sided: false,
+            textures: [None; 3],
         });
     }
     // Faces without a material get a neutral grey.

@@ -1,8 +1,9 @@
 //! Textures as Mitsuba 3 evaluates them: `bitmap` (bilinear or nearest,
 //! repeat, mirror or clamp, 8-bit images turned linear unless `raw`) and
-//! `checkerboard`, each behind an optional `to_uv` transform. The CPU
-//! reference for the lookup; the kernels are to follow it.
+//! `checkerboard`, each behind an optional `to_uv` transform; the CPU
+//! twin of glsl/texture.glsl, and the packing of textures for it.
 
+use crate::shaders;
 use glam::{Mat3, Vec2, Vec3};
 use std::path::Path;
 
@@ -21,6 +22,39 @@ pub enum Wrap {
     Clamp,
 }
 
+/// A bitmap's texels as stored, in rows from the image's top.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Texels {
+    /// 8 bits a channel (PNG, JPEG), turned linear at lookup where `srgb`:
+    /// a quarter of the device memory of floats.
+    Bytes { rgb: Vec<[u8; 3]>, srgb: bool },
+    /// Linear values (OpenEXR, Radiance HDR, 16-bit PNG).
+    Floats(Vec<Vec3>),
+}
+
+impl Texels {
+    fn get(&self, i: usize) -> Vec3 {
+        match self {
+            Texels::Floats(v) => v[i],
+            Texels::Bytes { rgb, srgb } => {
+                let c = Vec3::from(rgb[i].map(|b| b as f32 / 255.0));
+                if *srgb {
+                    c.map(srgb_to_linear)
+                } else {
+                    c
+                }
+            }
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Texels::Floats(v) => v.len(),
+            Texels::Bytes { rgb, .. } => rgb.len(),
+        }
+    }
+}
+
 /// A texture's values over the (u, v) plane.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Pattern {
@@ -28,7 +62,7 @@ pub enum Pattern {
     Bitmap {
         width: usize,
         height: usize,
-        texels: Vec<Vec3>,
+        texels: Texels,
         filter: Filter,
         wrap: Wrap,
     },
@@ -40,6 +74,8 @@ pub enum Pattern {
 /// A texture and the affine map from a surface's (u, v) to its own.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Texture {
+    /// How errors name it: its file, or its kind.
+    pub name: String,
     pub pattern: Pattern,
     pub to_uv: Mat3,
 }
@@ -75,28 +111,52 @@ impl Texture {
         wrap: Wrap,
         raw: bool,
     ) -> Result<Pattern, String> {
+        let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+        Self::bitmap_from_bytes(path, &bytes, filter, wrap, raw)
+    }
+
+    /// A bitmap from the bytes of image file `path` (its extension says
+    /// whether it is OpenEXR; other formats tell by their contents).
+    pub fn bitmap_from_bytes(
+        path: &Path,
+        bytes: &[u8],
+        filter: Filter,
+        wrap: Wrap,
+        raw: bool,
+    ) -> Result<Pattern, String> {
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase)
             .unwrap_or_default();
         let (width, height, texels) = if ext == "exr" {
-            let img = crate::image::Image::read_exr(path).map_err(|e| e.to_string())?;
+            let img = crate::image::Image::exr_from_bytes(bytes)?;
             let texels = img.pixels.iter().map(|p| Vec3::from(*p)).collect();
-            (img.width, img.height, texels)
+            (img.width, img.height, Texels::Floats(texels))
         } else {
-            let img = image::open(path).map_err(|e| e.to_string())?;
-            let hdr = matches!(
-                img,
-                image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)
-            );
-            let rgb = img.to_rgb32f();
-            let curve = |c: f32| if hdr || raw { c } else { srgb_to_linear(c) };
-            let texels = rgb
-                .pixels()
-                .map(|p| Vec3::new(curve(p[0]), curve(p[1]), curve(p[2])))
-                .collect();
-            (rgb.width() as usize, rgb.height() as usize, texels)
+            let img = image::load_from_memory(bytes).map_err(|e| e.to_string())?;
+            let (width, height) = (img.width() as usize, img.height() as usize);
+            let texels = match img {
+                image::DynamicImage::ImageLuma8(_)
+                | image::DynamicImage::ImageLumaA8(_)
+                | image::DynamicImage::ImageRgb8(_)
+                | image::DynamicImage::ImageRgba8(_) => Texels::Bytes {
+                    rgb: img.to_rgb8().pixels().map(|p| p.0).collect(),
+                    srgb: !raw,
+                },
+                _ => {
+                    // Radiance HDR is linear; 16-bit PNG is sRGB unless raw.
+                    let hdr = matches!(
+                        img,
+                        image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)
+                    );
+                    let curve = |c: f32| if hdr || raw { c } else { srgb_to_linear(c) };
+                    let rgb = img.to_rgb32f();
+                    let floats = rgb.pixels().map(|p| Vec3::from(p.0.map(curve))).collect();
+                    Texels::Floats(floats)
+                }
+            };
+            (width, height, texels)
         };
         if width == 0 || height == 0 {
             return Err("the image has no pixels".into());
@@ -130,7 +190,7 @@ impl Texture {
                 wrap,
             } => {
                 let texel = |x: i64, y: i64| {
-                    texels[wrap_index(y, *height, *wrap) * width + wrap_index(x, *width, *wrap)]
+                    texels.get(wrap_index(y, *height, *wrap) * width + wrap_index(x, *width, *wrap))
                 };
                 let p = uv * Vec2::new(*width as f32, *height as f32);
                 match filter {
@@ -150,6 +210,134 @@ impl Texture {
     }
 }
 
+impl Texture {
+    /// The mean over its texels (a bitmap) or its two colours: what
+    /// Mitsuba's plastics weigh their lobes by.
+    pub fn mean(&self) -> Vec3 {
+        match &self.pattern {
+            Pattern::Checkerboard { color0, color1 } => 0.5 * (*color0 + *color1),
+            Pattern::Bitmap { texels, .. } => {
+                let n = texels.len();
+                (0..n)
+                    .map(|i| texels.get(i).as_dvec3())
+                    .sum::<glam::DVec3>()
+                    .as_vec3()
+                    / n as f32
+            }
+        }
+    }
+
+    /// Words of the device's texture buffer its texels take (after the
+    /// headers).
+    fn words(&self) -> usize {
+        match &self.pattern {
+            Pattern::Checkerboard { .. } => 2,
+            Pattern::Bitmap {
+                texels: Texels::Floats(v),
+                ..
+            } => v.len(),
+            Pattern::Bitmap {
+                texels: Texels::Bytes { rgb, .. },
+                ..
+            } => rgb.len().div_ceil(4),
+        }
+    }
+
+    fn header(&self, offset: usize) -> [[u32; 4]; TEXTURE_HEADER_WORDS] {
+        let (flags, width, height) = match &self.pattern {
+            Pattern::Checkerboard { .. } => (shaders::TEXTURE_CHECKERBOARD, 0, 0),
+            Pattern::Bitmap {
+                width,
+                height,
+                texels,
+                filter,
+                wrap,
+            } => {
+                let mut flags = match texels {
+                    Texels::Floats(_) => shaders::TEXTURE_FLOATS,
+                    Texels::Bytes { srgb: true, .. } => {
+                        shaders::TEXTURE_BYTES | shaders::TEXTURE_SRGB
+                    }
+                    Texels::Bytes { srgb: false, .. } => shaders::TEXTURE_BYTES,
+                };
+                if *filter == Filter::Nearest {
+                    flags |= shaders::TEXTURE_NEAREST;
+                }
+                flags |= match wrap {
+                    Wrap::Repeat => shaders::TEXTURE_REPEAT,
+                    Wrap::Mirror => shaders::TEXTURE_MIRROR,
+                    Wrap::Clamp => shaders::TEXTURE_CLAMP,
+                };
+                (flags, *width as u32, *height as u32)
+            }
+        };
+        let m = self.to_uv;
+        let row = |r: usize| [m.x_axis[r], m.y_axis[r], m.z_axis[r], 0.0].map(f32::to_bits);
+        [[flags, offset as u32, width, height], row(0), row(1)]
+    }
+
+    fn push_texels(&self, out: &mut Vec<[u32; 4]>) {
+        let bits = |c: Vec3| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits(), 0];
+        match &self.pattern {
+            Pattern::Checkerboard { color0, color1 } => out.extend([bits(*color0), bits(*color1)]),
+            Pattern::Bitmap {
+                texels: Texels::Floats(v),
+                ..
+            } => out.extend(v.iter().map(|c| bits(*c))),
+            Pattern::Bitmap {
+                texels: Texels::Bytes { rgb, .. },
+                ..
+            } => out.extend(rgb.chunks(4).map(|c| {
+                let mut w = [0u32; 4];
+                for (w, p) in w.iter_mut().zip(c) {
+                    *w = u32::from_le_bytes([p[0], p[1], p[2], 0]);
+                }
+                w
+            })),
+        }
+    }
+}
+
+/// Words of the texture buffer's header of one texture.
+const TEXTURE_HEADER_WORDS: usize = shaders::TEXTURE_HEADER_WORDS as usize;
+
+/// The textures as glsl/texture.glsl reads them: a header of three words
+/// each (flags, first word of its texels, width, height; the two rows of
+/// `to_uv`), then their texels; or the first texture that takes the
+/// buffer past `limit` bytes.
+pub fn pack(textures: &[Texture], limit: u64) -> Result<Vec<[u32; 4]>, TextureTooLarge> {
+    let mut offset = TEXTURE_HEADER_WORDS * textures.len();
+    let mut out = Vec::with_capacity(offset);
+    for t in textures {
+        out.extend(t.header(offset));
+        offset += t.words();
+        if 16 * offset as u64 > limit {
+            return Err(TextureTooLarge {
+                name: t.name.clone(),
+                bytes: 16 * offset as u64,
+                limit,
+            });
+        }
+    }
+    for t in textures {
+        t.push_texels(&mut out);
+    }
+    Ok(out)
+}
+
+/// The scene's textures do not fit the device's buffer.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "textures need {} MiB of device memory up to '{name}', over the {} MiB one buffer may hold here (textures of 8 bits a channel take 4 bytes a texel, others 16)",
+    bytes.div_ceil(1 << 20),
+    limit >> 20
+)]
+pub struct TextureTooLarge {
+    pub name: String,
+    pub bytes: u64,
+    pub limit: u64,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,6 +354,7 @@ mod tests {
         let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
             .join("tests/fixtures/textures/small.png");
         Texture {
+            name: "small.png".into(),
             pattern: Texture::read_bitmap(&path, filter, wrap, raw).unwrap(),
             to_uv: Mat3::IDENTITY,
         }
@@ -302,6 +491,7 @@ mod tests {
     fn checkerboard_alternates_as_mitsuba() {
         let (a, b) = ([0.1, 0.2, 0.3], [0.8, 0.7, 0.6]);
         let t = Texture {
+            name: "checkerboard".into(),
             pattern: Pattern::Checkerboard {
                 color0: Vec3::from(a),
                 color1: Vec3::from(b),

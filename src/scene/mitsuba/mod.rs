@@ -6,6 +6,7 @@
 
 mod cie;
 mod shapes;
+mod textures;
 mod xml;
 
 use super::file::RenderDefaults;
@@ -34,6 +35,7 @@ pub(super) fn read(
         filter: PixelFilter::Gaussian { stddev: 0.5 },
         max_depth: None,
         delta_lights: Vec::new(),
+        textures: textures::Textures::default(),
     };
     for el in &elements {
         b.top_level(el)?;
@@ -80,6 +82,7 @@ pub(super) fn read(
         ],
         environment: Vec3::ZERO,
         materials: b.materials,
+        textures: b.textures.used,
         geometry: b.geometry,
         filter: b.filter,
     })
@@ -102,6 +105,8 @@ struct BsdfDesc {
     one_sided: bool,
     /// `null`: the shape is invisible to paths.
     null: bool,
+    /// Its textures' indices among the scene's (`Material::textures`).
+    textures: [Option<u32>; 3],
 }
 
 struct Builder<'a, 'l> {
@@ -117,6 +122,7 @@ struct Builder<'a, 'l> {
     /// Point, spot and directional lights, each with its power (a
     /// directional light's per unit area, scaled at the end).
     delta_lights: Vec<(crate::shaders::DeltaLight, f32)>,
+    textures: textures::Textures,
 }
 
 impl Builder<'_, '_> {
@@ -128,13 +134,13 @@ impl Builder<'_, '_> {
                 let id = el
                     .attr("id")
                     .ok_or_else(|| el.error("a top-level <bsdf> needs an id"))?;
-                let desc = bsdf(el)?;
+                let desc = bsdf(el, &mut self.textures, self.loader)?;
                 self.bsdfs.insert(id.to_string(), (desc, None));
                 Ok(())
             }
             "shape" => self.shape(el),
             "emitter" => self.emitter(el),
-            "texture" => Err(el.error("textures are not supported yet")),
+            "texture" => self.textures.declare(el, self.loader),
             "medium" | "phase" => Err(el.error(format!(
                 "{}: participating media are not supported",
                 plugin_name(el)
@@ -469,7 +475,7 @@ impl Builder<'_, '_> {
             if desc.is_some() {
                 return Err(b.error("a shape has one BSDF"));
             }
-            desc = Some(bsdf(b)?);
+            desc = Some(bsdf(b, &mut self.textures, self.loader)?);
         }
         for r in p.nested("ref") {
             if desc.is_some() {
@@ -493,6 +499,7 @@ impl Builder<'_, '_> {
             },
             one_sided: true,
             null: false,
+            textures: [None; 3],
         });
         let label = format!(
             "shape '{}' ({kind}) at line {}",
@@ -521,6 +528,7 @@ impl Builder<'_, '_> {
                 surface: desc.surface,
                 emission: le,
                 one_sided: desc.one_sided,
+                textures: desc.textures,
             });
             self.add(el, &label, (triangles, normals, uvs), m);
             return Ok(());
@@ -534,6 +542,7 @@ impl Builder<'_, '_> {
                     surface: desc.surface,
                     emission: Vec3::ZERO,
                     one_sided: desc.one_sided,
+                    textures: desc.textures,
                 });
                 if let Some((id, None)) = &shared {
                     if let Some(entry) = self.bsdfs.get_mut(id) {
@@ -1051,22 +1060,28 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
 }
 
 /// A `<bsdf>` element as qtrace renders it.
-fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
+fn bsdf(
+    el: &Element,
+    tex: &mut textures::Textures,
+    loader: &Loader<'_>,
+) -> Result<BsdfDesc, SceneError> {
     let kind = el.plugin()?;
     let p = Props::new(el);
+    let given = tex.given(el, &p, kind, loader)?;
     let name = el.attr("id").unwrap_or(kind).to_string();
     let one = |surface: Surface| BsdfDesc {
         name: name.clone(),
         surface,
         one_sided: true,
         null: false,
+        textures: [None; 3],
     };
     let desc = match kind {
         "twosided" => {
             let inner = p.nested("bsdf");
             match inner[..] {
                 [b] => {
-                    let mut d = bsdf(b)?;
+                    let mut d = bsdf(b, tex, loader)?;
                     d.one_sided = false;
                     d.name = name.clone();
                     d
@@ -1112,6 +1127,7 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
             },
             one_sided: false,
             null: true,
+            textures: [None; 3],
         },
         "plastic" => {
             let int = ior(el, &p, "int_ior", "polypropylene")?;
@@ -1165,5 +1181,16 @@ fn bsdf(el: &Element) -> Result<BsdfDesc, SceneError> {
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
     };
     p.finish()?;
+    let mut desc = desc;
+    if given.iter().any(Option::is_some) {
+        let mean = |s: u32| given[s as usize].map(|(_, m)| m);
+        desc.surface = desc.surface.with_means(
+            mean(crate::shaders::TEXTURE_SLOT_COLOR),
+            mean(crate::shaders::TEXTURE_SLOT_SECOND),
+            mean(crate::shaders::TEXTURE_SLOT_ALPHA)
+                .map(|a| crate::bsdf::luminance(a).clamp(1e-4, 1.0)),
+        );
+        desc.textures = given.map(|g| g.map(|(i, _)| i));
+    }
     Ok(desc)
 }

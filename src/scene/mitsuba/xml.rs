@@ -282,6 +282,19 @@ impl<'e> Props<'e> {
         out
     }
 
+    /// Parameters given as textures: nested `<texture name>` and
+    /// `<ref name id>`, marked used.
+    pub fn textures(&self) -> Vec<&'e Element> {
+        let mut out = Vec::new();
+        for (i, c) in self.el.children.iter().enumerate() {
+            if (c.tag == "texture" || c.tag == "ref") && c.attr("name").is_some() {
+                self.used[i].set(true);
+                out.push(c);
+            }
+        }
+        out
+    }
+
     /// Marks `name` used without reading it: a property that does not
     /// change the image (an output format, say).
     pub fn ignore(&self, name: &str) {

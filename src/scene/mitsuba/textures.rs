@@ -1,0 +1,225 @@
+//! Mitsuba's `<texture>` plugins (`bitmap`, `checkerboard`), given nested
+//! in a BSDF or at the top level with an id and named by `<ref>`.
+
+use super::xml::{Element, Props};
+use super::{Loader, SceneError};
+use crate::scene::texture::{Filter, Pattern, Texture, Wrap};
+use crate::shaders::{
+    TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_COLOR, TEXTURE_SLOT_SECOND,
+};
+use glam::{Mat3, Vec3};
+use std::collections::HashMap;
+
+/// The scene's textures: those declared at the top level by id, and those
+/// its materials use, each once, in the order the device holds them.
+#[derive(Default)]
+pub struct Textures {
+    pub used: Vec<Texture>,
+    declared: HashMap<String, Texture>,
+    /// Where a texture (by what it reads and how) sits in `used`.
+    index: HashMap<String, u32>,
+}
+
+/// The BSDF parameters a texture may give, and the material slot it fills.
+pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
+    const COLOR: u32 = TEXTURE_SLOT_COLOR;
+    const SECOND: u32 = TEXTURE_SLOT_SECOND;
+    const ALPHA: u32 = TEXTURE_SLOT_ALPHA;
+    match kind {
+        "diffuse" => &[("reflectance", COLOR)],
+        "conductor" => &[("specular_reflectance", COLOR)],
+        "roughconductor" => &[("specular_reflectance", COLOR), ("alpha", ALPHA)],
+        "dielectric" => &[("specular_transmittance", COLOR)],
+        "thindielectric" => &[
+            ("specular_transmittance", COLOR),
+            ("specular_reflectance", SECOND),
+        ],
+        "roughdielectric" => &[
+            ("specular_transmittance", COLOR),
+            ("specular_reflectance", SECOND),
+            ("alpha", ALPHA),
+        ],
+        "plastic" | "roughplastic" => &[
+            ("diffuse_reflectance", COLOR),
+            ("specular_reflectance", SECOND),
+        ],
+        _ => &[],
+    }
+}
+
+/// What textures give a BSDF: per slot, the texture's index and mean.
+pub type Given = [Option<(u32, Vec3)>; 3];
+
+impl Textures {
+    /// A top-level `<texture id>`.
+    pub fn declare(&mut self, el: &Element, loader: &Loader<'_>) -> Result<(), SceneError> {
+        let id = el
+            .attr("id")
+            .ok_or_else(|| el.error("a top-level <texture> needs an id"))?;
+        let t = read(el, loader)?;
+        self.declared.insert(id.to_string(), t);
+        Ok(())
+    }
+
+    /// The textures BSDF `el` (of plugin `kind`) is given, its parameters
+    /// marked used in `p`; a texture where `kind` takes none is an error.
+    pub fn given(
+        &mut self,
+        el: &Element,
+        p: &Props,
+        kind: &str,
+        loader: &Loader<'_>,
+    ) -> Result<Given, SceneError> {
+        let mut out: Given = [None; 3];
+        for c in p.textures() {
+            let name = c.required("name")?;
+            let Some(&(_, slot)) = slots(kind).iter().find(|(n, _)| *n == name) else {
+                let takes: Vec<&str> = slots(kind).iter().map(|(n, _)| *n).collect();
+                return Err(c.error(format!(
+                    "{kind}'s '{name}' cannot be a texture in qtrace ({})",
+                    if takes.is_empty() {
+                        format!("{kind} takes none")
+                    } else {
+                        format!("{kind} takes one for {}", takes.join(", "))
+                    }
+                )));
+            };
+            let texture = if c.tag == "ref" {
+                let id = c.required("id")?;
+                self.declared.get(id).cloned().ok_or_else(|| {
+                    c.error(format!(
+                        "no texture has the id '{id}' (a texture must come before the BSDFs that use it)"
+                    ))
+                })?
+            } else {
+                read(c, loader)?
+            };
+            out[slot as usize] = Some(self.add(el, texture)?);
+        }
+        Ok(out)
+    }
+
+    /// Index and mean of a texture, added where it is new.
+    fn add(&mut self, el: &Element, t: Texture) -> Result<(u32, Vec3), SceneError> {
+        let mean = t.mean();
+        let key = format!("{}|{:?}|{:?}", t.name, t.to_uv, pattern_key(&t.pattern));
+        if let Some(&i) = self.index.get(&key) {
+            return Ok((i, mean));
+        }
+        let i = self.used.len() as u32;
+        if i + 1 >= 1 << TEXTURE_SLOT_BITS {
+            return Err(el.error(format!(
+                "the scene uses more than {} textures, the most qtrace holds",
+                (1 << TEXTURE_SLOT_BITS) - 2
+            )));
+        }
+        self.used.push(t);
+        self.index.insert(key, i);
+        Ok((i, mean))
+    }
+}
+
+/// What tells two textures of one file apart (their texels are the same).
+fn pattern_key(p: &Pattern) -> String {
+    match p {
+        Pattern::Bitmap {
+            filter,
+            wrap,
+            texels,
+            ..
+        } => format!(
+            "{filter:?} {wrap:?} {}",
+            matches!(
+                texels,
+                crate::scene::texture::Texels::Bytes { srgb: true, .. }
+            )
+        ),
+        Pattern::Checkerboard { color0, color1 } => format!("{color0} {color1}"),
+    }
+}
+
+/// A `<texture>` element.
+fn read(el: &Element, loader: &Loader<'_>) -> Result<Texture, SceneError> {
+    let kind = el.plugin()?;
+    let p = Props::new(el);
+    // Mitsuba's to_uv is a 4x4 transform of which (u, v) sees the x and y
+    // rows and the translation.
+    let m = p.transform("to_uv")?.unwrap_or(glam::Mat4::IDENTITY);
+    let (c0, c1, c3) = (m.col(0), m.col(1), m.col(3));
+    let to_uv = Mat3::from_cols(
+        Vec3::new(c0.x, c0.y, c0.w),
+        Vec3::new(c1.x, c1.y, c1.w),
+        Vec3::new(c3.x, c3.y, c3.w),
+    );
+    let texture = match kind {
+        "bitmap" => {
+            let file = p
+                .string("filename")?
+                .ok_or_else(|| el.error("bitmap needs a filename"))?;
+            let filter = match p.string("filter_type")?.unwrap_or("bilinear") {
+                "bilinear" => Filter::Bilinear,
+                "nearest" => Filter::Nearest,
+                other => {
+                    return Err(
+                        el.error(format!("filter_type '{other}' is not bilinear or nearest"))
+                    )
+                }
+            };
+            let wrap = match p.string("wrap_mode")?.unwrap_or("repeat") {
+                "repeat" => Wrap::Repeat,
+                "mirror" => Wrap::Mirror,
+                "clamp" => Wrap::Clamp,
+                other => {
+                    return Err(el.error(format!(
+                        "wrap_mode '{other}' is not repeat, mirror or clamp"
+                    )))
+                }
+            };
+            let raw = p.boolean("raw")?.unwrap_or(false);
+            // How Mitsuba speeds its own lookups up: no change to the image.
+            p.ignore("accel");
+            let path = el
+                .file
+                .parent()
+                .unwrap_or(std::path::Path::new("."))
+                .join(file);
+            let bytes = (loader.read)(&path)
+                .map_err(|e| el.error(format!("cannot read the texture '{file}': {e}")))?;
+            let pattern = Texture::bitmap_from_bytes(&path, &bytes, filter, wrap, raw)
+                .map_err(|e| el.error(format!("cannot read the texture '{file}': {e}")))?;
+            Texture {
+                name: file.to_string(),
+                pattern,
+                to_uv,
+            }
+        }
+        "checkerboard" => {
+            let color = |name, default| {
+                if p.textures().iter().any(|c| c.attr("name") == Some(name)) {
+                    return Err(el.error(format!(
+                        "checkerboard's {name} must be a colour, not a texture"
+                    )));
+                }
+                Ok(p.color(name)?.unwrap_or(Vec3::splat(default)))
+            };
+            Texture {
+                name: "checkerboard".into(),
+                pattern: Pattern::Checkerboard {
+                    color0: color("color0", 0.4)?,
+                    color1: color("color1", 0.2)?,
+                },
+                to_uv,
+            }
+        }
+        other => {
+            return Err(el.error(format!(
+                "texture '{other}' is not supported; qtrace has bitmap and checkerboard"
+            )))
+        }
+    };
+    p.finish()?;
+    if !texture.to_uv.is_finite() {
+        return Err(el.error("the texture's to_uv is not finite"));
+    }
+    Ok(texture)
+}
