@@ -78,6 +78,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-b.xml",
         "tests/fixtures/mitsuba/coverage-c.xml",
         "tests/fixtures/mitsuba/coverage-d.xml",
+        "tests/fixtures/mitsuba/coverage-e.xml",
     ]
     .iter()
     .map(PathBuf::from)
@@ -90,9 +91,26 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
 pub fn mitsuba(scenes: &[PathBuf]) -> std::io::Result<Vec<Corpus>> {
     let mut out = Vec::new();
     for path in scenes {
-        let main = std::fs::read_to_string(path)?;
+        let mut main = std::fs::read_to_string(path)?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let mut files = Vec::new();
+        // Textures beside the scenes' folder, as if beside the scene: the
+        // fuzzer's files lie in one folder.
+        if main.contains("../textures/") {
+            main = main.replace("../textures/", "");
+            let mut textures: Vec<PathBuf> = std::fs::read_dir(dir.join("../textures"))?
+                .map(|e| e.map(|e| e.path()))
+                .collect::<Result<_, _>>()?;
+            textures.sort();
+            for p in textures {
+                let name = p
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .to_string();
+                files.push((name, std::fs::read(&p)?));
+            }
+        }
         let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
             .map(|e| e.map(|e| e.path()))
             .collect::<Result<_, _>>()?;

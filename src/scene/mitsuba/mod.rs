@@ -36,6 +36,7 @@ pub(super) fn read(
         max_depth: None,
         delta_lights: Vec::new(),
         textures: textures::Textures::default(),
+        environment: Vec3::ZERO,
     };
     for el in &elements {
         b.top_level(el)?;
@@ -80,7 +81,7 @@ pub(super) fn read(
             ("sarsa", toml::Table::new()),
             ("neural", toml::Table::new()),
         ],
-        environment: Vec3::ZERO,
+        environment: b.environment,
         materials: b.materials,
         textures: b.textures.used,
         geometry: b.geometry,
@@ -123,6 +124,8 @@ struct Builder<'a, 'l> {
     /// directional light's per unit area, scaled at the end).
     delta_lights: Vec<(crate::shaders::DeltaLight, f32)>,
     textures: textures::Textures,
+    /// The sum of `constant` emitters' radiance.
+    environment: Vec3,
 }
 
 impl Builder<'_, '_> {
@@ -201,10 +204,22 @@ impl Builder<'_, '_> {
                 light.intensity = irradiance.extend(0.0).into();
                 luminance(irradiance)
             }
-            "constant" | "envmap" => {
-                return Err(el.error(format!(
-                    "emitter '{kind}' is not supported yet (light from the sky is the next issue)"
-                )))
+            "constant" => {
+                // Light from every direction: paths that leave the scene
+                // gather it (NEE does not sample it).
+                let radiance = p.radiance("radiance")?.unwrap_or(Vec3::ONE);
+                if radiance.min_element() < 0.0 {
+                    return Err(el.error("the constant emitter's radiance is negative"));
+                }
+                p.ignore("sampling_weight");
+                p.finish()?;
+                self.environment += radiance;
+                return Ok(());
+            }
+            "envmap" => {
+                return Err(el.error(
+                    "emitter 'envmap' is not supported yet; a constant emitter is",
+                ))
             }
             other => {
                 return Err(el.error(format!(
