@@ -296,10 +296,11 @@ struct Material {
 // Textures (glsl/texture.glsl). A material's slots, TEXTURE_SLOT_BITS each
 // in the bits of eta.w, hold 1 + the index of the texture that replaces its
 // colour (Bsdf.color), its second colour (Bsdf.ior_eta where it is one) and
-// its alpha, or 0. The texture buffer holds TEXTURE_HEADER_WORDS words per
-// texture: (flags, first word of its texels, width, height) and the two
-// rows of its to_uv; then the texels: one float RGB a word, or four 8-bit
-// RGB a word (TEXTURE_BYTES), or a checkerboard's two colours.
+// its alpha, or 0. The texture buffer holds the linear values of the 256
+// sRGB bytes (TEXTURE_TABLE_WORDS words), then TEXTURE_HEADER_WORDS words
+// per texture: (flags, first word of its texels, width, height) and the
+// two rows of its to_uv; then the texels: one float RGB a word, or four
+// 8-bit RGB a word (TEXTURE_BYTES), or a checkerboard's two colours.
 #define TEXTURE_SLOT_BITS 9
 // Set in every word of slots, so that it reads as a normal float.
 #define TEXTURE_SLOT_MARK 0x40000000u
@@ -307,6 +308,7 @@ struct Material {
 #define TEXTURE_SLOT_SECOND 1
 #define TEXTURE_SLOT_ALPHA 2
 #define TEXTURE_HEADER_WORDS 3
+#define TEXTURE_TABLE_WORDS 64
 #define TEXTURE_FLOATS 0
 #define TEXTURE_BYTES 1
 #define TEXTURE_CHECKERBOARD 2

@@ -21,36 +21,42 @@ vec2 surface_uv(uint i, vec2 b) {
     return (1.0 - b.x - b.y) * uintBitsToFloat(p.xy) + b.x * uintBitsToFloat(p.zw) + b.y * uintBitsToFloat(q.xy);
 }
 
-// Index i of a row or column of n texels, wrapped as the flags say (the
-// divisions only of non-negative numbers, which GLSL defines).
+// Index i of a row or column of n texels, wrapped as the flags say. The
+// remainder is taken in floats (exact below 2^24, nudged where the quotient
+// rounds across an integer): lavapipe has no vector integer division.
 int texture_wrap(int i, int n, uint flags) {
     if ((flags & TEXTURE_CLAMP) != 0u) {
         return clamp(i, 0, n - 1);
     }
     bool mirror = (flags & TEXTURE_MIRROR) != 0u;
     int period = mirror ? 2 * n : n;
-    int m = i >= 0 ? i % period : period - 1 - (-i - 1) % period;
+    float p = float(period);
+    int m = i - period * int(floor(float(i) / p));
+    m += m < 0 ? period : m >= period ? -period : 0;
     return mirror && m >= n ? period - m - 1 : m;
 }
 
-vec3 srgb_to_linear(vec3 c) {
-    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), greaterThan(c, vec3(0.04045)));
+// An sRGB byte's linear value, from the table the buffer begins with (the
+// same floats the CPU twin computes; a lookup costs lavapipe less than pow).
+float texture_srgb(uint b) {
+    return uintBitsToFloat(FETCH(texture_texels, int(b >> 2u))[b & 3u]);
 }
 
-// Texel (x, y), wrapped, of the bitmap with header h.
-vec3 texture_texel(uvec4 h, int x, int y) {
-    uint i = uint(texture_wrap(y, int(h.w), h.x)) * h.z + uint(texture_wrap(x, int(h.z), h.x));
+// Texel i of the bitmap with header h.
+vec3 texture_texel(uvec4 h, uint i) {
     if ((h.x & 3u) == TEXTURE_BYTES) {
-        uvec4 word = FETCH(texture_texels, int(h.y + i / 4u));
-        vec3 c = unpackUnorm4x8(word[i % 4u]).rgb;
-        return (h.x & TEXTURE_SRGB) != 0u ? srgb_to_linear(c) : c;
+        uint word = FETCH(texture_texels, int(h.y + i / 4u))[i % 4u];
+        if ((h.x & TEXTURE_SRGB) != 0u) {
+            return vec3(texture_srgb(word & 255u), texture_srgb((word >> 8u) & 255u), texture_srgb((word >> 16u) & 255u));
+        }
+        return unpackUnorm4x8(word).rgb;
     }
     return uintBitsToFloat(FETCH(texture_texels, int(h.y + i)).rgb);
 }
 
 // Texture t's value at a surface's (u, v).
 vec3 texture_eval(uint t, vec2 uv) {
-    int at = int(TEXTURE_HEADER_WORDS * t);
+    int at = int(TEXTURE_TABLE_WORDS + TEXTURE_HEADER_WORDS * t);
     uvec4 h = FETCH(texture_texels, at);
     vec3 row0 = uintBitsToFloat(FETCH(texture_texels, at + 1).xyz);
     vec3 row1 = uintBitsToFloat(FETCH(texture_texels, at + 2).xyz);
@@ -61,17 +67,25 @@ vec3 texture_eval(uint t, vec2 uv) {
         return uintBitsToFloat(FETCH(texture_texels, int(h.y + second)).rgb);
     }
     vec2 p = uv * vec2(h.zw);
+    int w = int(h.z);
+    int rows = int(h.w);
     if ((h.x & TEXTURE_NEAREST) != 0u) {
-        return texture_texel(h, int(floor(p.x)), int(floor(p.y)));
+        int x = texture_wrap(int(floor(p.x)), w, h.x);
+        int y = texture_wrap(int(floor(p.y)), rows, h.x);
+        return texture_texel(h, uint(y * w + x));
     }
     p -= 0.5;
     vec2 base = floor(p);
-    vec2 w = p - base;
+    vec2 f = p - base;
     int x = int(base.x);
     int y = int(base.y);
-    vec3 top = mix(texture_texel(h, x, y), texture_texel(h, x + 1, y), w.x);
-    vec3 bottom = mix(texture_texel(h, x, y + 1), texture_texel(h, x + 1, y + 1), w.x);
-    return mix(top, bottom, w.y);
+    int x0 = texture_wrap(x, w, h.x);
+    int x1 = texture_wrap(x + 1, w, h.x);
+    int y0 = texture_wrap(y, rows, h.x) * w;
+    int y1 = texture_wrap(y + 1, rows, h.x) * w;
+    vec3 top = mix(texture_texel(h, uint(y0 + x0)), texture_texel(h, uint(y0 + x1)), f.x);
+    vec3 bottom = mix(texture_texel(h, uint(y1 + x0)), texture_texel(h, uint(y1 + x1)), f.x);
+    return mix(top, bottom, f.y);
 }
 
 // Material m's texture in slot s (TEXTURE_SLOT_*): 1 + its index, or 0.

@@ -301,13 +301,18 @@ impl Texture {
 /// Words of the texture buffer's header of one texture.
 const TEXTURE_HEADER_WORDS: usize = shaders::TEXTURE_HEADER_WORDS as usize;
 
-/// The textures as glsl/texture.glsl reads them: a header of three words
-/// each (flags, first word of its texels, width, height; the two rows of
-/// `to_uv`), then their texels; or the first texture that takes the
-/// buffer past `limit` bytes.
+/// The textures as glsl/texture.glsl reads them: the sRGB table, a header
+/// of three words each (flags, first word of its texels, width, height; the
+/// two rows of `to_uv`), then their texels; or the first texture that takes
+/// the buffer past `limit` bytes.
 pub fn pack(textures: &[Texture], limit: u64) -> Result<Vec<[u32; 4]>, TextureTooLarge> {
-    let mut offset = TEXTURE_HEADER_WORDS * textures.len();
+    let table = shaders::TEXTURE_TABLE_WORDS as usize;
+    let mut offset = table + TEXTURE_HEADER_WORDS * textures.len();
     let mut out = Vec::with_capacity(offset);
+    out.extend(
+        (0..table)
+            .map(|w| [0, 1, 2, 3].map(|k| srgb_to_linear((4 * w + k) as f32 / 255.0).to_bits())),
+    );
     for t in textures {
         out.extend(t.header(offset));
         offset += t.words();
