@@ -672,10 +672,16 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
     let environment = check_color(path, "environment", file.environment.unwrap_or([0.0; 3]))?;
 
     let mut materials: Vec<Material> = Vec::new();
+    let mut textures = Vec::new();
     let mut geometry = Geometry::default();
     if let Some(mesh) = &file.mesh {
         let obj_path = path.parent().unwrap_or(Path::new(".")).join(mesh);
-        load_obj(&obj_path, loader, &mut materials, &mut geometry)?;
+        load_obj(
+            &obj_path,
+            loader,
+            (&mut materials, &mut textures),
+            &mut geometry,
+        )?;
     }
     for p in &file.procedural {
         procedural::validate(p).map_err(invalid)?;
@@ -708,7 +714,12 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         ));
     }
 
-    let textures = Vec::new();
+    if !geometry.uvs.is_empty() {
+        let missing = geometry.positions.len() - geometry.uvs.len();
+        geometry
+            .uvs
+            .extend(std::iter::repeat_n(BARYCENTRIC_UVS, missing));
+    }
     Ok(Parts {
         camera,
         filter: PixelFilter::Box,
@@ -1046,6 +1057,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
             ));
         }
         ignored.extend(m.diffuse.map(|_| "Kd"));
+        ignored.extend(m.diffuse_map.as_ref().map(|_| "map_Kd"));
         ignored.extend(m.specular.map(|_| "Ks"));
         ignored.extend(m.roughness.map(|_| "Pr"));
         Surface::Dielectric {
@@ -1055,6 +1067,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
     } else if metallic == 1.0 {
         let roughness = m.roughness.unwrap_or(0.0);
         ignored.extend(m.diffuse.map(|_| "Kd"));
+        ignored.extend(m.diffuse_map.as_ref().map(|_| "map_Kd"));
         Surface::conductor(unit("Ks", m.specular, 1.0)?, roughness * roughness)
     } else {
         ignored.extend(m.specular.map(|_| "Ks"));
@@ -1084,7 +1097,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
 fn load_obj(
     obj_path: &Path,
     loader: &Loader<'_>,
-    materials: &mut Vec<Material>,
+    (materials, textures): (&mut Vec<Material>, &mut Vec<texture::Texture>),
     out: &mut Geometry,
 ) -> Result<(), SceneError> {
     let text = loader.text(obj_path).map_err(|source| SceneError::Read {
@@ -1125,7 +1138,7 @@ fn load_obj(
     }
     let base = materials.len() as u32;
     for m in &parsed.materials {
-        materials.push(Material {
+        let mut material = Material {
             name: m.name.clone(),
             surface: surface_of(obj_path, m)?,
             emission: check_color(
@@ -1135,12 +1148,31 @@ fn load_obj(
             )?,
             one_sided: false,
             textures: [None; 3],
-        });
+        };
+        if let (Some(file), Surface::Diffuse { .. }) = (&m.diffuse_map, material.surface) {
+            let t = diffuse_map(dir, file, loader).map_err(|message| SceneError::Mtl {
+                path: obj_path.to_path_buf(),
+                message: format!("material '{}': {message}", m.name),
+            })?;
+            material.surface = material.surface.with_means(Some(t.mean()), None, None);
+            material.textures[shaders::TEXTURE_SLOT_COLOR as usize] = Some(textures.len() as u32);
+            textures.push(t);
+        }
+        materials.push(material);
     }
     // Faces without a material get a neutral grey.
     let default_material = materials.len() as u32;
     materials.push(Material::diffuse("default", Vec3::splat(0.8)));
+    // Texture coordinates: v turned over, as OBJ's v runs up the image.
+    let with_uvs = !parsed.uvs.is_empty() || !out.uvs.is_empty();
+    if with_uvs && out.uvs.is_empty() {
+        out.uvs = vec![BARYCENTRIC_UVS; out.positions.len()];
+    }
     for group in parsed.groups {
+        if with_uvs {
+            out.uvs
+                .extend(obj::corner_uvs(&parsed.uvs, &group.uv_corners, true));
+        }
         out.sources
             .push((obj_path.to_path_buf(), format!("object '{}'", group.name)));
         let src = out.sources.len() as u32 - 1;
@@ -1152,6 +1184,26 @@ fn load_obj(
         }
     }
     Ok(())
+}
+
+/// An MTL's `map_Kd` image (file names relative to the OBJ's folder), as
+/// a bilinear, repeating sRGB texture, as other renderers read it.
+fn diffuse_map(dir: &Path, file: &str, loader: &Loader<'_>) -> Result<texture::Texture, String> {
+    let path = dir.join(file);
+    let bytes = (loader.read)(&path).map_err(|e| format!("cannot read map_Kd '{file}': {e}"))?;
+    let pattern = texture::Texture::bitmap_from_bytes(
+        &path,
+        &bytes,
+        texture::Filter::Bilinear,
+        texture::Wrap::Repeat,
+        false,
+    )
+    .map_err(|e| format!("cannot read map_Kd '{file}': {e}"))?;
+    Ok(texture::Texture {
+        name: file.to_string(),
+        pattern,
+        to_uv: glam::Mat3::IDENTITY,
+    })
 }
 
 #[cfg(test)]
@@ -1176,6 +1228,64 @@ mod tests {
                 defines: &[],
             },
         )
+    }
+
+    /// map_Kd: the diffuse reflectance from an image, read through the
+    /// OBJ's vt with v turned over; errors name the MTL and the material.
+    #[test]
+    fn map_kd_textures_a_diffuse_material() {
+        let png = std::fs::read(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/textures/tiles.png"),
+        )
+        .unwrap();
+        let load = |mtl: &'static str| {
+            let png = png.clone();
+            let read = move |p: &Path| -> std::io::Result<Vec<u8>> {
+                Ok(match p.file_name().unwrap().to_str().unwrap() {
+                    "s.toml" => "mesh = \"s.obj\"\nenvironment = [1, 1, 1]\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov_y = 40\n".into(),
+                    "s.obj" => "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0.25\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n".into(),
+                    "t.png" => png.clone(),
+                    "s.mtl" => format!("newmtl m\n{mtl}").into_bytes(),
+                    _ => return Err(std::io::ErrorKind::NotFound.into()),
+                })
+            };
+            Scene::load_with(
+                Path::new("s.toml"),
+                &Loader {
+                    read: &read,
+                    max_triangles: 10,
+                    defines: &[],
+                },
+            )
+        };
+        let scene = load("Kd 0.5\nmap_Kd t.png\n").unwrap();
+        let m = &scene.materials[0];
+        assert_eq!(m.textures, [Some(0), None, None]);
+        let mean = scene.textures[0].mean();
+        assert_eq!(m.surface, Surface::Diffuse { albedo: mean });
+        assert_eq!(
+            scene.uvs[0],
+            [
+                Vec2::new(0.0, 1.0),
+                Vec2::new(1.0, 0.75),
+                Vec2::new(0.0, 0.0)
+            ]
+        );
+        assert_eq!(
+            scene.material_features() & shaders::FEATURE_TEXTURES,
+            shaders::FEATURE_TEXTURES
+        );
+        let err = |mtl| load(mtl).err().unwrap().to_string();
+        assert_eq!(
+            err("map_Kd gone.png\n"),
+            "s.obj: material 'm': cannot read map_Kd 'gone.png': entity not found"
+        );
+        assert!(
+            err("map_Kd -s 2 2 t.png\n").contains("line 2: map_Kd options (-s) are not supported")
+        );
+        // Not a diffuse material: ignored with a warning, as Kd is.
+        let metal = load("Pm 1\nmap_Kd t.png\n").unwrap();
+        assert_eq!(metal.materials[0].textures, [None; 3]);
     }
 
     #[test]

@@ -27,6 +27,8 @@ pub struct MtlMaterial {
     pub dissolve: Option<f32>,
     /// Keys of the MTL's Phong model (`Ns`, `illum`) that were present.
     pub phong_keys: Vec<&'static str>,
+    /// `map_Kd`: the image file of the diffuse reflectance, as written.
+    pub diffuse_map: Option<String>,
 }
 
 /// The triangles of one `o` / `g` group of an OBJ file.
@@ -60,6 +62,24 @@ pub struct Obj {
     pub materials: Vec<MtlMaterial>,
     /// `usemtl` names no MTL defines (their faces get the default material).
     pub unknown_materials: Vec<String>,
+}
+
+/// Texture coordinates at each triangle's corners from the file's `vt`
+/// (v turned over with `flip_v`), or barycentric where a face gives none.
+pub fn corner_uvs(uvs: &[Vec2], corners: &[[u32; 3]], flip_v: bool) -> Vec<[Vec2; 3]> {
+    corners
+        .iter()
+        .map(|c| {
+            if c.iter().all(|&i| i != NO_NORMAL) {
+                c.map(|i| {
+                    let p = uvs[i as usize];
+                    Vec2::new(p.x, if flip_v { 1.0 - p.y } else { p.y })
+                })
+            } else {
+                [Vec2::ZERO, Vec2::X, Vec2::Y]
+            }
+        })
+        .collect()
 }
 
 /// Where parsing stopped: the line (1-based) and why. The caller names the file.
@@ -153,7 +173,23 @@ pub fn parse_mtl(text: &str) -> Result<Vec<MtlMaterial>, (usize, String)> {
             "Ps" | "Pc" | "Pcr" | "aniso" | "anisor" | "sharpness" => {
                 number(words.next(), key).map_err(fail)?;
             }
-            // Texture maps and anything else: not used.
+            "map_Kd" => {
+                let file = line.trim_start()[key.len()..].trim();
+                if file.is_empty() {
+                    return Err(fail("map_Kd names no file".into()));
+                }
+                if file.starts_with('-') {
+                    return Err(fail(format!(
+                        "map_Kd options ({}) are not supported; give the image file alone",
+                        file.split_whitespace().next().unwrap_or("")
+                    )));
+                }
+                let Some(m) = materials.last_mut() else {
+                    return Err(fail("map_Kd before any newmtl".into()));
+                };
+                m.diffuse_map = Some(file.to_string());
+            }
+            // Other texture maps and anything else: not used.
             _ => {}
         }
     }

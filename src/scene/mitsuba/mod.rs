@@ -613,21 +613,8 @@ impl Builder<'_, '_> {
         }
         // The file's vt where a face gives them (v turned over with
         // `flip_v`, as Mitsuba does by default), else barycentric.
-        let uvs = (!parsed.uvs.is_empty()).then(|| {
-            uv_corners
-                .iter()
-                .map(|c: &[u32; 3]| {
-                    if c.iter().all(|&i| i != obj::NO_NORMAL) {
-                        c.map(|i| {
-                            let p = parsed.uvs[i as usize];
-                            Vec2::new(p.x, if flip_v { 1.0 - p.y } else { p.y })
-                        })
-                    } else {
-                        [Vec2::ZERO, Vec2::X, Vec2::Y]
-                    }
-                })
-                .collect()
-        });
+        let uvs =
+            (!parsed.uvs.is_empty()).then(|| obj::corner_uvs(&parsed.uvs, &uv_corners, flip_v));
         if face_normals {
             return Ok((triangles, None, uvs));
         }
