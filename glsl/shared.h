@@ -101,6 +101,14 @@
 // u2 v2), and the textures (TEXTURE_*), where FEATURE_TEXTURES says so.
 #define B_UVS 47
 #define B_TEXTURES 48
+// The environment (glsl/environment.glsl): a header of
+// ENVIRONMENT_HEADER_WORDS words (width, height, cells, first cell word;
+// the rows of to_local), its texels (RGB radiance a word), then per cell
+// (alias threshold, alias, density) for NEE. NEE's light list names it by
+// LIGHT_ENVIRONMENT; PassParams.environment.x is the probability it does.
+#define B_ENVIRONMENT 49
+#define ENVIRONMENT_HEADER_WORDS 4
+#define LIGHT_ENVIRONMENT 0x40000000u
 #define LIGHT_DELTA 0x80000000u
 #define DELTA_POINT 0
 #define DELTA_SPOT 1
@@ -284,6 +292,9 @@ struct Triangle {
 // Specialization constant of the trace kernels: the scene has delta lights
 // (B_DELTA_LIGHTS).
 #define CONSTANT_DELTA_LIGHTS 9
+// Specialization constant of the trace kernels: the scene has an
+// environment (B_ENVIRONMENT).
+#define CONSTANT_ENVIRONMENT 10
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)
@@ -373,7 +384,7 @@ struct PassParams {
     vec4 cam_right;    // r * tan(horizontal fov / 2)
     vec4 cam_up;       // u * tan(vertical fov / 2)
     vec4 cam_forward;  // f, w = the pixel filter's radius or deviation
-    vec4 environment;  // rgb radiance of misses
+    vec4 environment;  // x: the probability NEE picks the environment
     uint width;
     uint height;
     uint pass_index;

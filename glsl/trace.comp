@@ -16,6 +16,7 @@ layout(push_constant) uniform Push { PassParams params; };
 
 #include "bsdf.glsl"
 #include "texture.glsl"
+#include "environment.glsl"
 
 #if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
 #define GUIDED
@@ -324,10 +325,16 @@ bool scatter() {
     Hit hit = trace_ray(origin, dir, FAR);
     rays += 1u;
     if (hit.triangle == NO_HIT) {
-        radiance += throughput * params.environment.rgb;
+        // The sky, weighed against NEE's draws of it as an emitter is.
+        vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
+        float weight = 1.0;
+        if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
+            weight = power_heuristic(prev_bsdf_pdf, params.environment.x * environment_pdf(dir));
+        }
+        radiance += throughput * le * weight;
 #ifdef GUIDED
         if (learn) {
-            land(0.0, 1.0, luminance(params.environment.rgb), 0.0);
+            land(luminance(le), weight, 0.0, 0.0);
         }
 #endif
         return false;
@@ -452,6 +459,13 @@ bool scatter() {
         if (delta_light) {
             le = delta_light_radiance(entry.x & ~LIGHT_DELTA, position, wi, dist);
             light_pdf = uintBitsToFloat(entry.z);
+        } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
+            // The sky: a direction by its brightness, unbounded.
+            wi = environment_sample(vec4(rng_next2(rng), rng_next2(rng)), light_pdf);
+            light_pdf *= uintBitsToFloat(entry.z);
+            le = environment_eval(wi);
+            dist = 3.0e38;
+            faces = light_pdf > 0.0;
         } else {
             Triangle lt = load_triangle(entry.x);
             float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;

@@ -449,7 +449,20 @@ pub fn inspect_summary(scene: &Scene) -> String {
             area
         ),
         format!("lights       {}", light_summary(scene)),
-        format!("environment  {:?}", scene.environment.to_array()),
+        format!(
+            "environment  {}",
+            match &scene.environment {
+                None => "none".to_string(),
+                Some(e) if e.name == "constant" => format!("constant {:?}", e.texels[0].to_array()),
+                Some(e) => format!(
+                    "{} ({}x{}), NEE picks it with probability {:.3}",
+                    e.name,
+                    e.width,
+                    e.height,
+                    scene.environment_pick()
+                ),
+            }
+        ),
         format!(
             "bvh          {} nodes of two child boxes, one triangle per leaf, depth {}",
             scene.nodes.len(),

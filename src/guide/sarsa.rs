@@ -94,7 +94,8 @@ pub fn bytes_per_volume(sectors: u32, lights: u32) -> u64 {
 /// on the Cornell box) and at most MAX_GUIDED_LIGHTS emitting triangles.
 pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
     let n = scene.lights.len();
-    // Delta lights are NEE's alone: the tables choose among triangles. At
+    // Delta lights are NEE's alone, and the sky is not a triangle: the
+    // tables choose among triangles. At
     // rough glass, which has no table of its own, NEE picks as it would
     // unguided, and the MIS weights of what its bounces hit must agree.
     let rough_glass = scene
@@ -102,6 +103,7 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
         .iter()
         .any(|m| matches!(m.surface, crate::bsdf::Surface::RoughDielectric { .. }));
     if !scene.delta_lights.is_empty()
+        || scene.environment.is_some()
         || rough_glass
         || n > shaders::MAX_GUIDED_LIGHTS as usize
         || separate_lights(scene) < 2

@@ -46,6 +46,8 @@ pub struct GpuScene {
     /// material is textured.
     pub uvs: Buffer,
     pub textures: Buffer,
+    /// The environment; one unused texel where there is none.
+    pub environment: Buffer,
 }
 
 impl GpuScene {
@@ -74,7 +76,12 @@ impl GpuScene {
                 Buffer::gpu_only_with(ctx, "textures", &[[0u32; 4]])?,
             )
         };
+        let environment = match &scene.environment {
+            Some(e) => Buffer::gpu_only_with(ctx, "environment", &e.pack())?,
+            None => Buffer::gpu_only_with(ctx, "environment", &[[0u32; 4]])?,
+        };
         Ok(Self {
+            environment,
             uvs,
             textures,
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
@@ -99,8 +106,9 @@ impl GpuScene {
     }
 
     /// Bindings every kernel that traces rays uses.
-    pub fn bindings(&self) -> [(u32, &Buffer); 8] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 9] {
         [
+            (shaders::B_ENVIRONMENT, &self.environment),
             (shaders::B_UVS, &self.uvs),
             (shaders::B_TEXTURES, &self.textures),
             (shaders::B_NODES, &self.nodes),
@@ -134,7 +142,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         cam_right: (c.right * tx).extend(0.0).into(),
         cam_up: (c.up * ty).extend(0.0).into(),
         cam_forward: c.forward.extend(filter_size).into(),
-        environment: scene.environment.extend(0.0).into(),
+        environment: [scene.environment_pick(), 0.0, 0.0, 0.0],
         width: s.width,
         height: s.height,
         pass_index: 0,
@@ -401,6 +409,7 @@ impl Renderer {
         });
         constants.push(scene.material_features());
         constants.push(!scene.delta_lights.is_empty() as u32);
+        constants.push(scene.environment.is_some() as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

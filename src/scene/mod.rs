@@ -2,6 +2,7 @@
 //! lights, camera and a BVH ready for the GPU.
 
 pub mod bvh;
+pub mod environment;
 pub mod file;
 mod mitsuba;
 pub mod obj;
@@ -302,7 +303,8 @@ pub struct Scene {
     /// The `[sarsa]` and `[neural]` tables, as written; render settings
     /// check and read them.
     pub guide_tables: [(&'static str, toml::Table); 2],
-    pub environment: Vec3,
+    /// Light from beyond the scene, if any.
+    pub environment: Option<environment::Environment>,
     pub materials: Vec<Material>,
     pub triangles: Vec<shaders::Triangle>,
     /// Shading normals at each triangle's corners, packed by
@@ -315,8 +317,9 @@ pub struct Scene {
     /// What textured materials' slots index.
     pub textures: Vec<texture::Texture>,
     pub lights: Vec<shaders::Light>,
-    /// Point, spot and directional lights, and their entries of NEE's light
-    /// list, which follow `lights` on the GPU (`LIGHT_DELTA | index`).
+    /// Point, spot and directional lights, and the entries of NEE's light
+    /// list that follow `lights` on the GPU: theirs (`LIGHT_DELTA | index`),
+    /// then the environment's (`LIGHT_ENVIRONMENT`).
     pub delta_lights: Vec<shaders::DeltaLight>,
     pub delta_entries: Vec<shaders::Light>,
     pub nodes: Vec<shaders::BvhNode>,
@@ -398,6 +401,14 @@ impl Scene {
             .iter()
             .find(|(n, _)| *n == name)
             .map_or_else(|| EMPTY.get_or_init(toml::Table::new), |(_, t)| t)
+    }
+
+    /// The probability NEE picks the environment (0 without one).
+    pub fn environment_pick(&self) -> f32 {
+        self.delta_entries
+            .iter()
+            .find(|l| l.triangle == shaders::LIGHT_ENVIRONMENT)
+            .map_or(0.0, |l| l.pdf)
     }
 
     /// How far rays start off the surface they leave: small against the
@@ -558,7 +569,8 @@ impl Scene {
         let has_emitter = material_of
             .iter()
             .any(|&m| materials[m as usize].emission.max_element() > 0.0);
-        if !has_emitter && environment.max_element() <= 0.0 && delta_lights.is_empty() {
+        let sky = environment.as_ref().is_some_and(|e| e.power > 0.0);
+        if !has_emitter && !sky && delta_lights.is_empty() {
             return Err(SceneError::NoEmitter {
                 path: path.to_path_buf(),
             });
@@ -581,7 +593,13 @@ impl Scene {
                 }
             })
             .collect();
-        let (lights, delta_entries) = build_lights(&mut triangles, &materials, &delta_lights);
+        // NEE weighs the sky by the power it sends into the scene: its
+        // radiance over a disk as wide as the scene.
+        let sky_weight = environment
+            .as_ref()
+            .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
+        let (lights, delta_entries) =
+            build_lights(&mut triangles, &materials, &delta_lights, sky_weight);
         let normals = if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
             // Flat everywhere: the kernels shade with the faces' normals.
             Vec::new()
@@ -649,7 +667,7 @@ struct Parts {
     drop_degenerate: bool,
     defaults: RenderDefaults,
     guide_tables: [(&'static str, toml::Table); 2],
-    environment: Vec3,
+    environment: Option<environment::Environment>,
     materials: Vec<Material>,
     textures: Vec<texture::Texture>,
     geometry: Geometry,
@@ -669,7 +687,8 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         message,
     };
     let camera = Camera::from_desc(&file.camera).map_err(invalid)?;
-    let environment = check_color(path, "environment", file.environment.unwrap_or([0.0; 3]))?;
+    let sky = check_color(path, "environment", file.environment.unwrap_or([0.0; 3]))?;
+    let environment = (sky.max_element() > 0.0).then(|| environment::Environment::constant(sky));
 
     let mut materials: Vec<Material> = Vec::new();
     let mut textures = Vec::new();
@@ -822,6 +841,7 @@ fn build_lights(
     triangles: &mut [shaders::Triangle],
     materials: &[Material],
     delta: &[(shaders::DeltaLight, f32)],
+    sky: Option<f32>,
 ) -> (Vec<shaders::Light>, Vec<shaders::Light>) {
     let weights: Vec<(u32, f32)> = triangles
         .iter()
@@ -836,6 +856,10 @@ fn build_lights(
                 .enumerate()
                 .map(|(i, &(_, w))| (shaders::LIGHT_DELTA | i as u32, w)),
         )
+        .chain(
+            sky.filter(|w| *w > 0.0)
+                .map(|w| (shaders::LIGHT_ENVIRONMENT, w)),
+        )
         .collect();
     let total: f64 = weights.iter().map(|&(_, w)| w as f64).sum();
     let mut acc = 0.0f64;
@@ -843,7 +867,7 @@ fn build_lights(
     for &(i, w) in &weights {
         acc += w as f64;
         let pdf = (w as f64 / total) as f32;
-        if i & shaders::LIGHT_DELTA == 0 {
+        if i & (shaders::LIGHT_DELTA | shaders::LIGHT_ENVIRONMENT) == 0 {
             triangles[i as usize].light_pdf = pdf / triangles[i as usize].area;
         }
         lights.push(shaders::Light {
@@ -856,7 +880,7 @@ fn build_lights(
     if let Some(last) = lights.last_mut() {
         last.cdf = 1.0; // rounding must not leave a gap at the top
     }
-    let first_delta = lights.len() - delta.len();
+    let first_delta = lights.len() - delta.len() - usize::from(sky.is_some_and(|w| w > 0.0));
     let delta_entries = lights.split_off(first_delta);
     (lights, delta_entries)
 }

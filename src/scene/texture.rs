@@ -47,6 +47,11 @@ impl Texels {
         }
     }
 
+    /// Every texel's linear value, in rows.
+    pub fn to_linear(&self) -> Vec<Vec3> {
+        (0..self.len()).map(|i| self.get(i)).collect()
+    }
+
     fn len(&self) -> usize {
         match self {
             Texels::Floats(v) => v.len(),

@@ -36,7 +36,8 @@ pub(super) fn read(
         max_depth: None,
         delta_lights: Vec::new(),
         textures: textures::Textures::default(),
-        environment: Vec3::ZERO,
+        environment: None,
+        envmap: None,
     };
     for el in &elements {
         b.top_level(el)?;
@@ -72,6 +73,15 @@ pub(super) fn read(
             (light, w.max(1e-30))
         })
         .collect();
+    let environment = match (b.envmap, b.environment) {
+        (Some((name, w, h, texels, rotation)), _) => Some(super::environment::Environment::new(
+            name, w, h, texels, rotation,
+        )),
+        (None, Some(radiance)) if radiance.max_element() > 0.0 => {
+            Some(super::environment::Environment::constant(radiance))
+        }
+        _ => None,
+    };
     Ok(Parts {
         delta_lights,
         camera,
@@ -81,7 +91,7 @@ pub(super) fn read(
             ("sarsa", toml::Table::new()),
             ("neural", toml::Table::new()),
         ],
-        environment: b.environment,
+        environment,
         materials: b.materials,
         textures: b.textures.used,
         geometry: b.geometry,
@@ -124,8 +134,10 @@ struct Builder<'a, 'l> {
     /// directional light's per unit area, scaled at the end).
     delta_lights: Vec<(crate::shaders::DeltaLight, f32)>,
     textures: textures::Textures,
-    /// The sum of `constant` emitters' radiance.
-    environment: Vec3,
+    /// A `constant` emitter's radiance.
+    environment: Option<Vec3>,
+    /// An `envmap`: its file, size, linear texels (scaled) and rotation.
+    envmap: Option<(String, usize, usize, Vec<Vec3>, glam::Mat3)>,
 }
 
 impl Builder<'_, '_> {
@@ -204,22 +216,65 @@ impl Builder<'_, '_> {
                 light.intensity = irradiance.extend(0.0).into();
                 luminance(irradiance)
             }
+            "constant" | "envmap" if self.environment.is_some() || self.envmap.is_some() => {
+                return Err(el.error(
+                    "a scene has one environment emitter (constant or envmap), as in Mitsuba",
+                ))
+            }
             "constant" => {
-                // Light from every direction: paths that leave the scene
-                // gather it (NEE does not sample it).
+                // Light from every direction, uniformly.
                 let radiance = p.radiance("radiance")?.unwrap_or(Vec3::ONE);
                 if radiance.min_element() < 0.0 {
                     return Err(el.error("the constant emitter's radiance is negative"));
                 }
                 p.ignore("sampling_weight");
                 p.finish()?;
-                self.environment += radiance;
+                self.environment = Some(radiance);
                 return Ok(());
             }
             "envmap" => {
-                return Err(el.error(
-                    "emitter 'envmap' is not supported yet; a constant emitter is",
-                ))
+                let file = p
+                    .string("filename")?
+                    .ok_or_else(|| el.error("envmap needs a filename"))?;
+                let scale = p.float_or("scale", 1.0)?;
+                if !(scale >= 0.0 && scale.is_finite()) {
+                    return Err(el.error(format!("envmap scale {scale} must be finite and non-negative")));
+                }
+                // How Mitsuba weighs its sampling: noise, not the image.
+                p.ignore("mis_compensation");
+                let rotation = glam::Mat3::from_mat4(to_world);
+                let orthonormal = (rotation * rotation.transpose() - glam::Mat3::IDENTITY)
+                    .to_cols_array()
+                    .iter()
+                    .all(|v| v.abs() < 1e-4);
+                if !orthonormal || rotation.determinant() < 0.0 {
+                    return Err(el.error("an envmap's to_world must be a rotation"));
+                }
+                let path = el.file.parent().unwrap_or(Path::new(".")).join(file);
+                let bytes = (self.loader.read)(&path)
+                    .map_err(|e| el.error(format!("cannot read the envmap '{file}': {e}")))?;
+                let unreadable = |e: String| el.error(format!("cannot read the envmap '{file}': {e}"));
+                let pattern = crate::scene::texture::Texture::bitmap_from_bytes(
+                    &path,
+                    &bytes,
+                    crate::scene::texture::Filter::Bilinear,
+                    crate::scene::texture::Wrap::Repeat,
+                    false,
+                )
+                .map_err(unreadable)?;
+                let crate::scene::texture::Pattern::Bitmap { width, height, texels, .. } = pattern else {
+                    unreachable!("a bitmap reads as one")
+                };
+                if height < 2 {
+                    return Err(el.error(format!("the envmap '{file}' needs at least two rows")));
+                }
+                let texels = texels.to_linear().into_iter().map(|t| t * scale).collect::<Vec<_>>();
+                if texels.iter().any(|t| !t.is_finite() || t.min_element() < 0.0) {
+                    return Err(el.error(format!("the envmap '{file}' has negative or non-finite texels")));
+                }
+                p.finish()?;
+                self.envmap = Some((file.to_string(), width, height, texels, rotation));
+                return Ok(());
             }
             other => {
                 return Err(el.error(format!(

@@ -1,0 +1,77 @@
+// Light from the sky: the environment map as Mitsuba evaluates it, and the
+// distribution NEE draws its directions from. src/scene/environment.rs
+// packs the buffer and is the CPU twin. Needs shared.h.
+#ifndef QTRACE_ENVIRONMENT_GLSL
+#define QTRACE_ENVIRONMENT_GLSL
+
+WORDS(environment_texels, B_ENVIRONMENT)
+
+// Whether the scene has an environment; a constant, so that the kernels of
+// scenes without one carry none of this code.
+layout(constant_id = CONSTANT_ENVIRONMENT) const bool ENVIRONMENT = false;
+
+// Data coordinates of world direction d: columns from texel centres
+// (wrapping), rows from the top row at the map's +y pole to the bottom one.
+vec2 environment_data(vec3 d, uvec4 h) {
+    vec3 l = vec3(dot(uintBitsToFloat(FETCH(environment_texels, 1).xyz), d),
+                  dot(uintBitsToFloat(FETCH(environment_texels, 2).xyz), d),
+                  dot(uintBitsToFloat(FETCH(environment_texels, 3).xyz), d));
+    float u = atan(l.x, -l.z) * (0.5 * INV_PI) - 0.5 / float(h.x);
+    // atan rather than acos: Mesa's acos is a short polynomial, ~3e-4 off.
+    float v = atan(length(l.xz), l.y) * INV_PI;
+    return vec2((u - floor(u)) * float(h.x), v * float(h.y - 1u));
+}
+
+// The cell (column, row) a data point lies in.
+uvec2 environment_cell(vec2 p, uvec4 h) {
+    return min(uvec2(max(p, vec2(0.0))), uvec2(h.x - 1u, h.y - 2u));
+}
+
+vec3 environment_texel(uint x, uint y, uvec4 h) {
+    return uintBitsToFloat(FETCH(environment_texels, int(ENVIRONMENT_HEADER_WORDS + y * h.x + x % h.x)).rgb);
+}
+
+// Radiance arriving from world direction d (a unit vector).
+vec3 environment_eval(vec3 d) {
+    uvec4 h = FETCH(environment_texels, 0);
+    vec2 p = environment_data(d, h);
+    uvec2 c = environment_cell(p, h);
+    vec2 f = p - vec2(c);
+    vec3 top = mix(environment_texel(c.x, c.y, h), environment_texel(c.x + 1u, c.y, h), f.x);
+    vec3 bottom = mix(environment_texel(c.x, c.y + 1u, h), environment_texel(c.x + 1u, c.y + 1u, h), f.x);
+    return mix(top, bottom, f.y);
+}
+
+// The solid-angle density NEE draws direction d with.
+float environment_pdf(vec3 d) {
+    uvec4 h = FETCH(environment_texels, 0);
+    uvec2 c = environment_cell(environment_data(d, h), h);
+    return uintBitsToFloat(FETCH(environment_texels, int(h.w + c.y * h.x + c.x)).z);
+}
+
+// A direction for NEE from four uniform numbers (the cell, its alias, the
+// point in it: uniform in azimuth and in cos theta), with its density.
+vec3 environment_sample(vec4 u, out float pdf) {
+    uvec4 h = FETCH(environment_texels, 0);
+    uint c = min(uint(u.x * float(h.z)), h.z - 1u);
+    uvec4 cell = FETCH(environment_texels, int(h.w + c));
+    if (u.y >= uintBitsToFloat(cell.x)) {
+        c = cell.y;
+        cell = FETCH(environment_texels, int(h.w + c));
+    }
+    pdf = uintBitsToFloat(cell.z);
+    float rows = float(h.y - 1u);
+    float phi = 2.0 * PI * ((float(c % h.x) + u.z + 0.5) / float(h.x));
+    float j = float(c / h.x);
+    float c0 = cos(PI * j / rows);
+    float c1 = cos(PI * (j + 1.0) / rows);
+    float cos_theta = c0 + (c1 - c0) * u.w;
+    float sin_theta = sqrt(max(1.0 - cos_theta * cos_theta, 0.0));
+    vec3 l = vec3(sin(phi) * sin_theta, cos_theta, -cos(phi) * sin_theta);
+    // to_local is a rotation: its transpose takes l back to the world.
+    return uintBitsToFloat(FETCH(environment_texels, 1).xyz) * l.x +
+           uintBitsToFloat(FETCH(environment_texels, 2).xyz) * l.y +
+           uintBitsToFloat(FETCH(environment_texels, 3).xyz) * l.z;
+}
+
+#endif
