@@ -221,6 +221,7 @@ mod tests {
     use super::*;
 
     /// A 4 x 3 map of random radiance (the EXR Mitsuba read).
+    #[allow(clippy::excessive_precision)] // as numpy printed them
     fn map(to_world: Mat3) -> Environment {
         #[rustfmt::skip]
         let t = [
