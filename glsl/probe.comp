@@ -1,7 +1,7 @@
 #version 460
 // Runs the scene's GLSL building blocks on host-given inputs so tests can
 // compare them with CPU references: BVH traversal, the hemisphere map, the
-// BSDF and its textures.
+// BSDF and its textures, the environment.
 // (sarsa_probe.comp does the same for the Sarsa guide.)
 
 #include "shared.h"
@@ -14,6 +14,7 @@ layout(push_constant) uniform Push { PassParams params; };
 
 #include "bsdf.glsl"
 #include "texture.glsl"
+#include "environment.glsl"
 
 layout(std430, set = 0, binding = B_PROBE_IN) readonly buffer ProbeIn { vec4 probe_in[]; };
 layout(std430, set = 0, binding = B_PROBE_OUT) writeonly buffer ProbeOut { vec4 probe_out[]; };
@@ -74,5 +75,16 @@ void main() {
         Bsdf bsdf = bsdf_textured(bsdf_of(m, front), m, front, at.xy);
         probe_out[i] = vec4(bsdf.color, bsdf.alpha);
         probe_out[params.item_count + i] = vec4(bsdf.ior_eta, 0.0);
+    } else if (params.selector == PROBE_ENVIRONMENT) {
+        // in[2i] = a direction, in[2i+1] = four uniform numbers. out[i] =
+        // (its radiance, its density); out[count + i] = (the direction they
+        // draw, its density); out[2 count + i] = (the radiance there, the
+        // density looked up there).
+        vec3 d = probe_in[2u * i].xyz;
+        probe_out[i] = vec4(environment_eval(d), environment_pdf(d));
+        float pdf;
+        vec3 w = environment_sample(probe_in[2u * i + 1u], pdf);
+        probe_out[params.item_count + i] = vec4(w, pdf);
+        probe_out[2u * params.item_count + i] = vec4(environment_eval(w), environment_pdf(w));
     }
 }

@@ -153,6 +153,7 @@
 #define PROBE_LIGHT_CHOICE 6
 #define PROBE_LIGHT_TRY 7
 #define PROBE_TEXTURE 8
+#define PROBE_ENVIRONMENT 9
 
 // What a lookup returns when no volume faces the right way.
 #define NO_VOLUME 0xffffffffu

@@ -57,6 +57,18 @@ fn run(
     input: &[Vec4],
     count: usize,
 ) -> Result<Vec<Vec4>, RenderError> {
+    run_outputs(ctx, scene, guide, mode, input, (count, 1))
+}
+
+/// [`run`] with `outputs` vectors per item.
+fn run_outputs(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    guide: Option<&SarsaGuide>,
+    mode: u32,
+    input: &[Vec4],
+    (count, outputs): (usize, usize),
+) -> Result<Vec<Vec4>, RenderError> {
     let gpu_scene = GpuScene::upload(ctx, scene)?;
     let mut bindings = gpu_scene.bindings().to_vec();
     let settings = RenderSettings::resolve(scene, &Default::default())?;
@@ -79,7 +91,7 @@ fn run(
         }
         None => ComputePipeline::new(ctx, "probe", spirv::PROBE, push)?,
     };
-    launch(ctx, &pipeline, &bindings, params, input, (count, 1))
+    launch(ctx, &pipeline, &bindings, params, input, (count, outputs))
 }
 
 /// What the GPU found along one ray: the closest hit (t, triangle), if any,
@@ -468,6 +480,30 @@ pub fn texture_lookups(
     let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 2))?;
     Ok((0..n)
         .map(|i| (out[i].truncate(), out[n + i].truncate(), out[i].w))
+        .collect())
+}
+
+/// What the GPU's environment gives for each (direction, four uniform
+/// numbers): the radiance and density in the direction; the direction the
+/// numbers draw and its density; the radiance and density looked up there.
+pub type EnvironmentProbe = ((Vec3, f32), (Vec3, f32), (Vec3, f32));
+
+/// `environment_eval`, `environment_pdf` and `environment_sample` of the
+/// scene's environment on the GPU.
+pub fn environment_lookups(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    queries: &[(Vec3, Vec4)],
+) -> Result<Vec<EnvironmentProbe>, RenderError> {
+    let input: Vec<Vec4> = queries
+        .iter()
+        .flat_map(|(d, u)| [d.extend(0.0), *u])
+        .collect();
+    let n = queries.len();
+    let out = run_outputs(ctx, scene, None, shaders::PROBE_ENVIRONMENT, &input, (n, 3))?;
+    let split = |v: Vec4| (v.truncate(), v.w);
+    Ok((0..n)
+        .map(|i| (split(out[i]), split(out[n + i]), split(out[2 * n + i])))
         .collect())
 }
 
