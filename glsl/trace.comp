@@ -329,7 +329,15 @@ bool scatter() {
         vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
         float weight = 1.0;
         if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
-            weight = power_heuristic(prev_bsdf_pdf, params.environment.x * environment_pdf(dir));
+            float pick = params.environment.x;
+#ifdef METHOD_SARSA
+            if (GUIDE_LIGHTS) {
+                // As NEE at the vertex the ray left would have picked it:
+                // the sky is the last of NEE's lights.
+                pick = guide_light_probability(prev_vertex, params.light_count - 1u);
+            }
+#endif
+            weight = power_heuristic(prev_bsdf_pdf, pick * environment_pdf(dir));
         }
         radiance += throughput * le * weight;
 #ifdef GUIDED
@@ -462,7 +470,7 @@ bool scatter() {
         } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
             // The sky: a direction by its brightness, unbounded.
             wi = environment_sample(vec4(rng_next2(rng), rng_next2(rng)), light_pdf);
-            light_pdf *= uintBitsToFloat(entry.z);
+            light_pdf *= GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
             le = environment_eval(wi);
             dist = 3.0e38;
             faces = light_pdf > 0.0;

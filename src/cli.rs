@@ -415,7 +415,8 @@ pub fn devices() -> Result<()> {
 /// grouping compares each emitting triangle with every light found so far.)
 fn light_summary(scene: &Scene) -> String {
     let max = crate::shaders::MAX_GUIDED_LIGHTS;
-    if scene.lights.len() > max as usize {
+    let sky = usize::from(scene.environment_pick() > 0.0);
+    if scene.lights.len() + sky > max as usize {
         return format!(
             "NEE picks by emitted power (guides learn the choice up to {max} emitting triangles)"
         );
@@ -426,7 +427,12 @@ fn light_summary(scene: &Scene) -> String {
     } else {
         "NEE picks by emitted power"
     };
-    format!("{lights} by material and plane; {how}")
+    let what = if sky > 0 {
+        " (the sky one of them)"
+    } else {
+        ""
+    };
+    format!("{lights} by material and plane{what}; {how}")
 }
 
 /// The `qtrace inspect` summary of a scene.

@@ -132,8 +132,13 @@ fn light_choice(
     let mut legend: Vec<String> = Vec::new();
     for (l, &g) in groups.iter().enumerate() {
         if g == legend.len() {
-            let m = scene.triangles[scene.lights[l].triangle as usize].material;
-            let name = &scene.materials[m as usize].name;
+            let name = match scene.lights.get(l) {
+                Some(light) => {
+                    let m = scene.triangles[light.triangle as usize].material;
+                    scene.materials[m as usize].name.as_str()
+                }
+                None => "the sky",
+            };
             legend.push(format!(
                 "{}: {name}",
                 LIGHT_COLOURS[g % LIGHT_COLOURS.len()].1

@@ -93,9 +93,10 @@ pub fn bytes_per_volume(sectors: u32, lights: u32) -> u64 {
 /// of one quad light are not worth a choice, which costs a pass about 7%
 /// on the Cornell box) and at most MAX_GUIDED_LIGHTS emitting triangles.
 pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
-    let n = scene.lights.len();
-    // Delta lights are NEE's alone, and the sky is not a triangle: the
-    // tables choose among triangles. At
+    let sky = scene.environment_pick() > 0.0;
+    let n = scene.lights.len() + usize::from(sky);
+    // Delta lights are NEE's alone: the tables choose among triangles and
+    // the sky, which follows them in NEE's list. At
     // rough glass, which has no table of its own, NEE picks as it would
     // unguided, and the MIS weights of what its bounces hit must agree.
     let rough_glass = scene
@@ -103,14 +104,17 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
         .iter()
         .any(|m| matches!(m.surface, crate::bsdf::Surface::RoughDielectric { .. }));
     if !scene.delta_lights.is_empty()
-        || scene.environment.is_some()
         || rough_glass
         || n > shaders::MAX_GUIDED_LIGHTS as usize
         || separate_lights(scene) < 2
     {
         return Vec::new();
     }
-    scene.lights.iter().map(|l| l.pdf).collect()
+    let mut power: Vec<f32> = scene.lights.iter().map(|l| l.pdf).collect();
+    if sky {
+        power.push(scene.environment_pick());
+    }
+    power
 }
 
 /// Lights told apart by material and plane.
@@ -119,7 +123,8 @@ pub fn separate_lights(scene: &Scene) -> usize {
 }
 
 /// For each emitting triangle (in `scene.lights` order), the light it is
-/// part of: triangles of one material in one plane make one light.
+/// part of: triangles of one material in one plane make one light; then
+/// the sky, a light of its own, where NEE draws one.
 pub fn light_groups(scene: &Scene) -> Vec<usize> {
     let tolerance = 1e-4 * scene.extent.max(f32::MIN_POSITIVE);
     let mut planes: Vec<(u32, Vec3, f32)> = Vec::new();
@@ -136,6 +141,9 @@ pub fn light_groups(scene: &Scene) -> Vec<usize> {
             planes.len() - 1
         });
         groups.push(group);
+    }
+    if scene.environment_pick() > 0.0 {
+        groups.push(planes.len());
     }
     groups
 }
