@@ -238,7 +238,22 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         ),
         ("<shape type=\"sphere\"><float name=\"radius\" value=\"$y\"/></shape>", 5, "$y is not defined"),
         ("<shape type=\"sphere\"><float name=\"radius\" value=\"big\"/></shape>", 5, "'big' is not a number"),
-        ("<emitter type=\"envmap\"/>", 5, "emitter 'envmap' is not supported yet"),
+        ("<emitter type=\"envmap\"/>", 5, "envmap needs a filename"),
+        (
+            "<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>",
+            5,
+            "cannot read the envmap 'sky.exr'",
+        ),
+        (
+            "<emitter type=\"constant\"/><emitter type=\"constant\"/>",
+            5,
+            "one environment emitter",
+        ),
+        (
+            "<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/><transform name=\"to_world\"><scale value=\"2\"/></transform></emitter>",
+            5,
+            "must be a rotation",
+        ),
         ("<emitter type=\"spot\"><float name=\"beam_width\" value=\"30\"/></emitter>", 5, "beam_width"),
         ("<texture type=\"bitmap\"/>", 5, "a top-level <texture> needs an id"),
         ("<texture type=\"bitmap\" id=\"t\"/>", 5, "bitmap needs a filename"),
