@@ -6,9 +6,11 @@
 
 WORDS(environment_texels, B_ENVIRONMENT)
 
-// Whether the scene has an environment; a constant, so that the kernels of
-// scenes without one carry none of this code.
-layout(constant_id = CONSTANT_ENVIRONMENT) const bool ENVIRONMENT = false;
+// Whether the scene has an environment (SKY_*); a constant, so that the
+// kernels of scenes without one carry none of this code, and those of the
+// others only the code of its texels' layout.
+layout(constant_id = CONSTANT_ENVIRONMENT) const uint SKY = SKY_TEXEL_WORDS;
+const bool ENVIRONMENT = SKY != SKY_NONE;
 
 // Data coordinates of world direction d: columns from texel centres
 // (wrapping), rows from the top row at the map's +y pole to the bottom one.
@@ -22,20 +24,41 @@ vec2 environment_data(vec3 d, uvec4 h) {
     return vec2((u - floor(u)) * float(h.x), v * float(h.y - 1u));
 }
 
-// The cell (column, row) a data point lies in.
-uvec2 environment_cell(vec2 p, uvec4 h) {
+// The cell between texels (column, row) a data point lies in.
+uvec2 environment_texel_cell(vec2 p, uvec4 h) {
     return min(uvec2(max(p, vec2(0.0))), uvec2(h.x - 1u, h.y - 2u));
 }
 
+// NEE's cell holding the cell between texels c: blocks of (block width,
+// block height), as many columns as the third header row's w says.
+uint environment_cell(uvec2 c) {
+    uint bw = FETCH(environment_texels, 1).w;
+    uint bh = FETCH(environment_texels, 2).w;
+    uint columns = FETCH(environment_texels, 3).w;
+    return (c.y / bh) * columns + c.x / bw;
+}
+
+// Texel (x, y): a word each, or (SKY_DENSE) three floats from where 3 i
+// falls (four texels fill three words; a spare word follows the last).
 vec3 environment_texel(uint x, uint y, uvec4 h) {
-    return uintBitsToFloat(FETCH(environment_texels, int(ENVIRONMENT_HEADER_WORDS + y * h.x + x % h.x)).rgb);
+    uint i = y * h.x + x % h.x;
+    if (SKY != SKY_DENSE) {
+        return uintBitsToFloat(FETCH(environment_texels, int(ENVIRONMENT_HEADER_WORDS + i)).rgb);
+    }
+    uint f = 3u * i;
+    int at = int(ENVIRONMENT_HEADER_WORDS + f / 4u);
+    uvec4 a = FETCH(environment_texels, at);
+    uvec4 b = FETCH(environment_texels, at + 1);
+    uint k = f & 3u;
+    uvec3 bits = k == 0u ? a.xyz : k == 1u ? a.yzw : k == 2u ? uvec3(a.zw, b.x) : uvec3(a.w, b.xy);
+    return uintBitsToFloat(bits);
 }
 
 // Radiance arriving from world direction d (a unit vector).
 vec3 environment_eval(vec3 d) {
     uvec4 h = FETCH(environment_texels, 0);
     vec2 p = environment_data(d, h);
-    uvec2 c = environment_cell(p, h);
+    uvec2 c = environment_texel_cell(p, h);
     vec2 f = p - vec2(c);
     vec3 top = mix(environment_texel(c.x, c.y, h), environment_texel(c.x + 1u, c.y, h), f.x);
     vec3 bottom = mix(environment_texel(c.x, c.y + 1u, h), environment_texel(c.x + 1u, c.y + 1u, h), f.x);
@@ -45,8 +68,8 @@ vec3 environment_eval(vec3 d) {
 // The solid-angle density NEE draws direction d with.
 float environment_pdf(vec3 d) {
     uvec4 h = FETCH(environment_texels, 0);
-    uvec2 c = environment_cell(environment_data(d, h), h);
-    return uintBitsToFloat(FETCH(environment_texels, int(h.w + c.y * h.x + c.x)).z);
+    uint c = environment_cell(environment_texel_cell(environment_data(d, h), h));
+    return uintBitsToFloat(FETCH(environment_texels, int(h.w + c)).z);
 }
 
 // A direction for NEE from four uniform numbers (the cell, its alias, the
@@ -60,11 +83,19 @@ vec3 environment_sample(vec4 u, out float pdf) {
         cell = FETCH(environment_texels, int(h.w + c));
     }
     pdf = uintBitsToFloat(cell.z);
+    uint bw = FETCH(environment_texels, 1).w;
+    uint bh = FETCH(environment_texels, 2).w;
+    uint columns = FETCH(environment_texels, 3).w;
+    // The block's columns and rows of cells between texels.
+    uint x0 = (c % columns) * bw;
+    uint y0 = (c / columns) * bh;
+    float x1 = float(min(x0 + bw, h.x));
+    float y1 = float(min(y0 + bh, h.y - 1u));
     float rows = float(h.y - 1u);
-    float phi = 2.0 * PI * ((float(c % h.x) + u.z + 0.5) / float(h.x));
-    float j = float(c / h.x);
-    float c0 = cos(PI * j / rows);
-    float c1 = cos(PI * (j + 1.0) / rows);
+    float x = mix(float(x0), x1, u.z);
+    float phi = 2.0 * PI * ((x + 0.5) / float(h.x));
+    float c0 = cos(PI * float(y0) / rows);
+    float c1 = cos(PI * y1 / rows);
     float cos_theta = c0 + (c1 - c0) * u.w;
     float sin_theta = sqrt(max(1.0 - cos_theta * cos_theta, 0.0));
     vec3 l = vec3(sin(phi) * sin_theta, cos_theta, -cos(phi) * sin_theta);

@@ -102,12 +102,17 @@
 #define B_UVS 47
 #define B_TEXTURES 48
 // The environment (glsl/environment.glsl): a header of
-// ENVIRONMENT_HEADER_WORDS words (width, height, cells, first cell word;
-// the rows of to_local), its texels (RGB radiance a word), then per cell
-// (alias threshold, alias, density) for NEE. NEE's light list names it by
-// LIGHT_ENVIRONMENT; PassParams.environment.x is the probability it does.
+// ENVIRONMENT_HEADER_WORDS words ((width, height, cells, first cell word);
+// the rows of to_local, whose w hold NEE's cells' block width and height
+// and their columns), its texels (RGB radiance, a word each, or with
+// SKY_DENSE floats one after another: four texels in three words), then
+// per cell (alias threshold, alias, density) for NEE. NEE's light list names it by LIGHT_ENVIRONMENT;
+// PassParams.environment.x is the probability it does.
 #define B_ENVIRONMENT 49
 #define ENVIRONMENT_HEADER_WORDS 4
+// NEE's cells of a sky: at most this many columns, half as many rows (a
+// block of the cells between texels each, on larger maps).
+#define MAX_SKY_CELLS 1024
 #define LIGHT_ENVIRONMENT 0x40000000u
 #define LIGHT_DELTA 0x80000000u
 #define DELTA_POINT 0
@@ -293,9 +298,13 @@ struct Triangle {
 // Specialization constant of the trace kernels: the scene has delta lights
 // (B_DELTA_LIGHTS).
 #define CONSTANT_DELTA_LIGHTS 9
-// Specialization constant of the trace kernels: the scene has an
-// environment (B_ENVIRONMENT).
+// Specialization constant of the trace kernels: the scene's environment
+// (B_ENVIRONMENT): none, its texels a word each, or packed (a sky too
+// large for one buffer otherwise).
 #define CONSTANT_ENVIRONMENT 10
+#define SKY_NONE 0
+#define SKY_TEXEL_WORDS 1
+#define SKY_DENSE 2
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

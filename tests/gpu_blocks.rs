@@ -474,8 +474,19 @@ fn gpu_environment_matches_its_cpu_twin() {
             (rng.unit(), u)
         })
         .collect();
-    let gpu = probe::environment_lookups(&ctx, &scene, &queries).unwrap();
-    common::assert_no_validation_errors(&ctx);
+    for dense in [false, true] {
+        let gpu = probe::environment_lookups(&ctx, &scene, &queries, dense).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        check_environment(env, &queries, gpu, dense);
+    }
+}
+
+fn check_environment(
+    env: &qtrace::scene::environment::Environment,
+    queries: &[(Vec3, glam::Vec4)],
+    gpu: Vec<probe::EnvironmentProbe>,
+    dense: bool,
+) {
     let close =
         |a: Vec3, b: Vec3, tol: f32| (a - b).abs().max_element() <= tol * b.max_element().max(1.0);
     let mut misses = 0;
@@ -500,7 +511,7 @@ fn gpu_environment_matches_its_cpu_twin() {
     }
     assert!(
         misses <= 4,
-        "{misses} of {} lookups disagree",
+        "dense {dense}: {misses} of {} lookups disagree",
         queries.len()
     );
 }

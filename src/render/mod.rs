@@ -30,6 +30,11 @@ pub enum RenderError {
     Write(#[from] crate::image::ImageError),
     #[error("{0}: {1}")]
     Textures(std::path::PathBuf, crate::scene::texture::TextureTooLarge),
+    #[error("{path}: {message}")]
+    Sky {
+        path: std::path::PathBuf,
+        message: String,
+    },
 }
 
 /// The scene's buffers on the device.
@@ -48,6 +53,8 @@ pub struct GpuScene {
     pub textures: Buffer,
     /// The environment; one unused texel where there is none.
     pub environment: Buffer,
+    /// How its texels lie (SKY_*: the kernels' CONSTANT_ENVIRONMENT).
+    pub sky: u32,
 }
 
 impl GpuScene {
@@ -76,12 +83,41 @@ impl GpuScene {
                 Buffer::gpu_only_with(ctx, "textures", &[[0u32; 4]])?,
             )
         };
+        let mut sky = shaders::SKY_NONE;
         let environment = match &scene.environment {
-            Some(e) => Buffer::gpu_only_with(ctx, "environment", &e.pack())?,
+            Some(e) => {
+                let info = ctx.info();
+                let limit = info
+                    .max_storage_buffer_range
+                    .min(16 * info.max_texel_buffer_elements);
+                // Texels a word each where they fit, else packed tighter.
+                let mut words = e.pack(false);
+                sky = shaders::SKY_TEXEL_WORDS;
+                if 16 * words.len() as u64 > limit {
+                    words = e.pack(true);
+                    sky = shaders::SKY_DENSE;
+                }
+                let bytes = 16 * words.len() as u64;
+                if bytes > limit {
+                    return Err(RenderError::Sky {
+                        path: scene.path.clone(),
+                        message: format!(
+                            "the sky '{}' ({}x{}) needs {} MiB of device memory, over the {} MiB one buffer may hold here (12 bytes a texel)",
+                            e.name,
+                            e.width,
+                            e.height,
+                            bytes.div_ceil(1 << 20),
+                            limit >> 20
+                        ),
+                    });
+                }
+                Buffer::gpu_only_with(ctx, "environment", &words)?
+            }
             None => Buffer::gpu_only_with(ctx, "environment", &[[0u32; 4]])?,
         };
         Ok(Self {
             environment,
+            sky,
             uvs,
             textures,
             nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
@@ -409,7 +445,7 @@ impl Renderer {
         });
         constants.push(scene.material_features());
         constants.push(!scene.delta_lights.is_empty() as u32);
-        constants.push(scene.environment.is_some() as u32);
+        constants.push(gpu_scene.sky);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

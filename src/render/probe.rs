@@ -489,18 +489,37 @@ pub fn texture_lookups(
 pub type EnvironmentProbe = ((Vec3, f32), (Vec3, f32), (Vec3, f32));
 
 /// `environment_eval`, `environment_pdf` and `environment_sample` of the
-/// scene's environment on the GPU.
+/// scene's environment on the GPU, its texels a word each or, `dense`,
+/// packed as a sky too large for one buffer otherwise is.
 pub fn environment_lookups(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     queries: &[(Vec3, Vec4)],
+    dense: bool,
 ) -> Result<Vec<EnvironmentProbe>, RenderError> {
     let input: Vec<Vec4> = queries
         .iter()
         .flat_map(|(d, u)| [d.extend(0.0), *u])
         .collect();
     let n = queries.len();
-    let out = run_outputs(ctx, scene, None, shaders::PROBE_ENVIRONMENT, &input, (n, 3))?;
+    let env = scene.environment.as_ref().expect("a scene with a sky");
+    let gpu_scene = GpuScene::upload(ctx, scene)?;
+    let sky = Buffer::gpu_only_with(ctx, "probe sky", &env.pack(dense))?;
+    let mut bindings = gpu_scene.bindings().to_vec();
+    bindings.retain(|(b, _)| *b != shaders::B_ENVIRONMENT);
+    bindings.push((shaders::B_ENVIRONMENT, &sky));
+    let settings = RenderSettings::resolve(scene, &Default::default())?;
+    let mut params = pass_params(scene, &settings);
+    params.selector = shaders::PROBE_ENVIRONMENT;
+    let mut constants = vec![0; shaders::CONSTANT_ENVIRONMENT as usize + 1];
+    constants[shaders::CONSTANT_ENVIRONMENT as usize] = if dense {
+        shaders::SKY_DENSE
+    } else {
+        shaders::SKY_TEXEL_WORDS
+    };
+    let push = size_of::<PassParams>() as u32;
+    let pipeline = ComputePipeline::specialized(ctx, "probe", spirv::PROBE, push, &constants)?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
     let split = |v: Vec4| (v.truncate(), v.w);
     Ok((0..n)
         .map(|i| (split(out[i]), split(out[n + i]), split(out[2 * n + i])))

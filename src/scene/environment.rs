@@ -21,13 +21,20 @@ pub struct Environment {
     pub texels: Vec<Vec3>,
     /// From world directions to the map's frame (its to_world undone).
     pub to_local: Mat3,
-    /// Per cell of `cells()`: the probability NEE draws it, over its solid
-    /// angle (the density of its directions), and its alias table entry.
+    /// NEE's cells: blocks of `block` (columns, rows) of the cells between
+    /// texels (all of them up to MAX_SKY_CELLS wide and half as high).
+    pub block: (usize, usize),
+    pub grid: (usize, usize),
+    /// Per cell: the probability NEE draws it over its solid angle (the
+    /// density of its directions), and its alias table entry.
     pub density: Vec<f32>,
     pub alias: Vec<(f32, u32)>,
     /// ∫ luminance dω over the sphere (by cells): NEE's weight of the sky.
     pub power: f32,
 }
+
+/// The most columns of NEE's cells; rows at most half as many.
+const MAX_SKY_CELLS: usize = shaders::MAX_SKY_CELLS as usize;
 
 impl Environment {
     /// A map of `width` x `height` texels (rows from the top) seen through
@@ -40,12 +47,19 @@ impl Environment {
         to_world: Mat3,
     ) -> Self {
         assert!(width >= 1 && height >= 2 && texels.len() == width * height);
+        let block = (
+            width.div_ceil(MAX_SKY_CELLS),
+            (height - 1).div_ceil(MAX_SKY_CELLS / 2),
+        );
+        let grid = (width.div_ceil(block.0), (height - 1).div_ceil(block.1));
         let mut env = Self {
             name,
             width,
             height,
             texels,
             to_local: to_world.inverse(),
+            block,
+            grid,
             density: Vec::new(),
             alias: Vec::new(),
             power: 0.0,
@@ -59,37 +73,58 @@ impl Environment {
         Self::new("constant".into(), 1, 2, vec![radiance; 2], Mat3::IDENTITY)
     }
 
-    /// Cells NEE samples: between the texel columns (wrapping) and rows,
-    /// where the map is bilinear in its four corners.
+    /// NEE's cells.
     pub fn cells(&self) -> usize {
-        self.width * (self.height - 1)
+        self.grid.0 * self.grid.1
     }
 
     fn texel(&self, x: usize, y: usize) -> Vec3 {
         self.texels[y * self.width + x % self.width]
     }
 
-    /// The solid angle of cell row j: between θ = π j / (h − 1) and the next.
-    fn row_solid_angle(&self, j: usize) -> f32 {
-        let h = (self.height - 1) as f32;
-        let (c0, c1) = ((PI * j as f32 / h).cos(), (PI * (j + 1) as f32 / h).cos());
-        2.0 * PI / self.width as f32 * (c0 - c1)
+    /// Cell (i, j)'s columns and rows of the cells between texels, where
+    /// the map is bilinear in its four corners.
+    fn span(&self, i: usize, j: usize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+        let (bx, by) = self.block;
+        (
+            i * bx..((i + 1) * bx).min(self.width),
+            j * by..((j + 1) * by).min(self.height - 1),
+        )
     }
 
-    /// Each cell's weight: its corners' mean luminance (the mean of a
-    /// bilinear patch) times its solid angle; then Walker's alias table.
+    /// The solid angle of the columns `x` and rows `y` of the cells between
+    /// texels (row j lies between θ = π j / (h − 1) and the next).
+    fn solid_angle(&self, x: &std::ops::Range<usize>, y: &std::ops::Range<usize>) -> f32 {
+        let h = (self.height - 1) as f32;
+        let (c0, c1) = (
+            (PI * y.start as f32 / h).cos(),
+            (PI * y.end as f32 / h).cos(),
+        );
+        2.0 * PI * x.len() as f32 / self.width as f32 * (c0 - c1)
+    }
+
+    /// Each cell's weight: over the cells between texels it holds, their
+    /// corners' mean luminance (the mean of a bilinear patch) times their
+    /// solid angle; then Walker's alias table.
     fn build_sampling(&mut self) {
-        let (w, n) = (self.width, self.cells());
+        let n = self.cells();
         let weights: Vec<f64> = (0..n)
             .map(|c| {
-                let (i, j) = (c % w, c / w);
-                let corners = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
-                let mean: f32 = corners
-                    .iter()
-                    .map(|&(x, y)| luminance(self.texel(x, y)))
-                    .sum::<f32>()
-                    / 4.0;
-                (mean.max(0.0) * self.row_solid_angle(j)) as f64
+                let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
+                let mut w = 0.0f64;
+                for j in ys.clone() {
+                    let row = self.solid_angle(&(0..1), &(j..j + 1)) as f64;
+                    for i in xs.clone() {
+                        let corners = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
+                        let mean: f32 = corners
+                            .iter()
+                            .map(|&(x, y)| luminance(self.texel(x, y)))
+                            .sum::<f32>()
+                            / 4.0;
+                        w += mean.max(0.0) as f64 * row;
+                    }
+                }
+                w
             })
             .collect();
         let total: f64 = weights.iter().sum();
@@ -102,7 +137,10 @@ impl Environment {
             vec![1.0 / n as f64; n]
         };
         self.density = (0..n)
-            .map(|c| (p[c] / self.row_solid_angle(c / w) as f64) as f32)
+            .map(|c| {
+                let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
+                (p[c] / self.solid_angle(&xs, &ys) as f64) as f32
+            })
             .collect();
         // Vose's alias method.
         let mut scaled: Vec<f64> = p.iter().map(|x| x * n as f64).collect();
@@ -128,7 +166,7 @@ impl Environment {
         let l = self.to_local * d;
         Vec2::new(
             l.x.atan2(-l.z) * (0.5 / PI),
-            l.y.clamp(-1.0, 1.0).acos() / PI,
+            Vec2::new(l.x, l.z).length().atan2(l.y) / PI,
         )
     }
 
@@ -142,17 +180,23 @@ impl Environment {
         )
     }
 
-    /// The cell a data point lies in.
-    fn cell(&self, p: Vec2) -> (usize, usize) {
+    /// The cell between texels a data point lies in.
+    fn texel_cell(&self, p: Vec2) -> (usize, usize) {
         let i = (p.x.max(0.0) as usize).min(self.width - 1);
         let j = (p.y.max(0.0) as usize).min(self.height - 2);
         (i, j)
     }
 
+    /// NEE's cell a data point lies in.
+    fn cell(&self, p: Vec2) -> usize {
+        let (i, j) = self.texel_cell(p);
+        (j / self.block.1) * self.grid.0 + i / self.block.0
+    }
+
     /// Radiance arriving from world direction `d` (unit).
     pub fn eval(&self, d: Vec3) -> Vec3 {
         let p = self.data(self.uv(d));
-        let (i, j) = self.cell(p);
+        let (i, j) = self.texel_cell(p);
         let f = p - Vec2::new(i as f32, j as f32);
         let top = self.texel(i, j).lerp(self.texel(i + 1, j), f.x);
         let bottom = self.texel(i, j + 1).lerp(self.texel(i + 1, j + 1), f.x);
@@ -161,12 +205,11 @@ impl Environment {
 
     /// The solid-angle density NEE draws `d` with.
     pub fn pdf(&self, d: Vec3) -> f32 {
-        let (i, j) = self.cell(self.data(self.uv(d)));
-        self.density[j * self.width + i]
+        self.density[self.cell(self.data(self.uv(d)))]
     }
 
     /// A direction drawn by `u` (four uniform numbers: the cell, its alias,
-    /// the point in it), with its density.
+    /// the point in it, uniform in azimuth and cos θ), with its density.
     pub fn sample(&self, u: [f32; 4]) -> (Vec3, f32) {
         let n = self.cells();
         let mut c = ((u[0] * n as f32) as usize).min(n - 1);
@@ -174,10 +217,14 @@ impl Environment {
         if u[1] >= threshold {
             c = alias as usize;
         }
+        let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
         let (w, h) = (self.width as f32, (self.height - 1) as f32);
-        let (i, j) = ((c % self.width) as f32, (c / self.width) as f32);
-        let phi = 2.0 * PI * ((i + u[2] + 0.5) / w);
-        let (c0, c1) = ((PI * j / h).cos(), (PI * (j + 1.0) / h).cos());
+        let x = xs.start as f32 + u[2] * xs.len() as f32;
+        let phi = 2.0 * PI * ((x + 0.5) / w);
+        let (c0, c1) = (
+            (PI * ys.start as f32 / h).cos(),
+            (PI * ys.end as f32 / h).cos(),
+        );
         let cos_theta = c0 + (c1 - c0) * u[3];
         let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
         let local = Vec3::new(phi.sin() * sin_theta, cos_theta, -phi.cos() * sin_theta);
@@ -185,11 +232,18 @@ impl Environment {
     }
 
     /// The environment buffer glsl/environment.glsl reads: a header (width,
-    /// height, cells, first cell word; the three rows of to_local), the
-    /// texels (RGB a word), then per cell (alias threshold, alias, density).
-    pub fn pack(&self) -> Vec<[u32; 4]> {
+    /// height, cells, first cell word; the three rows of to_local, with
+    /// the cells' block width, block height and columns), the texels (RGB floats: a word each, or `dense`, one after another,
+    /// four texels in three words and a word to spare, 25% less memory for
+    /// two reads a texel), then per cell (alias threshold, alias, density).
+    pub fn pack(&self, dense: bool) -> Vec<[u32; 4]> {
         let header = shaders::ENVIRONMENT_HEADER_WORDS as usize;
-        let first_cell = header + self.texels.len();
+        let texel_words = if dense {
+            (3 * self.texels.len()).div_ceil(4) + 1
+        } else {
+            self.texels.len()
+        };
+        let first_cell = header + texel_words;
         let mut out = Vec::with_capacity(first_cell + self.cells());
         out.push([
             self.width as u32,
@@ -197,15 +251,27 @@ impl Environment {
             self.cells() as u32,
             first_cell as u32,
         ]);
-        for r in 0..3 {
+        let extra = [self.block.0 as u32, self.block.1 as u32, self.grid.0 as u32];
+        for (r, e) in extra.into_iter().enumerate() {
             let m = self.to_local;
-            out.push([m.x_axis[r], m.y_axis[r], m.z_axis[r], 0.0].map(f32::to_bits));
+            out.push([
+                m.x_axis[r].to_bits(),
+                m.y_axis[r].to_bits(),
+                m.z_axis[r].to_bits(),
+                e,
+            ]);
         }
-        out.extend(
-            self.texels
-                .iter()
-                .map(|t| [t.x.to_bits(), t.y.to_bits(), t.z.to_bits(), 0]),
-        );
+        let bits = |t: &Vec3| t.to_array().map(f32::to_bits);
+        if dense {
+            let mut floats: Vec<u32> = self.texels.iter().flat_map(bits).collect();
+            floats.resize(4 * texel_words, 0);
+            out.extend(floats.chunks_exact(4).map(|w| [w[0], w[1], w[2], w[3]]));
+        } else {
+            out.extend(self.texels.iter().map(|t| {
+                let [r, g, b] = bits(t);
+                [r, g, b, 0]
+            }));
+        }
         out.extend(
             self.alias
                 .iter()
@@ -289,23 +355,60 @@ mod tests {
                 (back - pdf).abs() <= 1e-3 * pdf,
                 "pdf {pdf} drawn, {back} looked up at {d}"
             );
-            let (i, j) = env.cell(env.data(env.uv(d)));
-            counts[j * env.width + i] += 1;
+            counts[env.cell(env.data(env.uv(d)))] += 1;
         }
+        let cell_angle = |c: usize| {
+            let (xs, ys) = env.span(c % env.grid.0, c / env.grid.0);
+            env.solid_angle(&xs, &ys)
+        };
         let total: f32 = (0..env.cells())
-            .map(|c| env.density[c] * env.row_solid_angle(c / env.width))
+            .map(|c| env.density[c] * cell_angle(c))
             .sum();
         assert!((total - 1.0).abs() < 1e-5, "densities integrate to {total}");
         let chi2: f64 = counts
             .iter()
             .enumerate()
             .map(|(c, &k)| {
-                let e = n as f64 * (env.density[c] * env.row_solid_angle(c / env.width)) as f64;
+                let e = n as f64 * (env.density[c] * cell_angle(c)) as f64;
                 (k as f64 - e).powi(2) / e
             })
             .sum();
         // 8 cells, 7 degrees of freedom: p = 0.001 at 24.3.
         assert!(chi2 < 24.3, "chi2 {chi2}");
+    }
+
+    /// A map wider than NEE's cells (blocks of three columns) with a
+    /// bright sun: the densities integrate to 1 and agree with the draws,
+    /// and the draws find the sun as often as its share says.
+    #[test]
+    fn a_wide_map_with_a_bright_sun_samples_by_blocks() {
+        let (w, h) = (2050, 9);
+        let mut texels = vec![Vec3::splat(0.5); w * h];
+        texels[4 * w + 1000] = Vec3::splat(1.0e6);
+        let env = Environment::new("wide".into(), w, h, texels, Mat3::IDENTITY);
+        assert_eq!((env.block, env.grid), ((3, 1), (684, 8)));
+        let cell_angle = |c: usize| {
+            let (xs, ys) = env.span(c % env.grid.0, c / env.grid.0);
+            env.solid_angle(&xs, &ys)
+        };
+        let total: f32 = (0..env.cells())
+            .map(|c| env.density[c] * cell_angle(c))
+            .sum();
+        assert!((total - 1.0).abs() < 1e-4, "densities integrate to {total}");
+        let mut rng = crate::fuzz::Rng::new(5);
+        let mut u = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32;
+        let (mut near_sun, n) = (0, 20_000);
+        for _ in 0..n {
+            let (d, pdf) = env.sample([u(), u(), u(), u()]);
+            assert!((env.pdf(d) - pdf).abs() <= 1e-3 * pdf, "{d}");
+            let (i, j) = env.texel_cell(env.data(env.uv(d)));
+            near_sun += usize::from((999..=1001).contains(&i) && (3..5).contains(&j));
+        }
+        // The blocks of the sun's four cells hold nearly all the power.
+        assert!(
+            near_sun as f32 > 0.95 * n as f32,
+            "{near_sun} of {n} near the sun"
+        );
     }
 
     #[test]
