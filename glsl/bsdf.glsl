@@ -34,7 +34,7 @@ struct Bsdf {
     uint flags;  // MATERIAL_BECKMANN; conductor: MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
     vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
     vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, alpha);
-                  // rough glass: its reflection's tint (ior_eta)
+                  // glass, rough glass: its reflection's tint (ior_eta)
     uint table;  // rough plastic: the word its transmittance table begins at
 };
 
@@ -439,7 +439,7 @@ vec3 bsdf_sample_delta(Bsdf bsdf, vec3 wo, float u, out vec3 weight) {
         float cos_t;
         float f = fresnel_dielectric(wo.z, bsdf.eta, cos_t);
         if (u < f) {
-            weight = vec3(1.0);
+            weight = bsdf.ior_eta;
             return mirror;
         }
         weight = bsdf.color / (bsdf.eta * bsdf.eta);

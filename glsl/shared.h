@@ -241,8 +241,8 @@ struct Triangle {
 // Material kinds (docs/scenes.md), in Material.color.w.
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_CONDUCTOR 1
-// A dielectric of index emission.w; rough (Mitsuba's roughdielectric) where
-// k.z, its alpha, is above 0, eta.rgb then tinting its reflection.
+// A dielectric of index emission.w, eta.rgb tinting its reflection; rough
+// (Mitsuba's roughdielectric) where k.z, its alpha, is above 0.
 #define MATERIAL_DIELECTRIC 2
 // Mitsuba's plastic: a diffuse base (color) under a smooth coat of relative
 // index emission.w; eta.rgb is its specular reflectance, k.x the coat's

@@ -44,8 +44,13 @@ pub enum Surface {
         fresnel: Option<ComplexIor>,
     },
     /// Smooth dielectric of index `Ni` on the side the normal does not face,
-    /// transmission tinted by `Tf`.
-    Dielectric { ior: f32, transmittance: Vec3 },
+    /// transmission tinted by `Tf`, reflection by `reflectance` (1 for an
+    /// MTL's glass; Mitsuba's `specular_reflectance`).
+    Dielectric {
+        ior: f32,
+        transmittance: Vec3,
+        reflectance: Vec3,
+    },
     /// Mitsuba's `thindielectric`: a thin sheet of relative index `eta`
     /// that reflects (tinted by `reflectance`) or lets light straight
     /// through (tinted by `transmittance`), its inner reflections summed.
@@ -303,7 +308,9 @@ impl Surface {
             Surface::Conductor {
                 reflectance, alpha, ..
             } => (reflectance, alpha),
-            Surface::Dielectric { ior, transmittance } => (transmittance, ior),
+            Surface::Dielectric {
+                ior, transmittance, ..
+            } => (transmittance, ior),
             Surface::Plastic { diffuse, eta, .. } | Surface::RoughPlastic { diffuse, eta, .. } => {
                 (diffuse, eta)
             }
@@ -328,8 +335,13 @@ impl Surface {
                 *reflectance = color.unwrap_or(*reflectance);
                 *alpha = a.unwrap_or(*alpha);
             }
-            Surface::Dielectric { transmittance, .. } => {
-                *transmittance = color.unwrap_or(*transmittance)
+            Surface::Dielectric {
+                transmittance,
+                reflectance,
+                ..
+            } => {
+                *transmittance = color.unwrap_or(*transmittance);
+                *reflectance = second.unwrap_or(*reflectance);
             }
             Surface::Thin {
                 reflectance,
@@ -460,6 +472,7 @@ enum Lobe {
     /// side the path arrives from.
     Dielectric {
         eta: f32,
+        reflectance: Vec3,
     },
     /// `color` is what passes through.
     Thin {
@@ -662,9 +675,14 @@ impl Bsdf {
                 },
                 color: reflectance,
             },
-            Surface::Dielectric { ior, transmittance } => Self {
+            Surface::Dielectric {
+                ior,
+                transmittance,
+                reflectance,
+            } => Self {
                 lobe: Lobe::Dielectric {
                     eta: if front { ior } else { 1.0 / ior },
+                    reflectance,
                 },
                 color: transmittance,
             },
@@ -760,9 +778,9 @@ impl Bsdf {
             Lobe::Plastic { specular, .. } | Lobe::RoughPlastic { specular, .. } => {
                 *specular = second.unwrap_or(*specular)
             }
-            Lobe::Thin { reflectance, .. } | Lobe::RoughDielectric { reflectance, .. } => {
-                *reflectance = second.unwrap_or(*reflectance)
-            }
+            Lobe::Thin { reflectance, .. }
+            | Lobe::RoughDielectric { reflectance, .. }
+            | Lobe::Dielectric { reflectance, .. } => *reflectance = second.unwrap_or(*reflectance),
             _ => {}
         }
         if let (Some(a), Lobe::Conductor { alpha, .. } | Lobe::RoughDielectric { alpha, .. }) =
@@ -778,9 +796,9 @@ impl Bsdf {
     pub fn second_color(&self) -> Option<Vec3> {
         match self.lobe {
             Lobe::Plastic { specular, .. } | Lobe::RoughPlastic { specular, .. } => Some(specular),
-            Lobe::Thin { reflectance, .. } | Lobe::RoughDielectric { reflectance, .. } => {
-                Some(reflectance)
-            }
+            Lobe::Thin { reflectance, .. }
+            | Lobe::RoughDielectric { reflectance, .. }
+            | Lobe::Dielectric { reflectance, .. } => Some(reflectance),
             _ => None,
         }
     }
@@ -1053,10 +1071,10 @@ impl Bsdf {
     pub fn sample_delta(&self, wo: Vec3, u: f32) -> (Vec3, Vec3) {
         let mirror = Vec3::new(-wo.x, -wo.y, wo.z);
         match self.lobe {
-            Lobe::Dielectric { eta } => {
+            Lobe::Dielectric { eta, reflectance } => {
                 let (f, cos_t) = fresnel_dielectric(wo.z, eta);
                 if u < f {
-                    (mirror, Vec3::ONE)
+                    (mirror, reflectance)
                 } else {
                     (
                         Vec3::new(-wo.x / eta, -wo.y / eta, -cos_t),
@@ -1512,6 +1530,7 @@ mod tests {
         let glass = Surface::Dielectric {
             ior: 1.5,
             transmittance: Vec3::ONE,
+            reflectance: Vec3::ONE,
         };
         let outside = Bsdf::new(glass, true, Sampling::Cosine);
         let inside = Bsdf::new(glass, false, Sampling::Cosine);

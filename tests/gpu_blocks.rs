@@ -189,6 +189,12 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         Surface::Dielectric {
             ior: 1.5,
             transmittance: Vec3::new(1.0, 0.9, 0.8),
+            reflectance: Vec3::ONE,
+        },
+        Surface::Dielectric {
+            ior: 1.33,
+            transmittance: Vec3::ONE,
+            reflectance: Vec3::new(0.5, 0.7, 0.9),
         },
         Surface::Thin {
             eta: 1.45,

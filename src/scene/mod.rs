@@ -138,7 +138,9 @@ impl Material {
         if let Some((specular, terms)) = self.surface.plastic_terms() {
             (eta, k) = (specular, terms);
         }
-        if let Surface::Thin { reflectance, .. } = self.surface {
+        if let Surface::Thin { reflectance, .. } | Surface::Dielectric { reflectance, .. } =
+            self.surface
+        {
             eta = reflectance;
         }
         if let Surface::RoughDielectric {
@@ -1087,6 +1089,7 @@ fn surface_of(obj_path: &Path, m: &obj::MtlMaterial) -> Result<Surface, SceneErr
         Surface::Dielectric {
             ior,
             transmittance: unit("Tf", m.transmission, 1.0)?,
+            reflectance: Vec3::ONE,
         }
     } else if metallic == 1.0 {
         let roughness = m.roughness.unwrap_or(0.0);
@@ -1324,14 +1327,16 @@ mod tests {
             surface("Ni 1.5\nd 0\nTf 1 0.9 0.8\n"),
             Surface::Dielectric {
                 ior: 1.5,
-                transmittance: Vec3::new(1.0, 0.9, 0.8)
+                transmittance: Vec3::new(1.0, 0.9, 0.8),
+                reflectance: Vec3::ONE,
             }
         );
         assert_eq!(
             surface("Ni 1.33\nTr 1\n"),
             Surface::Dielectric {
                 ior: 1.33,
-                transmittance: Vec3::ONE
+                transmittance: Vec3::ONE,
+                reflectance: Vec3::ONE,
             }
         );
         // An exporter's leftovers on a diffuse material: warned of, ignored.

@@ -1158,16 +1158,11 @@ fn bsdf(
         "dielectric" => {
             let int = ior(el, &p, "int_ior", "bk7")?;
             let ext = ior(el, &p, "ext_ior", "air")?;
-            let reflect = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
-            if reflect != Vec3::ONE {
-                return Err(el.error(
-                    "a dielectric's specular_reflectance other than 1 is not supported yet",
-                ));
-            }
             let transmittance = reflectance(el, &p, "specular_transmittance", 1.0)?;
             let mut d = one(Surface::Dielectric {
                 ior: int / ext,
                 transmittance,
+                reflectance: reflectance(el, &p, "specular_reflectance", 1.0)?,
             });
             d.one_sided = false;
             d

@@ -29,7 +29,10 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
         "diffuse" => &[("reflectance", COLOR)],
         "conductor" => &[("specular_reflectance", COLOR)],
         "roughconductor" => &[("specular_reflectance", COLOR), ("alpha", ALPHA)],
-        "dielectric" => &[("specular_transmittance", COLOR)],
+        "dielectric" => &[
+            ("specular_transmittance", COLOR),
+            ("specular_reflectance", SECOND),
+        ],
         "thindielectric" => &[
             ("specular_transmittance", COLOR),
             ("specular_reflectance", SECOND),
