@@ -208,9 +208,22 @@ impl Image {
         Ok(image.layer_data.channel_data.pixels)
     }
 
-    /// Reads the first RGB(A) layer of OpenEXR bytes.
+    /// Reads the first RGB(A) layer of OpenEXR bytes; a layer of more than
+    /// MAX_IMAGE_BYTES of RGB floats is an error before anything is
+    /// allocated for it (a damaged header can claim any size).
     pub fn exr_from_bytes(bytes: &[u8]) -> Result<Self, String> {
         use exr::prelude::{read, ReadChannels, ReadLayers};
+        let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+            .map_err(|e| e.to_string())?;
+        for h in &meta.headers {
+            let (w, t) = (h.layer_size.width(), h.layer_size.height());
+            if w.saturating_mul(t).saturating_mul(12) > MAX_IMAGE_BYTES {
+                return Err(format!(
+                    "the image is {w}x{t}, over the {} MiB of pixels qtrace reads",
+                    MAX_IMAGE_BYTES >> 20
+                ));
+            }
+        }
         let image = read()
             .no_deep_data()
             .largest_resolution_level()
@@ -234,6 +247,10 @@ impl Image {
         sum / (3 * self.pixels.len()).max(1) as f64
     }
 }
+
+/// The most bytes of RGB floats an image read as a texture or a sky may
+/// take (as the `image` crate's own default limit for PNG, JPEG and HDR).
+pub const MAX_IMAGE_BYTES: usize = 512 << 20;
 
 pub fn linear_to_srgb(v: f32) -> f32 {
     let v = v.clamp(0.0, 1.0);
