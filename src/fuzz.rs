@@ -98,34 +98,12 @@ pub fn mitsuba(scenes: &[PathBuf]) -> std::io::Result<Vec<Corpus>> {
         // fuzzer's files lie in one folder.
         if main.contains("../textures/") {
             main = main.replace("../textures/", "");
-            let mut textures: Vec<PathBuf> = std::fs::read_dir(dir.join("../textures"))?
-                .map(|e| e.map(|e| e.path()))
-                .collect::<Result<_, _>>()?;
-            textures.sort();
-            for p in textures {
-                let name = p
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .to_string();
-                files.push((name, std::fs::read(&p)?));
-            }
+            files.extend(folder_files(&dir.join("../textures"), |_| true)?);
         }
-        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
-            .map(|e| e.map(|e| e.path()))
-            .collect::<Result<_, _>>()?;
-        entries.sort();
-        for p in entries {
+        files.extend(folder_files(dir, |p| {
             let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("");
-            if ["obj", "ply", "serialized", "xml"].contains(&ext) && p != *path {
-                let name = p
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .to_string();
-                files.push((name, std::fs::read(&p)?));
-            }
-        }
+            ["obj", "ply", "serialized", "xml"].contains(&ext) && p != path.as_path()
+        })?);
         out.push(Corpus {
             main,
             main_name: "scene.xml",
@@ -133,6 +111,27 @@ pub fn mitsuba(scenes: &[PathBuf]) -> std::io::Result<Vec<Corpus>> {
         });
     }
     Ok(out)
+}
+
+/// The files of folder `dir` that `keep` takes, by name, in name order.
+fn folder_files(
+    dir: &Path,
+    keep: impl Fn(&Path) -> bool,
+) -> std::io::Result<Vec<(String, Vec<u8>)>> {
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
+        .map(|e| e.map(|e| e.path()))
+        .collect::<Result<_, _>>()?;
+    entries.sort();
+    let mut files = Vec::new();
+    for p in entries.into_iter().filter(|p| keep(p)) {
+        let name = p
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .to_string();
+        files.push((name, std::fs::read(&p)?));
+    }
+    Ok(files)
 }
 
 /// A reproducible stream (SplitMix64, as volume placement uses).

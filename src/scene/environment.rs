@@ -103,6 +103,12 @@ impl Environment {
         2.0 * PI * x.len() as f32 / self.width as f32 * (c0 - c1)
     }
 
+    /// The solid angle NEE's cell `c` spans.
+    fn cell_solid_angle(&self, c: usize) -> f32 {
+        let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
+        self.solid_angle(&xs, &ys)
+    }
+
     /// Each cell's weight: over the cells between texels it holds, their
     /// corners' mean luminance (the mean of a bilinear patch) times their
     /// solid angle; then Walker's alias table.
@@ -137,10 +143,7 @@ impl Environment {
             vec![1.0 / n as f64; n]
         };
         self.density = (0..n)
-            .map(|c| {
-                let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
-                (p[c] / self.solid_angle(&xs, &ys) as f64) as f32
-            })
+            .map(|c| (p[c] / self.cell_solid_angle(c) as f64) as f32)
             .collect();
         // Vose's alias method.
         let mut scaled: Vec<f64> = p.iter().map(|x| x * n as f64).collect();
@@ -338,6 +341,16 @@ mod tests {
         }
     }
 
+    fn assert_densities_integrate_to_one(env: &Environment, tolerance: f32) {
+        let total: f32 = (0..env.cells())
+            .map(|c| env.density[c] * env.cell_solid_angle(c))
+            .sum();
+        assert!(
+            (total - 1.0).abs() < tolerance,
+            "densities integrate to {total}"
+        );
+    }
+
     /// The sampler's density integrates to 1, agrees with `pdf` at the
     /// directions it draws, and the draws follow it (χ² over cells).
     #[test]
@@ -357,14 +370,8 @@ mod tests {
             );
             counts[env.cell(env.data(env.uv(d)))] += 1;
         }
-        let cell_angle = |c: usize| {
-            let (xs, ys) = env.span(c % env.grid.0, c / env.grid.0);
-            env.solid_angle(&xs, &ys)
-        };
-        let total: f32 = (0..env.cells())
-            .map(|c| env.density[c] * cell_angle(c))
-            .sum();
-        assert!((total - 1.0).abs() < 1e-5, "densities integrate to {total}");
+        assert_densities_integrate_to_one(&env, 1e-5);
+        let cell_angle = |c: usize| env.cell_solid_angle(c);
         let chi2: f64 = counts
             .iter()
             .enumerate()
@@ -387,14 +394,7 @@ mod tests {
         texels[4 * w + 1000] = Vec3::splat(1.0e6);
         let env = Environment::new("wide".into(), w, h, texels, Mat3::IDENTITY);
         assert_eq!((env.block, env.grid), ((3, 1), (684, 8)));
-        let cell_angle = |c: usize| {
-            let (xs, ys) = env.span(c % env.grid.0, c / env.grid.0);
-            env.solid_angle(&xs, &ys)
-        };
-        let total: f32 = (0..env.cells())
-            .map(|c| env.density[c] * cell_angle(c))
-            .sum();
-        assert!((total - 1.0).abs() < 1e-4, "densities integrate to {total}");
+        assert_densities_integrate_to_one(&env, 1e-4);
         let mut rng = crate::fuzz::Rng::new(5);
         let mut u = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32;
         let (mut near_sun, n) = (0, 20_000);
