@@ -410,6 +410,24 @@ pub fn devices() -> Result<()> {
     Ok(())
 }
 
+/// How many textures the materials use, their files, and the device
+/// memory they take.
+fn texture_summary(scene: &Scene) -> String {
+    if scene.textures.is_empty() {
+        return "none".into();
+    }
+    let bytes = crate::scene::texture::pack(&scene.textures, u64::MAX).map_or(0, |w| 16 * w.len());
+    let mut names: Vec<&str> = scene.textures.iter().map(|t| t.name.as_str()).collect();
+    let count = names.len();
+    names.sort_unstable();
+    names.dedup();
+    format!(
+        "{count} ({}), {:.2} MiB on the device",
+        names.join(", "),
+        bytes as f64 / (1 << 20) as f64
+    )
+}
+
 /// How many lights the emitters make and how NEE picks among them. (The
 /// lights are told apart only where the guides could pick among them: the
 /// grouping compares each emitting triangle with every light found so far.)
@@ -455,6 +473,7 @@ pub fn inspect_summary(scene: &Scene) -> String {
             area
         ),
         format!("lights       {}", light_summary(scene)),
+        format!("textures     {}", texture_summary(scene)),
         format!(
             "environment  {}",
             match &scene.environment {

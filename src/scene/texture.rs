@@ -232,6 +232,27 @@ impl Texture {
         }
     }
 
+    /// Whether `other` holds the same texels (one file read twice).
+    fn same_texels(&self, other: &Texture) -> bool {
+        match (&self.pattern, &other.pattern) {
+            (
+                Pattern::Bitmap {
+                    width,
+                    height,
+                    texels,
+                    ..
+                },
+                Pattern::Bitmap {
+                    width: w,
+                    height: h,
+                    texels: t,
+                    ..
+                },
+            ) => self.name == other.name && width == w && height == h && texels == t,
+            _ => false,
+        }
+    }
+
     /// Words of the device's texture buffer its texels take (after the
     /// headers).
     fn words(&self) -> usize {
@@ -318,9 +339,22 @@ pub fn pack(textures: &[Texture], limit: u64) -> Result<Vec<[u32; 4]>, TextureTo
         (0..table)
             .map(|w| [0, 1, 2, 3].map(|k| srgb_to_linear((4 * w + k) as f32 / 255.0).to_bits())),
     );
-    for t in textures {
-        out.extend(t.header(offset));
-        offset += t.words();
+    // A file read with other filters, wraps or transforms shares its texels.
+    let mut first_of: Vec<usize> = Vec::with_capacity(textures.len());
+    let mut offsets: Vec<usize> = Vec::with_capacity(textures.len());
+    for (k, t) in textures.iter().enumerate() {
+        let first = (0..k)
+            .find(|&j| first_of[j] == j && textures[j].same_texels(t))
+            .unwrap_or(k);
+        first_of.push(first);
+        let at = if first == k {
+            offset += t.words();
+            offset - t.words()
+        } else {
+            offsets[first]
+        };
+        offsets.push(at);
+        out.extend(t.header(at));
         if 16 * offset as u64 > limit {
             return Err(TextureTooLarge {
                 name: t.name.clone(),
@@ -329,8 +363,10 @@ pub fn pack(textures: &[Texture], limit: u64) -> Result<Vec<[u32; 4]>, TextureTo
             });
         }
     }
-    for t in textures {
-        t.push_texels(&mut out);
+    for (k, t) in textures.iter().enumerate() {
+        if first_of[k] == k {
+            t.push_texels(&mut out);
+        }
     }
     Ok(out)
 }
