@@ -65,6 +65,9 @@ uint pick_light(float u) {
 #ifdef METHOD_SARSA
 // Sarsa's tables pick NEE's light (FLAG_GUIDE_LIGHTS): built in only then.
 layout(constant_id = CONSTANT_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
+#else
+const bool GUIDE_LIGHTS = false;
+#endif
 
 // Index of the light that is triangle `triangle` (lights are in triangle order).
 uint light_of(uint triangle) {
@@ -80,9 +83,6 @@ uint light_of(uint triangle) {
     }
     return lo;
 }
-#else
-const bool GUIDE_LIGHTS = false;
-#endif
 
 // The state of the path being traced, shared by begin_path and bounce.
 uvec2 pixel;
@@ -320,6 +320,18 @@ void follow_unguided(GuideVertex g, vec3 local, vec3 weight) {
 }
 #endif
 
+// The probability that NEE at the vertex the ray left would have picked
+// light `light` (an index of NEE's list; only read where the guide picks
+// lights): the guide's learned choice, else `by_power`, pt's.
+float nee_pick_probability(uint light, float by_power) {
+#ifdef METHOD_SARSA
+    if (GUIDE_LIGHTS) {
+        return guide_light_probability(prev_vertex, light);
+    }
+#endif
+    return by_power;
+}
+
 // Traces the path's current ray and scatters once; false when the path ended.
 bool scatter() {
     Hit hit = trace_ray(origin, dir, FAR);
@@ -329,14 +341,8 @@ bool scatter() {
         vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
         float weight = 1.0;
         if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
-            float pick = params.environment.x;
-#ifdef METHOD_SARSA
-            if (GUIDE_LIGHTS) {
-                // As NEE at the vertex the ray left would have picked it:
-                // the sky is the last of NEE's lights.
-                pick = guide_light_probability(prev_vertex, params.light_count - 1u);
-            }
-#endif
+            // The sky is the last of NEE's lights.
+            float pick = nee_pick_probability(params.light_count - 1u, params.environment.x);
             weight = power_heuristic(prev_bsdf_pdf, pick * environment_pdf(dir));
         }
         radiance += throughput * le * weight;
@@ -358,13 +364,8 @@ bool scatter() {
         float weight = 1.0;
         if (cos_out > 0.0) {
             if (nee && prev_bsdf_pdf > 0.0) {
-                float area_pdf = tri.light_pdf;
-#ifdef METHOD_SARSA
-                if (GUIDE_LIGHTS) {
-                    // As NEE at the vertex the ray left would have picked it.
-                    area_pdf = guide_light_probability(prev_vertex, light_of(hit.triangle)) / tri.area;
-                }
-#endif
+                float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(light_of(hit.triangle), 0.0) / tri.area
+                                              : tri.light_pdf;
                 float light_pdf = area_pdf * hit.t * hit.t / cos_out;
                 weight = power_heuristic(prev_bsdf_pdf, light_pdf);
             }
