@@ -60,12 +60,14 @@ pub struct GpuScene {
 impl GpuScene {
     pub fn upload(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<Self, RenderError> {
         let materials = crate::scene::gpu_materials(&scene.materials);
-        let textured = scene.materials.iter().any(|m| m.textured());
-        let (uvs, textures) = if textured {
-            let info = ctx.info();
-            let limit = info
-                .max_storage_buffer_range
-                .min(16 * info.max_texel_buffer_elements);
+        let info = ctx.info();
+        // The most one buffer may hold here, read as storage or as texels.
+        let limit = info
+            .max_storage_buffer_range
+            .min(16 * info.max_texel_buffer_elements);
+        // Buffers a scene may lack are bound all the same: one unused texel.
+        let unused = |name: &str| Buffer::gpu_only_with(ctx, name, &[[0u32; 4]]);
+        let (uvs, textures) = if scene.materials.iter().any(|m| m.textured()) {
             let textures = crate::scene::texture::pack(&scene.textures, limit)
                 .map_err(|e| RenderError::Textures(scene.path.clone(), e))?;
             let uvs: Vec<[[f32; 2]; 4]> = scene
@@ -78,26 +80,13 @@ impl GpuScene {
                 Buffer::gpu_only_with(ctx, "textures", &textures)?,
             )
         } else {
-            (
-                Buffer::gpu_only_with(ctx, "texture coordinates", &[[0u32; 4]])?,
-                Buffer::gpu_only_with(ctx, "textures", &[[0u32; 4]])?,
-            )
+            (unused("texture coordinates")?, unused("textures")?)
         };
-        let mut sky = shaders::SKY_NONE;
-        let environment = match &scene.environment {
+        let (environment, sky) = match &scene.environment {
             Some(e) => {
-                let info = ctx.info();
-                let limit = info
-                    .max_storage_buffer_range
-                    .min(16 * info.max_texel_buffer_elements);
                 // Texels a word each where they fit, else packed tighter.
-                let mut words = e.pack(false);
-                sky = shaders::SKY_TEXEL_WORDS;
-                if 16 * words.len() as u64 > limit {
-                    words = e.pack(true);
-                    sky = shaders::SKY_DENSE;
-                }
-                let bytes = 16 * words.len() as u64;
+                let dense = 16 * e.words(false) as u64 > limit;
+                let bytes = 16 * e.words(dense) as u64;
                 if bytes > limit {
                     return Err(RenderError::Sky {
                         path: scene.path.clone(),
@@ -111,9 +100,17 @@ impl GpuScene {
                         ),
                     });
                 }
-                Buffer::gpu_only_with(ctx, "environment", &words)?
+                let layout = if dense {
+                    shaders::SKY_DENSE
+                } else {
+                    shaders::SKY_TEXEL_WORDS
+                };
+                (
+                    Buffer::gpu_only_with(ctx, "environment", &e.pack(dense))?,
+                    layout,
+                )
             }
-            None => Buffer::gpu_only_with(ctx, "environment", &[[0u32; 4]])?,
+            None => (unused("environment")?, shaders::SKY_NONE),
         };
         Ok(Self {
             environment,
@@ -134,7 +131,7 @@ impl GpuScene {
                 Buffer::gpu_only_with(ctx, "delta lights", &scene.delta_lights)?
             },
             normals: if scene.normals.is_empty() {
-                Buffer::gpu_only_with(ctx, "shading normals", &[[0u32; 4]])?
+                unused("shading normals")?
             } else {
                 Buffer::gpu_only_with(ctx, "shading normals", &scene.normals)?
             },

@@ -234,20 +234,25 @@ impl Environment {
         (self.to_local.transpose() * local, self.density[c])
     }
 
+    /// Words (16 bytes each) of the buffer [`Environment::pack`] makes.
+    pub fn words(&self, dense: bool) -> usize {
+        let texel_words = if dense {
+            (3 * self.texels.len()).div_ceil(4) + 1
+        } else {
+            self.texels.len()
+        };
+        shaders::ENVIRONMENT_HEADER_WORDS as usize + texel_words + self.cells()
+    }
+
     /// The environment buffer glsl/environment.glsl reads: a header (width,
     /// height, cells, first cell word; the three rows of to_local, with
     /// the cells' block width, block height and columns), the texels (RGB floats: a word each, or `dense`, one after another,
     /// four texels in three words and a word to spare, 25% less memory for
     /// two reads a texel), then per cell (alias threshold, alias, density).
     pub fn pack(&self, dense: bool) -> Vec<[u32; 4]> {
-        let header = shaders::ENVIRONMENT_HEADER_WORDS as usize;
-        let texel_words = if dense {
-            (3 * self.texels.len()).div_ceil(4) + 1
-        } else {
-            self.texels.len()
-        };
-        let first_cell = header + texel_words;
-        let mut out = Vec::with_capacity(first_cell + self.cells());
+        let first_cell = self.words(dense) - self.cells();
+        let texel_words = first_cell - shaders::ENVIRONMENT_HEADER_WORDS as usize;
+        let mut out = Vec::with_capacity(self.words(dense));
         out.push([
             self.width as u32,
             self.height as u32,

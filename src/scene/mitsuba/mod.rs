@@ -250,18 +250,15 @@ impl Builder<'_, '_> {
                 if !orthonormal || rotation.determinant() < 0.0 {
                     return Err(el.error("an envmap's to_world must be a rotation"));
                 }
-                let path = el.file.parent().unwrap_or(Path::new(".")).join(file);
-                let bytes = (self.loader.read)(&path)
-                    .map_err(|e| el.error(format!("cannot read the envmap '{file}': {e}")))?;
-                let unreadable = |e: String| el.error(format!("cannot read the envmap '{file}': {e}"));
-                let pattern = crate::scene::texture::Texture::bitmap_from_bytes(
-                    &path,
-                    &bytes,
-                    crate::scene::texture::Filter::Bilinear,
-                    crate::scene::texture::Wrap::Repeat,
+                use crate::scene::texture::{Filter, Wrap};
+                let pattern = textures::read_image(
+                    el,
+                    self.loader,
+                    ("envmap", file),
+                    Filter::Bilinear,
+                    Wrap::Repeat,
                     false,
-                )
-                .map_err(unreadable)?;
+                )?;
                 let crate::scene::texture::Pattern::Bitmap { width, height, texels, .. } = pattern else {
                     unreachable!("a bitmap reads as one")
                 };

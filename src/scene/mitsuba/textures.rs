@@ -141,6 +141,26 @@ fn pattern_key(p: &Pattern) -> String {
     }
 }
 
+/// Image file `file` (relative to `el`'s scene file) as a bitmap; `what`
+/// names it in errors.
+pub fn read_image(
+    el: &Element,
+    loader: &Loader<'_>,
+    (what, file): (&str, &str),
+    filter: Filter,
+    wrap: Wrap,
+    raw: bool,
+) -> Result<Pattern, SceneError> {
+    let path = el
+        .file
+        .parent()
+        .unwrap_or(std::path::Path::new("."))
+        .join(file);
+    let unreadable = |e: String| el.error(format!("cannot read the {what} '{file}': {e}"));
+    let bytes = (loader.read)(&path).map_err(|e| unreadable(e.to_string()))?;
+    Texture::bitmap_from_bytes(&path, &bytes, filter, wrap, raw).map_err(unreadable)
+}
+
 /// A `<texture>` element.
 fn read(el: &Element, loader: &Loader<'_>) -> Result<Texture, SceneError> {
     let kind = el.plugin()?;
@@ -181,15 +201,7 @@ fn read(el: &Element, loader: &Loader<'_>) -> Result<Texture, SceneError> {
             let raw = p.boolean("raw")?.unwrap_or(false);
             // How Mitsuba speeds its own lookups up: no change to the image.
             p.ignore("accel");
-            let path = el
-                .file
-                .parent()
-                .unwrap_or(std::path::Path::new("."))
-                .join(file);
-            let bytes = (loader.read)(&path)
-                .map_err(|e| el.error(format!("cannot read the texture '{file}': {e}")))?;
-            let pattern = Texture::bitmap_from_bytes(&path, &bytes, filter, wrap, raw)
-                .map_err(|e| el.error(format!("cannot read the texture '{file}': {e}")))?;
+            let pattern = read_image(el, loader, ("texture", file), filter, wrap, raw)?;
             Texture {
                 name: file.to_string(),
                 pattern,
