@@ -1,5 +1,6 @@
-// The guide seam. A guide (sarsa.glsl or neural.glsl, included before this
-// file) provides:
+// The guide seam. A guide (sarsa.glsl, neural.glsl, neural_table.glsl, or
+// unguided.glsl for plain path tracing; included before this file) provides:
+//   GUIDED                   const bool: whether it samples directions at all
 //   struct GuideVertex       what it knows at a path vertex
 //   guide_none()             the vertex before the camera ray: learns nothing
 //   guide_at(triangle index, triangle, p, n, front side?)
@@ -21,6 +22,15 @@
 //       of BSDF sampling at `from` (mixture_gradient times L^2)
 //   guide_begin_path(), guide_end_path(pixel, rng)  around each path of a
 //       pass that learns (a guide may keep something per path)
+// and NEE's choice of light, which a guide may learn:
+//   GUIDE_LIGHTS             bool (a constant or a specialization constant):
+//       whether it picks NEE's light; else NEE picks by emitted power
+//   guide_choose_light(g, u, out p)  a light of NEE's list drawn by u at g,
+//       and the probability p it had
+//   guide_light_probability(g, l)    the probability of light l at g
+//   guide_record_light(g, l, brought)  one NEE try of light l at g, in a
+//       pass that learns, that brought `brought` (luminance, before its MIS
+//       weight and pick probability; 0 where blocked)
 // On it, this file builds the one-sample mixture of BSDF sampling and the
 // guide's sectors that every guided method samples, and the estimate of
 // what a vertex reflects that both guides learn from.
@@ -28,6 +38,15 @@
 #define QTRACE_GUIDE_GLSL
 
 #include "rng.glsl"
+
+// Whether the kernel has the learning code: FROZEN builds the kernel of the
+// passes that learn nothing without it (on lavapipe, code no lane runs
+// still costs time).
+#ifdef FROZEN
+const bool GUIDE_LEARNS = false;
+#else
+const bool GUIDE_LEARNS = GUIDED;
+#endif
 
 // Q of sector k from its probability p: a sector's weight is p times the
 // total, and is Q, or Q cos(theta_k) with FLAG_COS_DISTRIBUTION. (No read

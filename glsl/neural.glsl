@@ -170,4 +170,14 @@ uint guide_choose_sector(GuideVertex g, bool pick, float u, uint sector, out flo
     return sector;
 }
 
+// No light choice (GUIDE_LIGHTS is false).
+uint guide_choose_light(GuideVertex g, float u, out float p) {
+    p = 0.0;
+    return 0u;
+}
+
+float guide_light_probability(GuideVertex g, uint l) {
+    return 0.0;
+}
+
 #endif

@@ -8,6 +8,14 @@
 
 layout(std430, set = 0, binding = B_MLP_COUNT) buffer Batch { MlpBatch batch; };
 
+const bool GUIDED = true;
+// NEE picks lights by power (the network learns no choice; trained on the
+// volumes' means, Neural-Q runs Sarsa's kernel, which does).
+const bool GUIDE_LIGHTS = false;
+
+void guide_record_light(GuideVertex g, uint l, float brought) {
+}
+
 // Per pixel, the transition its path kept for training (two vec4s:
 // position and target; normal and sector + 1, or 0 when it offers none).
 // src/guide/neural.rs's gather pass packs the offered ones into the batch

@@ -22,9 +22,14 @@ layout(std430, set = 0, binding = B_MIX_GRAD) buffer MixGrad { TALLY mix_grad[];
 layout(std430, set = 0, binding = B_LIGHT_SUM) buffer LightSums { TALLY light_sum[]; };
 layout(std430, set = 0, binding = B_LIGHT_TRIES) buffer LightTries { uint light_tries[]; };
 
+const bool GUIDED = true;
+// Whether the tables pick NEE's light (FLAG_GUIDE_LIGHTS; volumes.glsl
+// reads the choice).
+layout(constant_id = CONSTANT_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
+
 // Records one NEE try of light l at g that brought `brought` (0 where the
 // light faced away or was blocked).
-void sarsa_record_light(GuideVertex g, uint l, float brought) {
+void guide_record_light(GuideVertex g, uint l, float brought) {
     if (g.volume != NO_VOLUME) {
         uint index = g.volume * params.light_count + l;
         ADD_TALLY(light_sum[index], brought);

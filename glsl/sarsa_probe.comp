@@ -64,7 +64,7 @@ void main() {
     } else if (params.selector == PROBE_LIGHT_TRY) {
         // in[i] = (volume bits, light index bits, what the try brought, 0)
         vec4 t = probe_in[i];
-        sarsa_record_light(guide_vertex(floatBitsToUint(t.x)), floatBitsToUint(t.y), t.z);
+        guide_record_light(guide_vertex(floatBitsToUint(t.x)), floatBitsToUint(t.y), t.z);
         probe_out[i] = vec4(0.0);
     }
 }

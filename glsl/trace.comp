@@ -18,17 +18,18 @@ layout(push_constant) uniform Push { PassParams params; };
 #include "texture.glsl"
 #include "environment.glsl"
 
-#if defined(METHOD_SARSA) || defined(METHOD_NEURAL)
-#define GUIDED
+// The method's guide behind the seam of guide.glsl; plain path tracing's
+// (unguided.glsl) covers nothing, and the guides' code folds away.
 #if defined(METHOD_SARSA)
 #include "sarsa.glsl"
 #elif defined(NEURAL_TABLE)
 #include "neural_table.glsl"
-#else
+#elif defined(METHOD_NEURAL)
 #include "neural.glsl"
+#else
+#include "unguided.glsl"
 #endif
 #include "guide.glsl"
-#endif
 
 WORDS(light_texels, B_LIGHTS) // 1 per Light
 
@@ -62,13 +63,6 @@ uint pick_light(float u) {
     return lo;
 }
 
-#ifdef METHOD_SARSA
-// Sarsa's tables pick NEE's light (FLAG_GUIDE_LIGHTS): built in only then.
-layout(constant_id = CONSTANT_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
-#else
-const bool GUIDE_LIGHTS = false;
-#endif
-
 // Index of the light that is triangle `triangle` (lights are in triangle order).
 uint light_of(uint triangle) {
     uint lo = 0u;
@@ -101,7 +95,6 @@ bool nee;
 const bool nee = false;
 #endif
 float eps;
-#ifdef GUIDED
 // The vertex the path's ray left from, the sector it took there and the Q
 // the guide gave that sector, to learn from once the ray lands.
 GuideVertex prev_vertex;
@@ -110,13 +103,8 @@ float prev_q;
 // Whether prev_q is what the guide expects along the path's ray (else the
 // roulette follows the throughput alone).
 bool guided_roulette;
-// FROZEN builds the kernel of passes that learn nothing without the learning
-// code: on lavapipe, code no lane runs still costs time.
-#ifdef FROZEN
-const bool learn = false;
-#else
+// Whether this pass learns (never in a kernel without GUIDE_LEARNS).
 bool learn;
-#endif
 // The guide's estimate of the radiance this path's first hit sends to the
 // camera: the scale Russian roulette compares a path's prospects with.
 float path_estimate;
@@ -138,7 +126,6 @@ float chain_weight;
 // underestimates light that arrives after many bounces, and would steer
 // the share away from BSDF sampling just where the guide knows least.)
 // Kept for the first two sampled vertices of a path, held in registers.
-#ifndef FROZEN
 GuideVertex share_from0;
 float share_mix0; // mixture_gradient; 0: none kept
 float share_throughput0;
@@ -147,8 +134,6 @@ GuideVertex share_from1;
 float share_mix1;
 float share_throughput1;
 float share_radiance1;
-#endif
-#endif
 uint td_count;
 float td_sq_sum;
 
@@ -205,7 +190,6 @@ void begin_path(uint sample_index) {
     path_length = 0u;
     rays = 0u;
     prev_bsdf_pdf = 0.0;
-#ifdef GUIDED
     guide_begin_path();
     prev_vertex = guide_none();
     prev_sector = 0u;
@@ -213,16 +197,12 @@ void begin_path(uint sample_index) {
     guided_roulette = false;
     path_estimate = 0.0;
     chaining = false;
-#ifndef FROZEN
     share_mix0 = 0.0;
     share_mix1 = 0.0;
-#endif
-#endif
     td_count = 0u;
     td_sq_sum = 0.0;
 }
 
-#ifdef GUIDED
 // The transition the current ray completes, kept by scatter() where the ray
 // landed for the one call of guide_learn in bounce(): lavapipe runs the code
 // of every call site, the guide's atomics included, at every vertex.
@@ -235,7 +215,6 @@ float land_reflected;
 float land_direct;
 float land_scale;
 
-#ifndef FROZEN
 void keep_share_sample(GuideVertex g, float mix) {
     if (share_mix0 == 0.0) {
         share_from0 = g;
@@ -264,7 +243,6 @@ void learn_share_samples() {
         guide_learn_share(share_from1, share_gradient(share_mix1, share_throughput1, share_radiance1));
     }
 }
-#endif
 
 void land(float le, float mis_weight, float reflected, float direct) {
     land_from = chaining ? chain_from : prev_vertex;
@@ -290,309 +268,221 @@ void pass_through_delta() {
     }
     land_from = guide_none();
 }
-#endif
 
-#ifdef GUIDED
 // After a bounce the guide did not sample (a delta lobe, rough glass) from
 // vertex g: guides learn along reflections, which stay in g's hemisphere.
 void follow_unguided(GuideVertex g, vec3 local, vec3 weight) {
     bool up = local.z > 0.0;
-#ifdef FROZEN
-    // Not looked up (a pass that does not learn): the roulette keeps what
-    // the vertex before expected from this direction, per unit of the
-    // throughput it had then.
-    prev_q /= max(luminance(weight), 1e-6);
-#else
-    if (chaining) {
-        // As in FROZEN: the waiting transition's Q stands for the path.
-        prev_q /= max(luminance(weight), 1e-6);
-        chain_weight *= luminance(weight);
-    } else if (guide_covers(g)) {
+    if (GUIDE_LEARNS && !chaining && guide_covers(g)) {
         prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
         prev_q = up ? guide_sector_q(g, prev_sector) : 0.0;
         guided_roulette = true;
     } else {
-        // Not looked up (learn off) or no volume there: as in FROZEN.
+        // Not looked up (a kernel without the learning code, a pass that
+        // does not learn, no volume there) or a transition waiting
+        // (chaining), whose Q stands for the path: the roulette keeps what
+        // the vertex before expected from this direction, per unit of the
+        // throughput it had then.
         prev_q /= max(luminance(weight), 1e-6);
+        if (chaining) {
+            chain_weight *= luminance(weight);
+        }
     }
-#endif
     prev_vertex = up ? g : guide_none();
 }
-#endif
 
-// The probability that NEE at the vertex the ray left would have picked
-// light `light` (an index of NEE's list; only read where the guide picks
-// lights): the guide's learned choice, else `by_power`, pt's.
-float nee_pick_probability(uint light, float by_power) {
-#ifdef METHOD_SARSA
-    if (GUIDE_LIGHTS) {
-        return guide_light_probability(prev_vertex, light);
-    }
-#endif
-    return by_power;
+// NEE's light at g, drawn by u: the guide's choice where it learns one
+// (GUIDE_LIGHTS), with its probability p; else by emitted power (p 0: the
+// light's own pdf holds it).
+uint nee_choose_light(GuideVertex g, float u, out float p) {
+    p = 0.0;
+    return GUIDE_LIGHTS ? guide_choose_light(g, u, p) : pick_light(u);
 }
 
-// Traces the path's current ray and scatters once; false when the path ended.
-bool scatter() {
-    Hit hit = trace_ray(origin, dir, FAR);
-    rays += 1u;
-    if (hit.triangle == NO_HIT) {
-        // The sky, weighed against NEE's draws of it as an emitter is.
-        vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
-        float weight = 1.0;
-        if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
-            // The sky is the last of NEE's lights.
-            float pick = nee_pick_probability(params.light_count - 1u, params.environment.x);
-            weight = power_heuristic(prev_bsdf_pdf, pick * environment_pdf(dir));
-        }
-        radiance += throughput * le * weight;
-#ifdef GUIDED
-        if (learn) {
-            land(luminance(le), weight, 0.0, 0.0);
-        }
-#endif
-        return false;
-    }
-    path_length += 1u;
-    Triangle tri = load_triangle(hit.triangle);
-    Material mat = load_material(tri.material);
-    vec3 n = normalize(cross(tri.e1, tri.e2));
-    float cos_out = -dot(n, dir);
+// The probability that NEE at the vertex the ray left would have picked
+// light `light` (an index of NEE's list): the guide's learned choice, else
+// `by_power`, pt's.
+float nee_pick_probability(uint light, float by_power) {
+    return GUIDE_LIGHTS ? guide_light_probability(prev_vertex, light) : by_power;
+}
 
-    if (tri.light_pdf > 0.0) {
-        // Emitters end the path; they emit on their front side only.
-        float weight = 1.0;
-        if (cos_out > 0.0) {
-            if (nee && prev_bsdf_pdf > 0.0) {
-                float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(light_of(hit.triangle), 0.0) / tri.area
-                                              : tri.light_pdf;
-                float light_pdf = area_pdf * hit.t * hit.t / cos_out;
-                weight = power_heuristic(prev_bsdf_pdf, light_pdf);
-            }
-            radiance += throughput * mat.emission.rgb * weight;
-        }
-#ifdef GUIDED
-        if (learn) {
-            land(cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
-        }
-#endif
-        return false;
+// The path's ray left the scene: the sky, weighed against NEE's draws of
+// it as an emitter is.
+void gather_sky() {
+    vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
+    float weight = 1.0;
+    if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
+        // The sky is the last of NEE's lights.
+        float pick = nee_pick_probability(params.light_count - 1u, params.environment.x);
+        weight = power_heuristic(prev_bsdf_pdf, pick * environment_pdf(dir));
     }
-
-    // Shade in the frame of the normal facing the ray (materials are
-    // two-sided; a dielectric knows which side it is hit on). With shading
-    // normals, that frame's and the side's normal is the interpolated one,
-    // as in Mitsuba; rays still leave off the geometric surface (ng).
-    vec3 ng = cos_out > 0.0 ? n : -n;
-    vec3 surface_point = origin + hit.t * dir;
-    vec3 position = surface_point + ng * eps;
-    bool front = cos_out > 0.0;
-    vec3 ns = ng;
-    if (SHADING_NORMALS) {
-        vec3 sn = shading_normal(hit.triangle, tri, surface_point);
-        front = dot(sn, dir) < 0.0;
-        ns = front ? sn : -sn;
-    }
-    Bsdf bsdf = bsdf_of(mat, front);
-    if (scene_textured()) {
-        vec2 b = clamp(barycentric(tri, surface_point), vec2(0.0), vec2(1.0));
-        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
-    }
-    bool delta = bsdf_is_delta(bsdf);
-    // Rough glass: sampled and reached by NEE on both sides, not guided.
-    bool transmits = bsdf_transmits(bsdf);
-    vec3 t;
-    vec3 b;
-    make_frame(ns, t, b);
-    vec3 wo = vec3(-dot(dir, t), -dot(dir, b), SHADING_NORMALS ? -dot(dir, ns) : abs(cos_out));
-#ifdef GUIDED
-    // A delta vertex or rough glass is never guided: unless it learns, the
-    // guide's lookup there (a network inference, for neural) would only tune
-    // the roulette. Its bounces learn as a delta vertex's (chaining).
-    bool unguided = delta || transmits;
-    GuideVertex here = unguided && !learn ? guide_none() : guide_at(hit.triangle, tri, position, ng, cos_out > 0.0);
-    // What the bounce and NEE's MIS sample from: BSDF sampling alone where
-    // the guide does not sample.
-    GuideVertex sampled_from = transmits ? guide_none() : here;
-    // What this vertex is expected to send back along the ray: the landed
-    // bounce's target, which NEE here adds to (see guide_learn).
-#ifdef FROZEN
-    // Only the roulette's scale needs it here, at the first hit: the diffuse
-    // form serves every lobe (lavapipe would run a glossy lobe's estimate,
-    // a BSDF sample, at every vertex).
-    float reflected = depth == 0u ? bsdf_reflect(bsdf, wo, guide_irradiance(here)) : 0.0;
-#else
-    // A glossy lobe's (0 here) is estimated from the bounce's own direction
-    // below.
-    bool glossy = !unguided && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
-    float reflected = learn || depth == 0u ? guide_reflect(here, bsdf, wo) : 0.0;
-#endif
-    if (depth == 0u) {
-        path_estimate = reflected;
-    }
-    float direct_lum = 0.0;
-#endif
-    if (depth >= params.max_depth) {
-#ifdef GUIDED
-        if (learn) {
-            // (A glossy lobe here, where the path ends, learns 0 for what it
-            // would reflect: only paths max_depth long reach it.)
-            land(0.0, 1.0, reflected, 0.0);
-        }
-#endif
-        return false;
-    }
-
-    if (nee && !delta) {
-        uint light;
-        float pick_pdf = 0.0;
-#ifdef METHOD_SARSA
-        if (GUIDE_LIGHTS) {
-            light = guide_choose_light(here, rng_next(rng), pick_pdf);
-        } else
-#endif
-        {
-            light = pick_light(rng_next(rng));
-        }
-        uvec4 entry = FETCH(light_texels, int(light));
-        float brought = 0.0;
-        // A delta light: its one direction, its pick's probability as the
-        // pdf, no MIS (no bounce finds it). An emitting triangle: a point
-        // on it, its solid-angle density.
-        bool delta_light = DELTA_LIGHTS && (entry.x & LIGHT_DELTA) != 0u;
-        vec3 wi;
-        float dist;
-        float light_pdf;
-        vec3 le;
-        bool faces = true;
-        if (delta_light) {
-            le = delta_light_radiance(entry.x & ~LIGHT_DELTA, position, wi, dist);
-            light_pdf = uintBitsToFloat(entry.z);
-        } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
-            // The sky: a direction by its brightness, unbounded.
-            wi = environment_sample(vec4(rng_next2(rng), rng_next2(rng)), light_pdf);
-            light_pdf *= GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
-            le = environment_eval(wi);
-            dist = 3.0e38;
-            faces = light_pdf > 0.0;
-        } else {
-            Triangle lt = load_triangle(entry.x);
-            float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
-            vec2 u = rng_next2(rng);
-            if (u.x + u.y > 1.0) {
-                u = 1.0 - u;
-            }
-            vec3 target = lt.v0 + u.x * lt.e1 + u.y * lt.e2;
-            vec3 to_light = target - position;
-            float dist2 = dot(to_light, to_light);
-            dist = sqrt(dist2);
-            wi = to_light / dist;
-            float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
-            faces = cos_y > 0.0;
-            light_pdf = area_pdf * dist2 / cos_y;
-            le = load_material(lt.material).emission.rgb;
-        }
-        float cos_x = dot(ns, wi);
-        if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {
-            rays += 1u;
-            // A direction the shading normal allows may lie below the
-            // geometric surface, as rough glass's transmission does: the
-            // shadow ray then leaves from beneath.
-            // It aims at the light's point from there (a directional
-            // light's direction stays).
-            vec3 from = position;
-            vec3 shadow_dir = wi;
-            float reach = dist;
-            if ((SHADING_NORMALS || transmits) && dot(wi, ng) < 0.0) {
-                from = surface_point - ng * eps;
-                vec3 to = position + wi * dist - from;
-                reach = dist < 1e30 ? length(to) : dist;
-                shadow_dir = dist < 1e30 ? to / reach : wi;
-            }
-            if (!occluded(from, shadow_dir, reach * (1.0 - 1e-4) - eps)) {
-                vec3 wi_local = vec3(dot(wi, t), dot(wi, b), cos_x);
-#ifdef GUIDED
-                float scatter_pdf = mixture_pdf(sampled_from, bsdf, wo, wi_local);
-#else
-                float scatter_pdf = bsdf_pdf(bsdf, wo, wi_local);
-#endif
-                // A plastic's coat takes some bounces as a mirror.
-                scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, wo);
-                float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
-                vec3 f_le = bsdf_eval(bsdf, wo, wi_local) * le;
-                vec3 direct = f_le * weight / light_pdf;
-                radiance += throughput * direct;
-#ifdef GUIDED
-                direct_lum = luminance(direct);
-#endif
-                brought = luminance(f_le) / light_pdf * pick_pdf;
-            }
-        }
-#if defined(METHOD_SARSA) && !defined(FROZEN)
-        if (GUIDE_LIGHTS && learn) {
-            sarsa_record_light(here, light, brought);
-        }
-#endif
-    }
-#ifdef GUIDED
+    radiance += throughput * le * weight;
     if (learn) {
-        if (unguided && (chaining || guide_covers(prev_vertex))) {
-            pass_through_delta();
-        } else {
-            land(0.0, 1.0, reflected, direct_lum);
+        land(luminance(le), weight, 0.0, 0.0);
+    }
+}
+
+// The path's ray reached an emitter, which ends it; emitters emit on their
+// front side only.
+void gather_emitter(Hit hit, Triangle tri, Material mat, float cos_out) {
+    float weight = 1.0;
+    if (cos_out > 0.0) {
+        if (nee && prev_bsdf_pdf > 0.0) {
+            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(light_of(hit.triangle), 0.0) / tri.area
+                                          : tri.light_pdf;
+            float light_pdf = area_pdf * hit.t * hit.t / cos_out;
+            weight = power_heuristic(prev_bsdf_pdf, light_pdf);
+        }
+        radiance += throughput * mat.emission.rgb * weight;
+    }
+    if (learn) {
+        land(cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
+    }
+}
+
+// A surface point the path reached, and its shading frame.
+struct Shading {
+    vec3 point;    // on the surface
+    vec3 position; // off it by eps, on the side the ray came from
+    vec3 ng;       // the geometric normal, facing the ray
+    vec3 ns;       // the shading normal, facing the ray (ng without shading normals)
+    vec3 t;        // the frame (t, b, ns)
+    vec3 b;
+    vec3 wo;       // toward where the ray came from, in the frame
+};
+
+// NEE at shading point `s`: one light (the guide's choice where it learns
+// one, else by power), one point or direction on it, a shadow ray, and
+// the sample weighed by MIS against the bounce's density (the mixture at
+// `sampled_from`). Adds it to the path's radiance and returns its luminance
+// (what the transition that reached s learns NEE brought there).
+float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from, bool transmits) {
+    float direct_lum = 0.0;
+    float pick_pdf;
+    uint light = nee_choose_light(here, rng_next(rng), pick_pdf);
+    uvec4 entry = FETCH(light_texels, int(light));
+    float brought = 0.0;
+    // A delta light: its one direction, its pick's probability as the
+    // pdf, no MIS (no bounce finds it). An emitting triangle: a point
+    // on it, its solid-angle density.
+    bool delta_light = DELTA_LIGHTS && (entry.x & LIGHT_DELTA) != 0u;
+    vec3 wi;
+    float dist;
+    float light_pdf;
+    vec3 le;
+    bool faces = true;
+    if (delta_light) {
+        le = delta_light_radiance(entry.x & ~LIGHT_DELTA, s.position, wi, dist);
+        light_pdf = uintBitsToFloat(entry.z);
+    } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
+        // The sky: a direction by its brightness, unbounded.
+        wi = environment_sample(vec4(rng_next2(rng), rng_next2(rng)), light_pdf);
+        light_pdf *= GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
+        le = environment_eval(wi);
+        dist = 3.0e38;
+        faces = light_pdf > 0.0;
+    } else {
+        Triangle lt = load_triangle(entry.x);
+        float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
+        vec2 u = rng_next2(rng);
+        if (u.x + u.y > 1.0) {
+            u = 1.0 - u;
+        }
+        vec3 target = lt.v0 + u.x * lt.e1 + u.y * lt.e2;
+        vec3 to_light = target - s.position;
+        float dist2 = dot(to_light, to_light);
+        dist = sqrt(dist2);
+        wi = to_light / dist;
+        float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
+        faces = cos_y > 0.0;
+        light_pdf = area_pdf * dist2 / cos_y;
+        le = load_material(lt.material).emission.rgb;
+    }
+    float cos_x = dot(s.ns, wi);
+    if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {
+        rays += 1u;
+        // A direction the shading normal allows may lie below the
+        // geometric surface, as rough glass's transmission does: the
+        // shadow ray then leaves from beneath.
+        // It aims at the light's point from there (a directional
+        // light's direction stays).
+        vec3 from = s.position;
+        vec3 shadow_dir = wi;
+        float reach = dist;
+        if ((SHADING_NORMALS || transmits) && dot(wi, s.ng) < 0.0) {
+            from = s.point - s.ng * eps;
+            vec3 to = s.position + wi * dist - from;
+            reach = dist < 1e30 ? length(to) : dist;
+            shadow_dir = dist < 1e30 ? to / reach : wi;
+        }
+        if (!occluded(from, shadow_dir, reach * (1.0 - 1e-4) - eps)) {
+            vec3 wi_local = vec3(dot(wi, s.t), dot(wi, s.b), cos_x);
+            float scatter_pdf = mixture_pdf(sampled_from, bsdf, s.wo, wi_local);
+            // A plastic's coat takes some bounces as a mirror.
+            scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
+            float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
+            vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * le;
+            vec3 direct = f_le * weight / light_pdf;
+            radiance += throughput * direct;
+            direct_lum = luminance(direct);
+            brought = luminance(f_le) / light_pdf * pick_pdf;
         }
     }
-#endif
-    // The bounce: a delta lobe's one direction (no MIS for what it hits,
-    // as NEE skipped it), or a density to sample and weigh by.
+    if (GUIDE_LIGHTS && learn) {
+        guide_record_light(here, light, brought);
+    }
+    return direct_lum;
+}
+
+// The bounce at shading point `s`: a delta lobe's one direction (no MIS for
+// what it hits, as NEE skipped it), or a direction from the mixture at
+// `sampled_from` (BSDF sampling alone without a guide) with its density.
+// Sets the path's next ray and throughput; false when the path ends (a
+// direction of zero density). `mix`: the sample's gradient for the share of
+// BSDF sampling, in a pass that learns.
+bool sample_bounce(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from,
+                   bool delta, bool transmits, bool glossy, out float mix) {
     vec3 local;
     vec3 weight;
     float pdf = 0.0;
-#if defined(GUIDED) && !defined(FROZEN)
-    float mix = 0.0;
-#endif
+    mix = 0.0;
     // A plastic takes its coat's mirror with this probability, as a delta
     // vertex would (and what that ray hits takes no MIS, as NEE cannot
     // find it); else its base, of density (1 - share) times the sampler's.
-    float delta_share = bsdf_delta_share(bsdf, wo);
+    float delta_share = bsdf_delta_share(bsdf, s.wo);
     bool take_delta = delta || (delta_share > 0.0 && rng_next(rng) < delta_share);
     if (take_delta) {
-        local = bsdf_sample_delta(bsdf, wo, rng_next(rng), weight);
+        local = bsdf_sample_delta(bsdf, s.wo, rng_next(rng), weight);
         weight /= delta ? 1.0 : delta_share;
-#ifdef GUIDED
         follow_unguided(here, local, weight);
-#endif
     } else {
-#ifdef GUIDED
-        uint sector;
-        float p_sector;
-        local = mixture_sample(sampled_from, bsdf, wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
-        pdf = mixture_pdf_in(sampled_from, bsdf, wo, local, p_sector);
-        prev_vertex = here;
-        prev_sector = sector;
-        prev_q = guide_q(here, sector, p_sector);
-        guided_roulette = guide_covers(here);
-#else
-        vec2 square;
-        // The third number picks a rough lobe; drawn only where there is one.
-        bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC)) != 0u;
-        local = bsdf_sample(bsdf, wo, vec3(rng_next2(rng), rough ? rng_next(rng) : 0.0), square);
-        pdf = bsdf_pdf(bsdf, wo, local);
-#endif
+        uint sector = 0u;
+        float p_sector = 0.0;
+        if (GUIDED) {
+            local = mixture_sample(sampled_from, bsdf, s.wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+            pdf = mixture_pdf_in(sampled_from, bsdf, s.wo, local, p_sector);
+            prev_vertex = here;
+            prev_sector = sector;
+            prev_q = guide_q(here, sector, p_sector);
+            guided_roulette = guide_covers(here);
+        } else {
+            vec2 square;
+            // The third number picks a rough lobe; drawn only where there is one.
+            bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC)) != 0u;
+            local = bsdf_sample(bsdf, s.wo, vec3(rng_next2(rng), rough ? rng_next(rng) : 0.0), square);
+            pdf = bsdf_pdf(bsdf, s.wo, local);
+        }
         pdf *= 1.0 - delta_share;
         if (pdf <= 0.0) {
             return false;
         }
-        weight = bsdf_eval(bsdf, wo, local) / pdf;
-#ifdef GUIDED
+        weight = bsdf_eval(bsdf, s.wo, local) / pdf;
         if (transmits) {
             // Rough glass: sampled by its BSDF alone, learned through as a
             // delta vertex.
             follow_unguided(here, local, weight);
         }
-#endif
-#if defined(GUIDED) && !defined(FROZEN)
-        mix = learn ? mixture_gradient(sampled_from, bsdf, wo, local, p_sector, pdf, weight) : 0.0;
+        mix = learn ? mixture_gradient(sampled_from, bsdf, s.wo, local, p_sector, pdf, weight) : 0.0;
         if (glossy && (learn || depth == 0u)) {
             // What a glossy lobe reflects of the light the guide expects,
             // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
@@ -606,38 +496,130 @@ bool scatter() {
                 path_estimate = estimate;
             }
         }
-#endif
     }
     throughput *= weight;
     prev_bsdf_pdf = pdf;
-    dir = normalize(local.x * t + local.y * b + local.z * ns);
-    origin = surface_point + ((SHADING_NORMALS ? dot(dir, ng) > 0.0 : local.z > 0.0) ? eps : -eps) * ng;
+    dir = normalize(local.x * s.t + local.y * s.b + local.z * s.ns);
+    origin = s.point + ((SHADING_NORMALS ? dot(dir, s.ng) > 0.0 : local.z > 0.0) ? eps : -eps) * s.ng;
+    return true;
+}
 
-    if (depth + 1u >= RR_START_DEPTH) {
-        float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
-#ifdef GUIDED
-        // Guided paths toward light carry small weights because their pdf
-        // is high, so throughput alone would end exactly the paths the guide
-        // chose. They also survive by what they are expected to bring:
-        // throughput times the radiance Q expects from the sampled sector,
-        // against the estimate for the whole path (weight window at 1).
-        // Never below the throughput rule, so a Q that underestimates ends
-        // no more of a path's continuations than that rule would.
-        if (guided_roulette && path_estimate > 0.0) {
-            float expected = luminance(throughput) * prev_q;
-            q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
-        }
-#endif
-        if (rng_next(rng) >= q) {
-            return false;
-        }
-        throughput /= q;
+// Russian roulette from RR_START_DEPTH on; false ends the path.
+bool survives_roulette() {
+    if (depth + 1u < RR_START_DEPTH) {
+        return true;
     }
-#if defined(GUIDED) && !defined(FROZEN)
+    float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
+    // Guided paths toward light carry small weights because their pdf
+    // is high, so throughput alone would end exactly the paths the guide
+    // chose. They also survive by what they are expected to bring:
+    // throughput times the radiance Q expects from the sampled sector,
+    // against the estimate for the whole path (weight window at 1).
+    // Never below the throughput rule, so a Q that underestimates ends
+    // no more of a path's continuations than that rule would.
+    if (guided_roulette && path_estimate > 0.0) {
+        float expected = luminance(throughput) * prev_q;
+        q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
+    }
+    if (rng_next(rng) >= q) {
+        return false;
+    }
+    throughput /= q;
+    return true;
+}
+
+// Traces the path's current ray and scatters once; false when the path ended.
+bool scatter() {
+    Hit hit = trace_ray(origin, dir, FAR);
+    rays += 1u;
+    if (hit.triangle == NO_HIT) {
+        gather_sky();
+        return false;
+    }
+    path_length += 1u;
+    Triangle tri = load_triangle(hit.triangle);
+    Material mat = load_material(tri.material);
+    vec3 n = normalize(cross(tri.e1, tri.e2));
+    float cos_out = -dot(n, dir);
+    if (tri.light_pdf > 0.0) {
+        gather_emitter(hit, tri, mat, cos_out);
+        return false;
+    }
+
+    // Shade in the frame of the normal facing the ray (materials are
+    // two-sided; a dielectric knows which side it is hit on). With shading
+    // normals, that frame's and the side's normal is the interpolated one,
+    // as in Mitsuba; rays still leave off the geometric surface (ng).
+    Shading s;
+    s.ng = cos_out > 0.0 ? n : -n;
+    s.point = origin + hit.t * dir;
+    s.position = s.point + s.ng * eps;
+    bool front = cos_out > 0.0;
+    s.ns = s.ng;
+    if (SHADING_NORMALS) {
+        vec3 sn = shading_normal(hit.triangle, tri, s.point);
+        front = dot(sn, dir) < 0.0;
+        s.ns = front ? sn : -sn;
+    }
+    Bsdf bsdf = bsdf_of(mat, front);
+    if (scene_textured()) {
+        vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
+        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
+    }
+    bool delta = bsdf_is_delta(bsdf);
+    // Rough glass: sampled and reached by NEE on both sides, not guided.
+    bool transmits = bsdf_transmits(bsdf);
+    make_frame(s.ns, s.t, s.b);
+    s.wo = vec3(-dot(dir, s.t), -dot(dir, s.b), SHADING_NORMALS ? -dot(dir, s.ns) : abs(cos_out));
+    // A delta vertex or rough glass is never guided: unless it learns, the
+    // guide's lookup there (a network inference, for neural) would only tune
+    // the roulette. Its bounces learn as a delta vertex's (chaining).
+    bool unguided = delta || transmits;
+    GuideVertex here = unguided && !learn ? guide_none() : guide_at(hit.triangle, tri, s.position, s.ng, cos_out > 0.0);
+    // What the bounce and NEE's MIS sample from: BSDF sampling alone where
+    // the guide does not sample.
+    GuideVertex sampled_from = transmits ? guide_none() : here;
+    // What this vertex is expected to send back along the ray: the landed
+    // bounce's target, which NEE here adds to (see guide_learn). A glossy
+    // lobe's (0 here) is estimated from the bounce's own direction
+    // (sample_bounce). Without the learning code, only the roulette's scale
+    // needs it, at the first hit: the diffuse form serves every lobe there
+    // (lavapipe would run a glossy lobe's estimate, a BSDF sample, at every
+    // vertex).
+    bool glossy = GUIDE_LEARNS && !unguided && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
+    float reflected = 0.0;
+    if (!GUIDE_LEARNS) {
+        reflected = depth == 0u ? bsdf_reflect(bsdf, s.wo, guide_irradiance(here)) : 0.0;
+    } else if (learn || depth == 0u) {
+        reflected = guide_reflect(here, bsdf, s.wo);
+    }
+    if (depth == 0u) {
+        path_estimate = reflected;
+    }
+    if (depth >= params.max_depth) {
+        if (learn) {
+            // (A glossy lobe here, where the path ends, learns 0 for what it
+            // would reflect: only paths max_depth long reach it.)
+            land(0.0, 1.0, reflected, 0.0);
+        }
+        return false;
+    }
+
+    float direct_lum = nee && !delta ? next_event(s, bsdf, here, sampled_from, transmits) : 0.0;
+    if (learn) {
+        if (unguided && (chaining || guide_covers(prev_vertex))) {
+            pass_through_delta();
+        } else {
+            land(0.0, 1.0, reflected, direct_lum);
+        }
+    }
+    float mix;
+    if (!sample_bounce(s, bsdf, here, sampled_from, delta, transmits, glossy, mix) || !survives_roulette()) {
+        return false;
+    }
     if (mix != 0.0) {
         keep_share_sample(here, mix);
     }
-#endif
     depth += 1u;
     return true;
 }
@@ -645,12 +627,10 @@ bool scatter() {
 // scatter(), then, in a pass that learns, learning from where its ray landed.
 bool bounce() {
     bool more = scatter();
-#ifdef GUIDED
     if (learn) {
         guide_learn(land_from, land_sector, land_q, land_le, land_mis_weight,
                     land_reflected, land_direct, td_sq_sum, td_count, rng);
     }
-#endif
     return more;
 }
 
@@ -689,11 +669,7 @@ void main() {
     nee = (params.flags & FLAG_NEE) != 0u && params.light_count > 0u;
 #endif
     eps = params.cam_pos.w;
-#ifdef GUIDED
-#ifndef FROZEN
-    learn = (params.flags & FLAG_LEARN) != 0u;
-#endif
-#endif
+    learn = GUIDE_LEARNS && (params.flags & FLAG_LEARN) != 0u;
     // This dispatch traces samples pass_index .. pass_index + count - 1 of
     // every pixel: count * pixels items, each pixel's samples one after
     // another. A lane whose path ends claims the next item at once, so the
@@ -724,21 +700,17 @@ void main() {
             // Only the words accumulate reads (see PathSample).
             uint out_slot = (first_slot + sample_index) * pixels + index;
             uint lengths = path_length | (rays << PATH_RAYS_SHIFT);
-#if defined(GUIDED) && !defined(FROZEN)
-            samples[out_slot].td_count = td_count;
-            samples[out_slot].td_sq_sum = td_sq_sum;
-            lengths |= PATH_LEARNED;
-#endif
+            if (GUIDE_LEARNS) {
+                samples[out_slot].td_count = td_count;
+                samples[out_slot].td_sq_sum = td_sq_sum;
+                lengths |= PATH_LEARNED;
+            }
             samples[out_slot].radiance = radiance;
             samples[out_slot].lengths = lengths;
-#ifdef GUIDED
             if (learn) {
-#ifndef FROZEN
                 learn_share_samples();
-#endif
                 guide_end_path(index, rng);
             }
-#endif
         }
         // A lane takes up to `count` paths as long as any are left, and more
         // while the step cap leaves room for a whole path (the host keeps

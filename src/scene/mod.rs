@@ -522,22 +522,7 @@ impl Scene {
                 "the scene has more than {max_triangles} triangles, the most a scene may have"
             )));
         }
-        // Bounds, for the relative zero-area test and the ray offset.
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for (i, t) in positions.iter().enumerate() {
-            if !t.iter().all(|p| p.is_finite()) {
-                let (src, what) = &sources[source_of[i] as usize];
-                return Err(SceneError::Invalid {
-                    path: src.clone(),
-                    message: format!("triangle {i} ({what}) has a NaN or infinite vertex"),
-                });
-            }
-            for p in t {
-                lo = lo.min(*p);
-                hi = hi.max(*p);
-            }
-        }
-        let extent = (hi - lo).length().max(1e-6);
+        let extent = extent_of(&positions, &sources, &source_of)?;
         let zero_area = |t: &[Vec3; 3]| {
             0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() <= 1e-12 * extent * extent
         };
@@ -602,18 +587,7 @@ impl Scene {
             .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
         let (lights, delta_entries) =
             build_lights(&mut triangles, &materials, &delta_lights, sky_weight);
-        let normals = if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
-            // Flat everywhere: the kernels shade with the faces' normals.
-            Vec::new()
-        } else {
-            bvh.order
-                .iter()
-                .map(|&i| {
-                    let [a, b, c] = normals[i as usize].map(pack_normal);
-                    [a, b, c, 0]
-                })
-                .collect()
-        };
+        let normals = device_normals(&normals, &bvh.order);
         let mut uvs: Vec<_> = bvh
             .order
             .iter()
@@ -753,6 +727,46 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         geometry,
         delta_lights: Vec::new(),
     })
+}
+
+/// The length of the scene's bounding box diagonal (the scale of the
+/// relative zero-area test and the ray offset); an error names a triangle
+/// with a NaN or infinite vertex.
+fn extent_of(
+    positions: &[[Vec3; 3]],
+    sources: &[(PathBuf, String)],
+    source_of: &[u32],
+) -> Result<f32, SceneError> {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for (i, t) in positions.iter().enumerate() {
+        if !t.iter().all(|p| p.is_finite()) {
+            let (src, what) = &sources[source_of[i] as usize];
+            return Err(SceneError::Invalid {
+                path: src.clone(),
+                message: format!("triangle {i} ({what}) has a NaN or infinite vertex"),
+            });
+        }
+        for p in t {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+    }
+    Ok((hi - lo).length().max(1e-6))
+}
+
+/// Per-vertex normals packed in BVH order for the device; none where every
+/// triangle is flat (the kernels then shade with the faces' normals).
+fn device_normals(normals: &[[Vec3; 3]], order: &[u32]) -> Vec<[u32; 4]> {
+    if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
+        return Vec::new();
+    }
+    order
+        .iter()
+        .map(|&i| {
+            let [a, b, c] = normals[i as usize].map(pack_normal);
+            [a, b, c, 0]
+        })
+        .collect()
 }
 
 /// The triangles without those `zero_area` says have none, and one warning

@@ -471,6 +471,68 @@ impl Builder<'_, '_> {
     fn shape(&mut self, el: &Element) -> Result<(), SceneError> {
         let kind = el.plugin()?;
         let p = Props::new(el);
+        let mesh = self.shape_mesh(el, kind, &p)?;
+        let emission = area_emission(&p)?;
+        let (desc, shared) = self.shape_bsdf(&p)?;
+        p.finish()?;
+        let label = format!(
+            "shape '{}' ({kind}) at line {}",
+            el.attr("id").unwrap_or("unnamed"),
+            el.line
+        );
+        if let Some(le) = emission {
+            // qtrace's paths end at an emitter: exact for a black BSDF.
+            let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
+            if desc.null || !black {
+                log::warn!(
+                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's {}",
+                    el.file.display(),
+                    el.line,
+                    desc.name,
+                    if desc.null {
+                        "pass through it"
+                    } else {
+                        "also reflect from it"
+                    }
+                );
+            }
+            let m = self.materials.len() as u32;
+            self.materials.push(Material {
+                name: label.clone(),
+                surface: desc.surface,
+                emission: le,
+                one_sided: desc.one_sided,
+                textures: desc.textures,
+            });
+            self.add(el, &label, mesh, m);
+            return Ok(());
+        }
+        let m = match shared {
+            Some((_, Some(m))) => m,
+            _ => {
+                let m = self.materials.len() as u32;
+                self.materials.push(Material {
+                    name: desc.name.clone(),
+                    surface: desc.surface,
+                    emission: Vec3::ZERO,
+                    one_sided: desc.one_sided,
+                    textures: desc.textures,
+                });
+                if let Some((id, None)) = &shared {
+                    if let Some(entry) = self.bsdfs.get_mut(id) {
+                        entry.1 = Some(m);
+                    }
+                }
+                m
+            }
+        };
+        self.add(el, &label, mesh, m);
+        Ok(())
+    }
+
+    /// A shape's triangles (with normals and UVs where it has them), in
+    /// world space, turned over with `flip_normals`.
+    fn shape_mesh(&mut self, el: &Element, kind: &str, p: &Props) -> Result<Mesh, SceneError> {
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip = p.boolean("flip_normals")?.unwrap_or(false);
         let face_normals = p.boolean("face_normals")?.unwrap_or(false);
@@ -525,7 +587,7 @@ impl Builder<'_, '_> {
                 )))
             }
         };
-        let (triangles, normals, uvs) = if flip {
+        Ok(if flip {
             (
                 triangles.into_iter().map(|[a, b, c]| [a, c, b]).collect(),
                 normals.map(|n| n.into_iter().map(|[a, b, c]| [-a, -c, -b]).collect()),
@@ -533,9 +595,17 @@ impl Builder<'_, '_> {
             )
         } else {
             (triangles, normals, uvs)
-        };
+        })
+    }
 
-        let emission = area_emission(&p)?;
+    /// A shape's BSDF, nested or by reference (Mitsuba's default where it
+    /// has none), and for a reference, its id and the material it made, if
+    /// an earlier shape made one.
+    #[allow(clippy::type_complexity)]
+    fn shape_bsdf(
+        &mut self,
+        p: &Props,
+    ) -> Result<(BsdfDesc, Option<(String, Option<u32>)>), SceneError> {
         let mut desc = None;
         let mut shared = None;
         for b in p.nested("bsdf") {
@@ -557,7 +627,6 @@ impl Builder<'_, '_> {
             desc = Some(d.clone());
             shared = Some((id.to_string(), *m));
         }
-        p.finish()?;
         // Mitsuba's default: a one-sided diffuse surface of reflectance 0.5.
         let desc = desc.unwrap_or(BsdfDesc {
             name: "default diffuse".into(),
@@ -568,59 +637,7 @@ impl Builder<'_, '_> {
             null: false,
             textures: [None; 3],
         });
-        let label = format!(
-            "shape '{}' ({kind}) at line {}",
-            el.attr("id").unwrap_or("unnamed"),
-            el.line
-        );
-        if let Some(le) = emission {
-            // qtrace's paths end at an emitter: exact for a black BSDF.
-            let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
-            if desc.null || !black {
-                log::warn!(
-                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's {}",
-                    el.file.display(),
-                    el.line,
-                    desc.name,
-                    if desc.null {
-                        "pass through it"
-                    } else {
-                        "also reflect from it"
-                    }
-                );
-            }
-            let m = self.materials.len() as u32;
-            self.materials.push(Material {
-                name: label.clone(),
-                surface: desc.surface,
-                emission: le,
-                one_sided: desc.one_sided,
-                textures: desc.textures,
-            });
-            self.add(el, &label, (triangles, normals, uvs), m);
-            return Ok(());
-        }
-        let m = match shared {
-            Some((_, Some(m))) => m,
-            _ => {
-                let m = self.materials.len() as u32;
-                self.materials.push(Material {
-                    name: desc.name.clone(),
-                    surface: desc.surface,
-                    emission: Vec3::ZERO,
-                    one_sided: desc.one_sided,
-                    textures: desc.textures,
-                });
-                if let Some((id, None)) = &shared {
-                    if let Some(entry) = self.bsdfs.get_mut(id) {
-                        entry.1 = Some(m);
-                    }
-                }
-                m
-            }
-        };
-        self.add(el, &label, (triangles, normals, uvs), m);
-        Ok(())
+        Ok((desc, shared))
     }
 
     fn add(&mut self, el: &Element, label: &str, (triangles, normals, uvs): Mesh, material: u32) {
