@@ -13,7 +13,9 @@ use glam::Vec3;
 use qtrace::gpu::{ContextOptions, GpuContext};
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::neural::{encode, Inference};
-use qtrace::guide::{Common, GuideSettings, NeuralSettings, SarsaSettings};
+use qtrace::guide::{
+    Common, GuideSettings, NeuralGuide, NeuralSettings, SarsaGuide, SarsaSettings,
+};
 use qtrace::render::{Method, Overrides, RenderSettings, Renderer};
 use qtrace::Scene;
 
@@ -50,13 +52,13 @@ fn main() {
     })
     .unwrap();
     let scene = Scene::load("scenes/indirect-room.toml").unwrap();
-    let reference = Renderer::new(&ctx, &scene, settings(&scene, Method::Pt, true, 2048, None))
+    let reference = Renderer::new(&ctx, &scene, settings(&scene, Method::PT, true, 2048, None))
         .unwrap()
         .run(&mut |_| {})
         .unwrap()
         .image;
     let rel = |img: &qtrace::image::Image| qtrace::image::compare(img, &reference).unwrap().rel_mse;
-    let pt = Renderer::new(&ctx, &scene, settings(&scene, Method::Pt, false, 256, None))
+    let pt = Renderer::new(&ctx, &scene, settings(&scene, Method::PT, false, 256, None))
         .unwrap()
         .run(&mut |_| {})
         .unwrap();
@@ -64,17 +66,17 @@ fn main() {
     let mut sarsa = Renderer::new(
         &ctx,
         &scene,
-        settings(&scene, Method::Sarsa, false, 256, None),
+        settings(&scene, Method::SARSA, false, 256, None),
     )
     .unwrap();
     let out = sarsa.run(&mut |_| {}).unwrap();
     println!("sarsa 256 spp relMSE {:.4}", rel(&out.image));
-    let g = sarsa.guide().unwrap().sarsa().unwrap();
+    let g = sarsa.guide().unwrap().downcast::<SarsaGuide>().unwrap();
     let q = g.download_q().unwrap();
     let vols = g.volumes.clone();
     let n = 144usize;
     // The ideal table from the start: Sarsa's final Q, frozen.
-    let frozen = GuideSettings::Sarsa(SarsaSettings {
+    let frozen = GuideSettings::from(SarsaSettings {
         common: Common {
             freeze_after: Some(0),
             ..Default::default()
@@ -84,12 +86,12 @@ fn main() {
     let mut fs = Renderer::new(
         &ctx,
         &scene,
-        settings(&scene, Method::Sarsa, false, 256, Some(frozen)),
+        settings(&scene, Method::SARSA, false, 256, Some(frozen)),
     )
     .unwrap();
     fs.guide()
         .unwrap()
-        .sarsa()
+        .downcast::<SarsaGuide>()
         .unwrap()
         .upload_q(&ctx, &q)
         .unwrap();
@@ -143,7 +145,7 @@ fn main() {
             println!("step {t}: relative squared fit error {:.3}", err / total);
         }
     }
-    let neural = GuideSettings::Neural(NeuralSettings {
+    let neural = GuideSettings::from(NeuralSettings {
         width,
         inference: Inference::Volumes,
         common: Common {
@@ -155,10 +157,10 @@ fn main() {
     let mut nr = Renderer::new(
         &ctx,
         &scene,
-        settings(&scene, Method::Neural, false, 256, Some(neural)),
+        settings(&scene, Method::NEURAL, false, 256, Some(neural)),
     )
     .unwrap();
-    let ng = nr.guide().unwrap().neural().unwrap();
+    let ng = nr.guide().unwrap().downcast::<NeuralGuide>().unwrap();
     ng.network.upload_params(&p).unwrap();
     ng.refresh(&ctx).unwrap();
     println!(

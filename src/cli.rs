@@ -144,7 +144,7 @@ pub fn render(
         );
     }
     let bad = || format!("{}: bad render settings", scene_path.display());
-    let method = overrides.method.unwrap_or(Method::Pt).name();
+    let method = overrides.method.unwrap_or(Method::PT).name();
     guides
         .check_used(&[method])
         .map_err(anyhow::Error::msg)

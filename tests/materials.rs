@@ -6,7 +6,7 @@ mod common;
 
 use glam::{Vec2, Vec3};
 use qtrace::bsdf::{Bsdf, Sampling, Surface};
-use qtrace::guide::{Common, GuideSettings, NeuralSettings, SarsaSettings};
+use qtrace::guide::{Common, GuideSettings, NeuralSettings, SarsaGuide, SarsaSettings};
 use qtrace::render::{Method, Overrides};
 use qtrace::sampling;
 use qtrace::Scene;
@@ -93,7 +93,7 @@ fn mean_and_error(out: &qtrace::RenderOutput) -> (f64, f64) {
 fn render(scene: &Scene, method: Method, nee: bool, size: u32, spp: u32) -> qtrace::RenderOutput {
     let ctx = common::gpu();
     let guide = match method {
-        Method::Sarsa => Some(GuideSettings::Sarsa(SarsaSettings {
+        Method::SARSA => Some(GuideSettings::from(SarsaSettings {
             volumes: Some(64),
             ..Default::default()
         })),
@@ -154,7 +154,7 @@ fn every_bsdf_returns_its_albedo_in_a_furnace() {
     for (what, obj, mtl, theta, expected) in cases {
         // A narrow view from afar: every pixel sees the object at about theta.
         let scene = write_scene(&dir, &obj, &mtl, viewed_from(theta, 40.0), 1.0, 1.0);
-        for method in [Method::Pt, Method::Sarsa] {
+        for method in [Method::PT, Method::SARSA] {
             let out = render(&scene, method, false, 16, 256);
             let (mean, se) = mean_and_error(&out);
             assert!(
@@ -191,10 +191,10 @@ fn a_mirror_shows_the_analytic_image_of_a_light() {
     let spp = 64u32;
     let overlap = |a0: f32, a1: f32, b0: f32, b1: f32| (a1.min(b1) - a0.max(b0)).max(0.0);
     for (method, nee) in [
-        (Method::Pt, false),
-        (Method::Pt, true),
-        (Method::Sarsa, false),
-        (Method::Sarsa, true),
+        (Method::PT, false),
+        (Method::PT, true),
+        (Method::SARSA, false),
+        (Method::SARSA, true),
     ] {
         let out = render(&scene, method, nee, size as u32, spp);
         let mut inside = 0;
@@ -227,16 +227,16 @@ fn a_mirror_shows_the_analytic_image_of_a_light() {
 #[test]
 fn glossy_scenes_converge_to_the_same_image_for_every_method() {
     for (name, method, nee, spp) in [
-        ("glossy-cornell", Method::Pt, false, 4096),
-        ("glossy-cornell", Method::Sarsa, false, 2048),
-        ("glossy-cornell", Method::Sarsa, true, 1024),
-        ("glossy-room", Method::Pt, false, 2048),
-        ("glossy-room", Method::Sarsa, true, 1024),
-        ("glass-cornell", Method::Pt, false, 4096),
-        ("glass-cornell", Method::Sarsa, false, 2048),
+        ("glossy-cornell", Method::PT, false, 4096),
+        ("glossy-cornell", Method::SARSA, false, 2048),
+        ("glossy-cornell", Method::SARSA, true, 1024),
+        ("glossy-room", Method::PT, false, 2048),
+        ("glossy-room", Method::SARSA, true, 1024),
+        ("glass-cornell", Method::PT, false, 4096),
+        ("glass-cornell", Method::SARSA, false, 2048),
     ] {
-        let guide = (method == Method::Sarsa).then(|| {
-            GuideSettings::Sarsa(SarsaSettings {
+        let guide = (method == Method::SARSA).then(|| {
+            GuideSettings::from(SarsaSettings {
                 volumes: Some(512),
                 ..Default::default()
             })
@@ -271,11 +271,11 @@ fn neural_converges_to_pt_on_glossy_and_glass_scenes() {
             &format!("{name}-neural-nee{nee}"),
             &common::scene(name),
             Overrides {
-                method: Some(Method::Neural),
+                method: Some(Method::NEURAL),
                 spp: Some(1024),
                 nee,
                 seed: Some(401),
-                guide: Some(GuideSettings::Neural(settings)),
+                guide: Some(GuideSettings::from(settings)),
                 ..Default::default()
             },
         );
@@ -323,7 +323,7 @@ fn the_guide_learns_light_that_arrives_through_glass() {
     obj += &box_faces(Vec3::new(-2.0, 1.0, -2.0), Vec3::new(2.0, 1.5, 2.0), 9);
     let mtl = "newmtl floor\nKd 0.5 0.5 0.5\nnewmtl light\nKd 0\nKe 10 10 10\nnewmtl glass\nNi 1.5\nd 0\n";
     let scene = write_scene(&dir, &obj, mtl, Vec3::new(0.0, 4.0, 6.0), 40.0, 0.0);
-    let guide = GuideSettings::Sarsa(SarsaSettings {
+    let guide = GuideSettings::from(SarsaSettings {
         volumes: Some(512),
         common: Common {
             stand_back: Some(false),
@@ -335,7 +335,7 @@ fn the_guide_learns_light_that_arrives_through_glass() {
         &common::gpu(),
         &scene,
         Overrides {
-            method: Some(Method::Sarsa),
+            method: Some(Method::SARSA),
             spp: Some(128),
             width: Some(64),
             height: Some(64),
@@ -346,7 +346,7 @@ fn the_guide_learns_light_that_arrives_through_glass() {
     );
     let sarsa = renderer
         .guide()
-        .and_then(|g| g.sarsa())
+        .and_then(|g| g.downcast::<SarsaGuide>())
         .expect("a Sarsa guide");
     let q = sarsa.download_q().unwrap();
     let [a, b] = sarsa.settings.common.grid;

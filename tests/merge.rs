@@ -132,7 +132,7 @@ fn merged_parts_equal_one_render_of_all_their_samples() {
             &ctx,
             &scene,
             Overrides {
-                method: Some(Method::Pt),
+                method: Some(Method::PT),
                 nee: true,
                 spp: Some(spp),
                 seed: Some(seed),

@@ -383,7 +383,7 @@ fn assert_agrees(name: &str, out: &RenderOutput, (mean, var): &(Image, Image)) {
 /// Renders `scene` (XML, with `defines`) as `o` says and compares it with
 /// Mitsuba's reference `name`.
 fn check(name: &str, scene: &Path, defines: &[(&str, &str)], o: Overrides) {
-    let label = format!("{name} {}", o.method.unwrap_or(Method::Pt).label(o.nee));
+    let label = format!("{name} {}", o.method.unwrap_or(Method::PT).label(o.nee));
     let defines: Vec<(String, String)> = defines
         .iter()
         .map(|(k, v)| (k.to_string(), v.to_string()))
@@ -410,10 +410,10 @@ const SQUARE: [(&str, &str); 2] = [("resx", "64"), ("resy", "64")];
 fn cornell_box_agrees_with_mitsuba() {
     // pt+nee long enough that the means are known to the 0.5% checked.
     for (m, nee, spp) in [
-        (Method::Pt, true, 4096),
-        (Method::Pt, false, 1024),
-        (Method::Sarsa, true, 1024),
-        (Method::Neural, true, 1024),
+        (Method::PT, true, 4096),
+        (Method::PT, false, 1024),
+        (Method::SARSA, true, 1024),
+        (Method::NEURAL, true, 1024),
     ] {
         let name = format!("cornell-box {m:?} nee {nee}");
         let scene = Scene::load_defined(
@@ -434,9 +434,9 @@ fn veach_mis_agrees_with_mitsuba() {
     // Twice the samples of the other scenes: its tiny, bright lights make
     // rare, large samples, whose noise 1024 spp estimates poorly.
     for (m, nee) in [
-        (Method::Pt, true),
-        (Method::Sarsa, true),
-        (Method::Neural, true),
+        (Method::PT, true),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
     ] {
         check("veach-mis", &scene, &size, method(m, nee, 2048));
     }
@@ -446,7 +446,7 @@ fn veach_mis_agrees_with_mitsuba() {
 fn coverage_scenes_agree_with_mitsuba() {
     let dir = common::repo("tests/fixtures/mitsuba");
     // Every method: the guides learn through every lobe here.
-    for m in [Method::Pt, Method::Sarsa, Method::Neural] {
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-a",
             &dir.join("coverage-a.xml"),
@@ -458,15 +458,15 @@ fn coverage_scenes_agree_with_mitsuba() {
         "coverage-b",
         &dir.join("coverage-b.xml"),
         &[("width", "96"), ("height", "64")],
-        method(Method::Pt, true, 2048),
+        method(Method::PT, true, 2048),
     );
     // Rough glass and rough plastic, a light reached only through rough
     // glass: every method, and plain path tracing without NEE.
     for (m, nee) in [
-        (Method::Pt, true),
-        (Method::Pt, false),
-        (Method::Sarsa, true),
-        (Method::Neural, true),
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
     ] {
         check(
             "coverage-d",
@@ -477,7 +477,7 @@ fn coverage_scenes_agree_with_mitsuba() {
     }
     // Point, spot and directional lights (NEE's alone), and a lookat
     // without an up, with a plain and a guided method.
-    for m in [Method::Pt, Method::Sarsa, Method::Neural] {
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-c",
             &dir.join("coverage-c.xml"),
@@ -493,10 +493,10 @@ fn textured_scene_agrees_with_mitsuba() {
     // constant sky and a panel: every method, and pt without NEE.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-e.xml");
     for (m, nee) in [
-        (Method::Pt, true),
-        (Method::Pt, false),
-        (Method::Sarsa, true),
-        (Method::Neural, true),
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
     ] {
         check("coverage-e", &scene, &[("res", "64")], method(m, nee, 1024));
     }
@@ -523,7 +523,7 @@ fn a_textured_plane_shows_its_texels() {
     };
     let ctx = common::gpu();
     for (nee, spp, tolerance) in [(false, 4, 1e-4), (true, 1024, 0.02)] {
-        let out = common::render_with(&ctx, &scene, method(Method::Pt, nee, spp));
+        let out = common::render_with(&ctx, &scene, method(Method::PT, nee, spp));
         let (w, h) = (out.image.width, out.image.height);
         for y in (0..h).step_by(2) {
             for x in (0..w).step_by(2) {
@@ -551,10 +551,10 @@ fn environment_scene_agrees_with_mitsuba() {
     // every method, and pt without NEE (which must find the sun by itself).
     let scene = common::repo("tests/fixtures/mitsuba/coverage-f.xml");
     for (m, nee) in [
-        (Method::Pt, true),
-        (Method::Pt, false),
-        (Method::Sarsa, true),
-        (Method::Neural, true),
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
     ] {
         check("coverage-f", &scene, &[("res", "64")], method(m, nee, 1024));
     }

@@ -199,11 +199,11 @@ fn unbiased(scene_name: &str, nee: bool, spp: u32, settings: NeuralSettings) {
         &name,
         &scene,
         Overrides {
-            method: Some(Method::Neural),
+            method: Some(Method::NEURAL),
             spp: Some(spp),
             nee,
             seed: Some(300),
-            guide: Some(GuideSettings::Neural(settings)),
+            guide: Some(GuideSettings::from(settings)),
             ..Default::default()
         },
     );
@@ -545,9 +545,9 @@ fn neural_matches_the_white_furnace() {
         &ctx,
         &scene,
         Overrides {
-            method: Some(Method::Neural),
+            method: Some(Method::NEURAL),
             spp: Some(128),
-            guide: Some(GuideSettings::Neural(small())),
+            guide: Some(GuideSettings::from(small())),
             ..Default::default()
         },
     );
@@ -561,12 +561,12 @@ fn check_offers(encoding: Encoding) {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let o = Overrides {
-        method: Some(Method::Neural),
+        method: Some(Method::NEURAL),
         spp: Some(1),
         width: Some(32),
         height: Some(32),
         // Paths offer transitions only when the network trains on them.
-        guide: Some(GuideSettings::Neural(NeuralSettings {
+        guide: Some(GuideSettings::from(NeuralSettings {
             encoding,
             training: Some(Training::Transitions),
             ..small()
@@ -574,7 +574,10 @@ fn check_offers(encoding: Encoding) {
         ..Default::default()
     };
     let renderer = common::run_renderer(&ctx, &scene, o);
-    let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
+    let guide = renderer
+        .guide()
+        .and_then(|g| g.downcast::<NeuralGuide>())
+        .unwrap();
     let inputs = guide.network.download_inputs().unwrap();
     let (lo, hi) = scene.bounds();
     let vertices = scene_vertices(&scene);
@@ -714,13 +717,13 @@ fn neural_is_reproducible_bit_for_bit() {
                 &ctx,
                 &scene,
                 Overrides {
-                    method: Some(Method::Neural),
+                    method: Some(Method::NEURAL),
                     spp: Some(6),
                     width: Some(48),
                     height: Some(48),
                     nee,
                     seed: Some(8),
-                    guide: Some(GuideSettings::Neural(small())),
+                    guide: Some(GuideSettings::from(small())),
                     ..Default::default()
                 },
             );
@@ -739,7 +742,7 @@ fn neural_is_reproducible_bit_for_bit() {
 fn neural_bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
     let renderer = common::run_guided(
         scene,
-        GuideSettings::Neural(NeuralSettings {
+        GuideSettings::from(NeuralSettings {
             learn_epsilon: Some(learn),
             common: Common {
                 epsilon: Some(0.5),
@@ -748,7 +751,10 @@ fn neural_bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
             ..Default::default()
         }),
     );
-    let guide = renderer.guide().and_then(|g| g.neural()).unwrap();
+    let guide = renderer
+        .guide()
+        .and_then(|g| g.downcast::<NeuralGuide>())
+        .unwrap();
     guide.table().unwrap().download_bsdf_shares().unwrap()
 }
 

@@ -13,11 +13,11 @@ fn white_furnace_matches_analytic_value() {
     let scene = common::scene("furnace");
     // NEE draws the sky; the guides learn it and sample toward it.
     for (method, nee, sampling) in [
-        (Method::Pt, false, Sampling::Cosine),
-        (Method::Pt, true, Sampling::Cosine),
-        (Method::Pt, false, Sampling::Uniform),
-        (Method::Sarsa, true, Sampling::Cosine),
-        (Method::Neural, true, Sampling::Cosine),
+        (Method::PT, false, Sampling::Cosine),
+        (Method::PT, true, Sampling::Cosine),
+        (Method::PT, false, Sampling::Uniform),
+        (Method::SARSA, true, Sampling::Cosine),
+        (Method::NEURAL, true, Sampling::Cosine),
     ] {
         let out = common::render_with(
             &ctx,
@@ -102,13 +102,13 @@ fn sarsa_is_reproducible_bit_for_bit_with_fixed_point_tallies() {
                 &ctx,
                 &scene,
                 Overrides {
-                    method: Some(qtrace::Method::Sarsa),
+                    method: Some(qtrace::Method::SARSA),
                     spp: Some(16),
                     width: Some(64),
                     height: Some(64),
                     nee,
                     seed: Some(5),
-                    guide: Some(GuideSettings::Sarsa(SarsaSettings {
+                    guide: Some(GuideSettings::from(SarsaSettings {
                         atomics: Atomics::Fixed,
                         ..Default::default()
                     })),
@@ -199,7 +199,7 @@ fn renders_stepped_in_turn_keep_their_images_and_their_own_clocks() {
         )
         .unwrap()
     };
-    let alone: Vec<_> = [Method::Pt, Method::Sarsa]
+    let alone: Vec<_> = [Method::PT, Method::SARSA]
         .map(|m| {
             Renderer::new(&ctx, &scene, settings(m))
                 .unwrap()
@@ -207,7 +207,7 @@ fn renders_stepped_in_turn_keep_their_images_and_their_own_clocks() {
                 .unwrap()
         })
         .into();
-    let mut renders: Vec<_> = [Method::Pt, Method::Sarsa]
+    let mut renders: Vec<_> = [Method::PT, Method::SARSA]
         .map(|m| {
             let mut r = Renderer::new(&ctx, &scene, settings(m)).unwrap();
             let run = r.start();
@@ -356,17 +356,17 @@ fn texel_and_storage_reads_give_the_same_image() {
     // passes, so that Sarsa's passes 17 and 19 run the kernel that learns
     // nothing, and fewer than 24, so that no race reads the clock.
     let sarsa = || {
-        Some(GuideSettings::Sarsa(SarsaSettings {
+        Some(GuideSettings::from(SarsaSettings {
             atomics: Atomics::Fixed,
             ..Default::default()
         }))
     };
     let cases = [
-        ("cornell-box", Method::Pt, false, None),
-        ("glass-cornell", Method::Pt, true, None),
-        ("cornell-box", Method::Sarsa, true, sarsa()),
-        ("glossy-cornell", Method::Sarsa, false, sarsa()),
-        ("cornell-box", Method::Neural, true, None),
+        ("cornell-box", Method::PT, false, None),
+        ("glass-cornell", Method::PT, true, None),
+        ("cornell-box", Method::SARSA, true, sarsa()),
+        ("glossy-cornell", Method::SARSA, false, sarsa()),
+        ("cornell-box", Method::NEURAL, true, None),
     ];
     for (name, method, nee, guide) in cases {
         let scene = common::scene(name);

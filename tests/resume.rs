@@ -10,15 +10,15 @@ use std::path::Path;
 
 fn overrides(method: Method, spp: u32, seed: u32) -> Overrides {
     let guide = match method {
-        Method::Pt => None,
-        Method::Sarsa => Some(GuideSettings::Sarsa(SarsaSettings {
+        Method::SARSA => Some(GuideSettings::from(SarsaSettings {
             volumes: Some(256),
             ..Default::default()
         })),
-        Method::Neural => Some(GuideSettings::Neural(NeuralSettings {
+        Method::NEURAL => Some(GuideSettings::from(NeuralSettings {
             batch: Some(1024),
             ..Default::default()
         })),
+        _ => None,
     };
     Overrides {
         method: Some(method),
@@ -68,10 +68,10 @@ fn resumed_renders_equal_renders_that_ran_through() {
     let ctx = common::gpu();
     // With several lights the state holds each volume's choice of light too.
     for (scene_name, method, spp) in [
-        ("cornell-box", Method::Pt, 256),
-        ("cornell-box", Method::Sarsa, 256),
-        ("several-lights", Method::Sarsa, 256),
-        ("cornell-box", Method::Neural, 64),
+        ("cornell-box", Method::PT, 256),
+        ("cornell-box", Method::SARSA, 256),
+        ("several-lights", Method::SARSA, 256),
+        ("cornell-box", Method::NEURAL, 64),
     ] {
         let scene = common::scene(scene_name);
         let name = format!("resume-{scene_name}-{}", method.name());
@@ -83,7 +83,7 @@ fn resumed_renders_equal_renders_that_ran_through() {
         // Against an independent render (another seed) of all the samples.
         let other = common::render_with(&ctx, &scene, overrides(method, spp, 2));
         common::assert_same_expectation(&name, &resumed, &other);
-        if method == Method::Pt {
+        if method == Method::PT {
             // The same seed gives the same samples: the very same image.
             let through = common::render_with(&ctx, &scene, overrides(method, spp, 1));
             assert_eq!(resumed.image, through.image);
@@ -97,14 +97,14 @@ fn a_state_of_another_render_is_refused() {
     let scene = common::scene("cornell-box");
     let dir = common::scratch("resume-refused");
     let state = dir.join("state");
-    stopped_and_resumed("cornell-box", Method::Pt, 4, 1, &state);
+    stopped_and_resumed("cornell-box", Method::PT, 4, 1, &state);
     for (o, want) in [
-        (overrides(Method::Sarsa, 8, 1), "method"),
-        (overrides(Method::Pt, 8, 3), "seed"),
+        (overrides(Method::SARSA, 8, 1), "method"),
+        (overrides(Method::PT, 8, 3), "seed"),
         (
             Overrides {
                 width: Some(16),
-                ..overrides(Method::Pt, 8, 1)
+                ..overrides(Method::PT, 8, 1)
             },
             "width",
         ),
@@ -115,7 +115,7 @@ fn a_state_of_another_render_is_refused() {
         assert!(e.contains("another render") && e.contains(want), "{e}");
     }
     std::fs::write(&state, b"not a state").unwrap();
-    let settings = RenderSettings::resolve(&scene, &overrides(Method::Pt, 8, 1)).unwrap();
+    let settings = RenderSettings::resolve(&scene, &overrides(Method::PT, 8, 1)).unwrap();
     let e = Renderer::new(&ctx, &scene, settings)
         .unwrap()
         .resume(&state)

@@ -430,11 +430,11 @@ fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after
         &name,
         &scene,
         Overrides {
-            method: Some(Method::Sarsa),
+            method: Some(Method::SARSA),
             spp: Some(spp),
             nee,
             seed: Some(200),
-            guide: Some(GuideSettings::Sarsa(SarsaSettings {
+            guide: Some(GuideSettings::from(SarsaSettings {
                 volumes: Some(512),
                 atomics,
                 common: Common {
@@ -490,9 +490,9 @@ fn sarsa_matches_the_white_furnace() {
         &ctx,
         &scene,
         Overrides {
-            method: Some(Method::Sarsa),
+            method: Some(Method::SARSA),
             spp: Some(256),
-            guide: Some(GuideSettings::Sarsa(SarsaSettings {
+            guide: Some(GuideSettings::from(SarsaSettings {
                 volumes: Some(256),
                 ..Default::default()
             })),
@@ -507,7 +507,7 @@ fn sarsa_matches_the_white_furnace() {
 fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
     let renderer = common::run_guided(
         scene,
-        GuideSettings::Sarsa(SarsaSettings {
+        GuideSettings::from(SarsaSettings {
             learn_epsilon: Some(learn),
             common: Common {
                 epsilon: Some(0.5),
@@ -516,7 +516,10 @@ fn bsdf_shares(scene: &str, learn: bool) -> Vec<f32> {
             ..Default::default()
         }),
     );
-    let guide = renderer.guide().and_then(|g| g.sarsa()).unwrap();
+    let guide = renderer
+        .guide()
+        .and_then(|g| g.downcast::<SarsaGuide>())
+        .unwrap();
     guide.download_bsdf_shares().unwrap()
 }
 
@@ -559,10 +562,7 @@ fn volumes_learn_their_share_of_bsdf_sampling() {
 
 /// A guided render of `scene` (64×64, 64 spp): its stats and its mean.
 fn guided(scene: &str, guide: GuideSettings) -> (RenderStats, f64) {
-    let method = match guide {
-        GuideSettings::Sarsa(_) => Method::Sarsa,
-        GuideSettings::Neural(_) => Method::Neural,
-    };
+    let method = Method::named(guide.name()).unwrap();
     let out = common::render_with(
         &common::gpu(),
         &common::scene(scene),
@@ -588,7 +588,7 @@ fn stood_back(scene: &str, guide: GuideSettings) -> (Option<u32>, f64) {
 }
 
 fn sarsa_with(common: Common, learn_epsilon: Option<bool>) -> GuideSettings {
-    GuideSettings::Sarsa(SarsaSettings {
+    GuideSettings::from(SarsaSettings {
         common,
         learn_epsilon,
         ..Default::default()
@@ -617,7 +617,7 @@ fn guides_stand_back_where_they_cannot_help() {
         "sarsa stood back after {after:?}"
     );
     assert!((mean - 1.0).abs() < 0.01, "furnace mean {mean}");
-    let neural = GuideSettings::Neural(qtrace::guide::NeuralSettings::default());
+    let neural = GuideSettings::from(qtrace::guide::NeuralSettings::default());
     let (after, mean) = stood_back("furnace", neural);
     assert!(
         matches!(after, Some(4 | 8 | 16 | 32)),
@@ -643,7 +643,7 @@ fn guides_stand_back_where_they_cannot_help() {
 fn races_measure_which_kernel_cuts_the_noise() {
     let fixed = [
         sarsa_with(Common::default(), Some(false)),
-        GuideSettings::Neural(qtrace::guide::NeuralSettings {
+        GuideSettings::from(qtrace::guide::NeuralSettings {
             learn_epsilon: Some(false),
             ..Default::default()
         }),
@@ -685,7 +685,7 @@ fn standing_back_survives_a_resume() {
     let ctx = common::gpu();
     let scene = common::scene("furnace");
     let o = |spp| Overrides {
-        method: Some(Method::Sarsa),
+        method: Some(Method::SARSA),
         spp: Some(spp),
         width: Some(64),
         height: Some(64),
@@ -740,12 +740,12 @@ fn volumes_learn_which_light_nee_picks() {
         &ctx,
         &scene,
         Overrides {
-            method: Some(Method::Sarsa),
+            method: Some(Method::SARSA),
             nee: true,
             spp: Some(64),
             width: Some(32),
             height: Some(32),
-            guide: Some(GuideSettings::Sarsa(SarsaSettings {
+            guide: Some(GuideSettings::from(SarsaSettings {
                 volumes: Some(256),
                 // No races, which read the clock: one render, one table.
                 common: Common {
@@ -757,7 +757,10 @@ fn volumes_learn_which_light_nee_picks() {
             ..Default::default()
         },
     );
-    let guide = renderer.guide().and_then(|g| g.sarsa()).unwrap();
+    let guide = renderer
+        .guide()
+        .and_then(|g| g.downcast::<SarsaGuide>())
+        .unwrap();
     assert!(guide.chooses_lights());
     let power: Vec<f64> = scene.lights.iter().map(|l| l.pdf as f64).collect();
     let n = power.len();

@@ -4,7 +4,7 @@
 
 use super::{learned, BenchError, Config};
 use crate::gpu::{GpuContext, PassTiming};
-use crate::guide::{Guide, GuideSources, SarsaGuide};
+use crate::guide::{GuideSources, SarsaGuide};
 use crate::image::{self, ErrorMetrics, Image};
 use crate::render::settings::MAX_SPP;
 use crate::render::{
@@ -584,55 +584,26 @@ fn learned_pictures(
     renderer: &Renderer,
     run_dir: &Path,
 ) -> Result<Option<LearnedPictures>, BenchError> {
-    Ok(match renderer.guide() {
-        Some(Guide::Sarsa(guide)) => {
-            let (vpng, light_choice) = write_volume_pictures(ctx, scene, guide, plan, run_dir)?;
-            let volumes = learned::volumes_near_light(scene, guide, 6);
-            let q = guide
-                .download_q()
-                .map_err(|e| BenchError::Render(e.into()))?;
-            let rows = learned::volume_rows(guide, &q, &volumes);
-            let hemis = learned::hemispheres(guide.settings.common.grid, &rows, 96);
-            let (hpng, _) = write_image(&hemis, run_dir, "hemispheres", &plan.out)?;
-            Some(LearnedPictures {
-                voronoi: Some(vpng),
-                light_choice,
-                hemispheres: hpng,
-                hemispheres_at: format!(
-                    "the {} volumes nearest the brightest light (volumes {})",
-                    volumes.len(),
-                    volumes
-                        .iter()
-                        .map(|v| v.to_string())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
+    let Some(guide) = renderer.guide() else {
+        return Ok(None);
+    };
+    // Where it samples from the volumes' tables, their pictures too.
+    let (voronoi, light_choice) = match guide.volume_table() {
+        Some(table) => {
+            let (vpng, choice) = write_volume_pictures(ctx, scene, table, plan, run_dir)?;
+            (Some(vpng), choice)
         }
-        Some(Guide::Neural(neural)) => {
-            // With inference at the volumes, its tables' pictures too.
-            let (voronoi, light_choice) = match neural.table() {
-                Some(table) => {
-                    let (vpng, choice) = write_volume_pictures(ctx, scene, table, plan, run_dir)?;
-                    (Some(vpng), choice)
-                }
-                None => (None, None),
-            };
-            let rows = learned::neural_rows(ctx, scene, neural, 6)?;
-            let hemis = learned::hemispheres(neural.settings.common.grid, &rows, 96);
-            let (hpng, _) = write_image(&hemis, run_dir, "hemispheres", &plan.out)?;
-            Some(LearnedPictures {
-                voronoi,
-                light_choice,
-                hemispheres: hpng,
-                hemispheres_at: format!(
-                    "the {} points the camera sees nearest the brightest light, as the network infers them",
-                    rows.len()
-                ),
-            })
-        }
-        None => None,
-    })
+        None => (None, None),
+    };
+    let (rows, at) = guide.sample_rows(ctx, scene, 6)?;
+    let hemis = learned::hemispheres(guide.grid(), &rows, 96);
+    let (hpng, _) = write_image(&hemis, run_dir, "hemispheres", &plan.out)?;
+    Ok(Some(LearnedPictures {
+        voronoi,
+        light_choice,
+        hemispheres: hpng,
+        hemispheres_at: at,
+    }))
 }
 
 /// A reference rendered here is refined until its own error is under
@@ -650,7 +621,7 @@ fn refine_reference(
     progress: &mut dyn FnMut(&EvalProgress<'_>),
 ) -> Result<bool, BenchError> {
     let pt = Config {
-        method: Method::Pt,
+        method: Method::PT,
         nee: true,
     };
     if let (Some(first_floor), Some(first_spp), None) =
@@ -731,11 +702,11 @@ fn compare_runs(plan: &EvalPlan, runs: &mut [RunReport]) -> (f64, Summary) {
     }
     for (i, c) in plan.configs.iter().enumerate() {
         let label = Config {
-            method: Method::Pt,
+            method: Method::PT,
             nee: c.nee,
         }
         .label();
-        if c.method != Method::Pt {
+        if c.method != Method::PT {
             runs[i].over_plain = runs
                 .iter()
                 .find(|r| r.config == label)
@@ -814,7 +785,7 @@ fn scene_reference(
     progress: &mut dyn FnMut(&EvalProgress<'_>),
 ) -> Result<SceneReference, BenchError> {
     let pt = Config {
-        method: Method::Pt,
+        method: Method::PT,
         nee: true,
     };
     let ref_settings = render_settings(

@@ -3,7 +3,7 @@
 
 pub mod charts;
 pub mod eval;
-mod learned;
+pub(crate) mod learned;
 pub mod peer;
 pub mod report;
 

@@ -17,8 +17,9 @@ pub use sarsa::{SarsaGuide, SarsaSettings};
 
 use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
 use crate::scene::Scene;
-use crate::shaders::{self, spirv, PassParams};
+use crate::shaders::{self, PassParams};
 use serde::{Deserialize, Serialize};
+use std::any::Any;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -226,55 +227,126 @@ pub fn thinned(index: u32, k: u32) -> bool {
     (u64::from(index) - start) % (2u64 << j) == 0
 }
 
-/// Which guide a render uses, and its settings.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GuideSettings {
-    Sarsa(SarsaSettings),
-    Neural(NeuralSettings),
+/// A guide's settings, behind [`GuideSettings`]: its table, its checks, and
+/// the trace kernels and device state it builds. Each guide's module
+/// implements it for its settings and lists the guide in [`GUIDES`].
+pub trait GuideConfig: std::fmt::Debug + Send + Sync + 'static {
+    /// The method (and table) name.
+    fn name(&self) -> &'static str;
+    /// The keys every guide has.
+    fn common(&self) -> &Common;
+    /// Its `thin_after` default (see `Common::thin_after`).
+    fn default_thin_after(&self) -> u32;
+    /// Whether each volume learns its share of BSDF sampling, which
+    /// [`stands_back`] reads.
+    fn learns_shares(&self) -> bool;
+    /// The settings as JSON (stats, render states).
+    fn to_json(&self) -> serde_json::Value;
+    /// The settings as their table, every key written out.
+    fn to_table(&self) -> toml::Table;
+    /// Checks its own keys' ranges, and that it fits `scene`.
+    fn validate(&self, scene: &Scene) -> Result<(), String>;
+    /// Checks the guide fits `device`'s memory limits, before building it.
+    fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String>;
+    /// SPIR-V of its trace kernel on `device`.
+    fn trace_spirv(&self, device: &DeviceInfo, nee: bool) -> gpu::Result<&'static [u8]>;
+    /// SPIR-V of a trace kernel without the learning code, for the passes
+    /// that learn nothing, where the guide has one.
+    fn frozen_trace_spirv(&self, nee: bool) -> Option<&'static [u8]>;
+    /// These settings for a `width` x `height` image (defaults that follow
+    /// the image).
+    fn for_image(&self, width: u32, height: u32) -> GuideSettings;
+    /// Builds the guide for `scene`, for a render of `pixels` pixels.
+    fn build(
+        &self,
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        seed: u32,
+        pixels: u64,
+    ) -> gpu::Result<Guide>;
+    fn clone_boxed(&self) -> Box<dyn GuideConfig>;
+    fn as_any(&self) -> &dyn Any;
 }
 
-/// Names of the guides, as methods and as tables.
-pub const GUIDES: [&str; 2] = ["sarsa", "neural"];
+/// A guide: its name, what `--method` says of it, and how its table reads.
+pub struct GuideEntry {
+    pub name: &'static str,
+    pub about: &'static str,
+    /// Its settings from its table (missing keys: defaults).
+    pub read: fn(toml::Value) -> Result<GuideSettings, toml::de::Error>,
+    /// Its settings with every optional key set, `common` among them: the
+    /// keys a message on a typo lists.
+    pub every_key: fn(Common) -> GuideSettings,
+}
+
+/// Every guide. A new guide is its GLSL behind `glsl/guide.glsl`, its module
+/// here, and its line in this list (docs/architecture.md, "Adding a guide").
+pub const GUIDES: &[GuideEntry] = &[sarsa::GUIDE, neural::GUIDE];
+
+/// The guide named `name`.
+pub fn guide_named(name: &str) -> Option<&'static GuideEntry> {
+    GUIDES.iter().find(|g| g.name == name)
+}
+
+/// The guides' names, for messages ("sarsa, neural").
+pub fn guide_names() -> String {
+    GUIDES.iter().map(|g| g.name).collect::<Vec<_>>().join(", ")
+}
+
+/// Which guide a render uses, and its settings.
+pub struct GuideSettings(Box<dyn GuideConfig>);
+
+impl Clone for GuideSettings {
+    fn clone(&self) -> Self {
+        Self(self.0.clone_boxed())
+    }
+}
+
+impl std::fmt::Debug for GuideSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl PartialEq for GuideSettings {
+    fn eq(&self, other: &Self) -> bool {
+        self.name() == other.name() && self.0.to_json() == other.0.to_json()
+    }
+}
+
+/// As `{"name": {settings}}`.
+impl Serialize for GuideSettings {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = s.serialize_map(Some(1))?;
+        map.serialize_entry(self.name(), &self.0.to_json())?;
+        map.end()
+    }
+}
+
+impl std::ops::Deref for GuideSettings {
+    type Target = dyn GuideConfig;
+    fn deref(&self) -> &Self::Target {
+        self.0.as_ref()
+    }
+}
+
+impl<T: GuideConfig> From<T> for GuideSettings {
+    fn from(settings: T) -> Self {
+        Self(Box::new(settings))
+    }
+}
 
 impl GuideSettings {
-    /// The method (and table) name.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Self::Sarsa(_) => "sarsa",
-            Self::Neural(_) => "neural",
-        }
-    }
-
-    pub fn common(&self) -> &Common {
-        match self {
-            Self::Sarsa(s) => &s.common,
-            Self::Neural(n) => &n.common,
-        }
+    /// The settings of guide `T`'s type, if these are its.
+    pub fn downcast<T: GuideConfig>(&self) -> Option<&T> {
+        self.0.as_any().downcast_ref()
     }
 
     /// Whether the guide learns in pass `index` (see `Common::thin_after`).
     pub fn learns_in_pass(&self, index: u32) -> bool {
-        // Measured at 128×128, 256 spp (docs/notebook.md): Sarsa learning
-        // only in the first 16 passes kept its error at equal samples within
-        // 10% on the indirectly lit and glossy rooms and cut it 1.4–1.6× at
-        // equal time; thinning instead of stopping keeps longer renders learning.
-        // Inferring at the volumes, training is most of a neural pass, and
-        // thinning it as Sarsa's kept the room's error at 256 spp (relMSE
-        // 0.129 against 0.124 at 256x256) and cut it at equal time (0.37
-        // against 0.55).
-        // Trained on the volumes' means, the passes that learn tally
-        // targets as Sarsa's do (the tables blend those means with the
-        // network), and only some of them also train the network (see
-        // NeuralSettings::train_thin_after): at 128x128, tallying as Sarsa
-        // does instead of up to the 4th pass cut the error at equal samples
-        // by 5-40% for 1.12-1.17x the GPU time per pass.
-        let default_thin = match self {
-            Self::Sarsa(_) => 16,
-            Self::Neural(n) if n.inference == neural::Inference::Volumes => 16,
-            Self::Neural(_) => 0,
-        };
-        self.common().learns_in_pass(index, default_thin)
+        self.common()
+            .learns_in_pass(index, self.default_thin_after())
     }
 
     /// Whether the guide may stand back (see `Common::stand_back`).
@@ -282,155 +354,64 @@ impl GuideSettings {
         self.common().stand_back.unwrap_or(true)
     }
 
-    /// Whether each volume learns its share of BSDF sampling, which
-    /// [`stands_back`] reads.
-    pub fn learns_shares(&self) -> bool {
-        match self {
-            Self::Sarsa(s) => s.learns_epsilon(),
-            Self::Neural(n) => n.learns_epsilon(),
-        }
-    }
-
     /// The guide `name`'s settings from its table (keys missing: defaults).
     pub fn from_table(name: &str, table: &toml::Table) -> Result<Self, String> {
-        let value = toml::Value::Table(table.clone());
-        // Every key, optional ones included, for the message on a typo.
-        let common = Common {
-            freeze_after: Some(0),
-            thin_after: Some(0),
-            reset_after: Some(0),
-            stand_back: Some(true),
-            pick_lights: Some(true),
-            ..Default::default()
+        let Some(guide) = guide_named(name) else {
+            return Err(format!(
+                "no guide named '{name}' (guides: {})",
+                guide_names()
+            ));
         };
-        let e = |e: toml::de::Error, all: Self| {
-            let keys: Vec<String> = all.to_table().keys().cloned().collect();
+        (guide.read)(toml::Value::Table(table.clone())).map_err(|e| {
+            // Every key, optional ones included, for the message on a typo.
+            let common = Common {
+                freeze_after: Some(0),
+                thin_after: Some(0),
+                reset_after: Some(0),
+                stand_back: Some(true),
+                pick_lights: Some(true),
+                ..Default::default()
+            };
+            let all = (guide.every_key)(common).to_table();
+            let keys: Vec<String> = all.keys().cloned().collect();
             format!("[{name}] {} (keys: {})", e.message(), keys.join(", "))
-        };
-        match name {
-            "sarsa" => value.try_into().map(Self::Sarsa).map_err(|x| {
-                let all = SarsaSettings {
-                    common,
-                    volumes: Some(0),
-                    density: Some(0.0),
-                    memory_mib: Some(0.0),
-                    learn_epsilon: Some(true),
-                    ..Default::default()
-                };
-                e(x, Self::Sarsa(all))
-            }),
-            "neural" => value.try_into().map(Self::Neural).map_err(|x| {
-                let all = NeuralSettings {
-                    common,
-                    volumes: Some(0),
-                    batch: Some(0),
-                    learning_rate: Some(0.0),
-                    steps: Some(0),
-                    training: Some(neural::Training::Volumes),
-                    ..Default::default()
-                };
-                e(x, Self::Neural(all))
-            }),
-            _ => Err(format!("no guide named '{name}' (guides: sarsa, neural)")),
-        }
-    }
-
-    /// The settings as their table, every key written out.
-    pub fn to_table(&self) -> toml::Table {
-        let value = match self {
-            Self::Sarsa(s) => toml::Value::try_from(s),
-            Self::Neural(n) => toml::Value::try_from(n),
-        };
-        match value {
-            Ok(toml::Value::Table(t)) => t,
-            _ => unreachable!("guide settings serialize to a table"),
-        }
+        })
     }
 
     /// Checks ranges, and that the guide fits `scene`; the message names the table and key.
     pub fn validate(&self, scene: &Scene) -> Result<(), String> {
-        let checked = self.common().validate().and_then(|()| match self {
-            Self::Sarsa(s) => s.validate(),
-            Self::Neural(n) => n.validate().and_then(|()| n.validate_for(scene)),
-        });
+        let checked = self
+            .common()
+            .validate()
+            .and_then(|()| self.0.validate(scene));
         checked.map_err(|e| format!("[{}] {e}", self.name()))
     }
 
-    /// Checks the guide fits `device`'s memory limits, before building it.
-    pub fn check_device(&self, scene: &Scene, device: &DeviceInfo) -> Result<(), String> {
-        match self {
-            Self::Sarsa(s) => s.check_device(scene, device),
-            Self::Neural(n) => n.check_device(scene, device),
-        }
+    /// Builds the guide for `scene`, for a render of `pixels` pixels.
+    pub fn build(
+        &self,
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        seed: u32,
+        pixels: u64,
+    ) -> gpu::Result<Guide> {
+        self.0.build(ctx, scene, seed, pixels)
     }
+}
 
-    /// SPIR-V of a trace kernel without the learning code, for the passes
-    /// that learn nothing, where the guide has one: Sarsa's tables (also
-    /// the network's when it trains on them).
-    pub fn frozen_trace_spirv(&self, nee: bool) -> Option<&'static [u8]> {
-        let tables = match self {
-            Self::Sarsa(_) => true,
-            Self::Neural(n) => n.training() == neural::Training::Volumes,
-        };
-        match (tables, nee) {
-            (false, _) => None,
-            (true, false) => Some(spirv::TRACE_SARSA_FROZEN),
-            (true, true) => Some(spirv::TRACE_SARSA_NEE_FROZEN),
-        }
-    }
+/// A settings struct as JSON, its floats as written (an f32 0.3 as 0.3, as
+/// `serde_json::to_string` writes it, not the f64 nearest the f32).
+pub(crate) fn json_of<T: Serialize>(settings: &T) -> serde_json::Value {
+    serde_json::to_string(settings)
+        .and_then(|text| serde_json::from_str(&text))
+        .unwrap_or_default()
+}
 
-    /// SPIR-V of the trace kernel of this guide on `device`.
-    pub fn trace_spirv(&self, device: &DeviceInfo, nee: bool) -> gpu::Result<&'static [u8]> {
-        Ok(match self {
-            Self::Sarsa(s) if nee => s.pick(
-                device,
-                [
-                    spirv::TRACE_SARSA_NEE_FIXED,
-                    spirv::TRACE_SARSA_NEE,
-                    spirv::TRACE_SARSA_NEE_CAS,
-                ],
-            )?,
-            Self::Sarsa(s) => s.pick(
-                device,
-                [
-                    spirv::TRACE_SARSA_FIXED,
-                    spirv::TRACE_SARSA,
-                    spirv::TRACE_SARSA_CAS,
-                ],
-            )?,
-            // Training on the volumes adds targets as Sarsa's kernel does.
-            Self::Neural(n) if n.training() == neural::Training::Volumes => {
-                let variants = if nee {
-                    [
-                        spirv::TRACE_SARSA_NEE_FIXED,
-                        spirv::TRACE_SARSA_NEE,
-                        spirv::TRACE_SARSA_NEE_CAS,
-                    ]
-                } else {
-                    [
-                        spirv::TRACE_SARSA_FIXED,
-                        spirv::TRACE_SARSA,
-                        spirv::TRACE_SARSA_CAS,
-                    ]
-                };
-                n.table().pick(device, variants)?
-            }
-            Self::Neural(n) => match (n.inference, nee) {
-                (neural::Inference::Vertices, false) => spirv::TRACE_NEURAL,
-                (neural::Inference::Vertices, true) => spirv::TRACE_NEURAL_NEE,
-                (neural::Inference::Volumes, false) => spirv::TRACE_NEURAL_TABLE,
-                (neural::Inference::Volumes, true) => spirv::TRACE_NEURAL_TABLE_NEE,
-            },
-        })
-    }
-
-    /// These settings for a `width` × `height` image (the default volume
-    /// count follows the image).
-    pub fn for_image(&self, width: u32, height: u32) -> Self {
-        match self {
-            Self::Sarsa(s) => Self::Sarsa(s.for_image(width, height)),
-            Self::Neural(n) => Self::Neural(n.for_image(width, height)),
-        }
+/// A settings struct as a TOML table.
+pub(crate) fn table_of<T: Serialize>(settings: &T) -> toml::Table {
+    match toml::Value::try_from(settings) {
+        Ok(toml::Value::Table(t)) => t,
+        _ => unreachable!("guide settings serialize to a table"),
     }
 }
 
@@ -448,7 +429,7 @@ impl GuideSources {
     pub fn check_used(&self, methods: &[&str]) -> Result<(), String> {
         for set in &self.sets {
             let guide = set.split_once('.').map_or("", |(g, _)| g.trim());
-            if GUIDES.contains(&guide) && !methods.contains(&guide) {
+            if guide_named(guide).is_some() && !methods.contains(&guide) {
                 let methods = methods.join(", ");
                 return Err(format!(
                     "--set '{set}' sets the {guide} guide, but the method is {methods}"
@@ -464,7 +445,7 @@ impl GuideSources {
     pub fn resolve(&self, scene: &Scene, method: &str) -> Result<Option<GuideSettings>, String> {
         let mut tables: Vec<(String, toml::Table)> = GUIDES
             .iter()
-            .map(|&g| (g.to_string(), scene.guide_table(g).clone()))
+            .map(|g| (g.name.to_string(), scene.guide_table(g.name).clone()))
             .collect();
         if let Some(path) = &self.config {
             let text = std::fs::read_to_string(path)
@@ -476,8 +457,9 @@ impl GuideSources {
                     (tables.iter_mut().find(|(n, _)| *n == name), value)
                 else {
                     return Err(format!(
-                        "{}: '{name}' is not a guide table (expected [sarsa] or [neural])",
-                        path.display()
+                        "{}: '{name}' is not a guide table (guides: {})",
+                        path.display(),
+                        guide_names()
                     ));
                 };
                 table.extend(given);
@@ -489,7 +471,8 @@ impl GuideSources {
             let (guide, key) = key.trim().split_once('.').ok_or_else(malformed)?;
             let Some((_, table)) = tables.iter_mut().find(|(n, _)| n == guide) else {
                 return Err(format!(
-                    "--set '{set}': no guide named '{guide}' (guides: sarsa, neural)"
+                    "--set '{set}': no guide named '{guide}' (guides: {})",
+                    guide_names()
                 ));
             };
             // Another method's guide: check_used says whether any method uses it.
@@ -530,135 +513,63 @@ fn restore_blob(buffer: &Buffer, name: &str, blobs: &[(String, Vec<u8>)]) -> Res
     buffer.overwrite(bytes).map_err(|e| e.to_string())
 }
 
-/// A guide's state on the device and the passes it adds to a render.
-pub enum Guide {
-    Sarsa(Box<SarsaGuide>),
-    Neural(Box<NeuralGuide>),
-}
-
-impl Guide {
-    /// Builds the guide for `scene`, for a render of `pixels` pixels.
-    pub fn new(
-        ctx: &Arc<GpuContext>,
-        scene: &Scene,
-        settings: &GuideSettings,
-        seed: u32,
-        pixels: u64,
-    ) -> gpu::Result<Self> {
-        Ok(match settings {
-            GuideSettings::Sarsa(s) => Self::Sarsa(Box::new(SarsaGuide::new(
-                ctx,
-                scene,
-                s,
-                seed,
-                s.common.picks_lights(),
-            )?)),
-            GuideSettings::Neural(n) => {
-                Self::Neural(Box::new(NeuralGuide::new(ctx, scene, n, seed, pixels)?))
-            }
-        })
-    }
-
-    /// Whether its trace kernels pick NEE's light from its tables
-    /// (the CONSTANT_GUIDE_LIGHTS specialization constant).
-    pub fn chooses_lights(&self) -> bool {
-        match self {
-            Self::Sarsa(s) => s.chooses_lights(),
-            Self::Neural(n) => n.chooses_lights(),
-        }
-    }
-
+/// A guide's state on the device and the passes it adds to a render:
+/// everything the renderer asks of a guide.
+pub trait DeviceGuide: Any {
+    /// Whether its trace kernels pick NEE's light (the CONSTANT_GUIDE_LIGHTS
+    /// specialization constant).
+    fn chooses_lights(&self) -> bool;
     /// Specialization constants of its trace kernel.
-    pub fn constants(&self) -> Vec<u32> {
-        match self {
-            Self::Sarsa(_) => Vec::new(),
-            Self::Neural(n) => n.network.shape.constants().to_vec(),
-        }
-    }
-
-    /// Each volume's learned share of BSDF sampling, where it learns one.
-    pub fn bsdf_shares(&self) -> gpu::Result<Option<Vec<f32>>> {
-        let table = match self {
-            Self::Sarsa(s) => Some(s.as_ref()),
-            Self::Neural(n) => n.table(),
-        };
-        table.map(|t| t.download_bsdf_shares()).transpose()
-    }
-
+    fn constants(&self) -> Vec<u32>;
+    /// The radiance volumes' tables it samples from, if it samples from them.
+    fn volume_table(&self) -> Option<&SarsaGuide>;
     /// Buffers its trace kernel binds.
-    pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
-        match self {
-            Self::Sarsa(s) => s.bindings().to_vec(),
-            Self::Neural(n) => n.bindings(),
-        }
-    }
-
+    fn bindings(&self) -> Vec<(u32, &Buffer)>;
     /// Fills its part of a pass's push constants; `learn` turns updates on.
-    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
-        match self {
-            Self::Sarsa(s) => s.set_params(p, learn),
-            Self::Neural(n) => n.set_params(p, learn),
-        }
-    }
-
+    fn set_params(&self, p: &mut PassParams, learn: bool);
     /// Records what turns a learning pass's transitions into the guide the
     /// next pass samples from.
-    pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
-        match self {
-            Self::Sarsa(s) => s.record_update(rec, params),
-            Self::Neural(n) => n.record_update(rec, params),
-        }
-    }
-
+    fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams);
     /// Device memory it holds.
-    pub fn bytes(&self) -> u64 {
-        match self {
-            Self::Sarsa(s) => s.bytes(),
-            Self::Neural(n) => n.bytes(),
-        }
-    }
-
+    fn bytes(&self) -> u64;
     /// What the guide has learned, as named blobs, to resume from.
-    pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
-        match self {
-            Self::Sarsa(s) => s.save(),
-            Self::Neural(n) => n.save(),
-        }
-    }
-
-    /// Restores what [`Guide::save`] gave, for a render with or without NEE.
-    pub fn restore(
+    fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>>;
+    /// Restores what `save` gave, for a render with or without NEE.
+    fn restore(
         &mut self,
         ctx: &Arc<GpuContext>,
         blobs: &[(String, Vec<u8>)],
         nee: bool,
-    ) -> Result<(), String> {
-        match self {
-            Self::Sarsa(s) => s.restore(ctx, blobs),
-            Self::Neural(n) => n.restore(ctx, blobs, nee),
-        }
+    ) -> Result<(), String>;
+    /// Radiance volumes, else 0.
+    fn volume_count(&self) -> u64;
+    /// Its sector grid.
+    fn grid(&self) -> [u32; 2];
+    /// Q of every sector at up to `count` places near the scene's brightest
+    /// light, for the bench's pictures, and words on where they are.
+    fn sample_rows(
+        &self,
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        count: usize,
+    ) -> Result<(Vec<Vec<f32>>, String), crate::render::RenderError>;
+    fn as_any(&self) -> &dyn Any;
+}
+
+/// A guide on the device.
+pub type Guide = Box<dyn DeviceGuide>;
+
+impl dyn DeviceGuide {
+    /// The guide as its own type, if it is `T`.
+    pub fn downcast<T: DeviceGuide>(&self) -> Option<&T> {
+        self.as_any().downcast_ref()
     }
 
-    /// Radiance volumes (Sarsa, or Neural-Q inferring at them), else 0.
-    pub fn volume_count(&self) -> u64 {
-        match self {
-            Self::Sarsa(s) => s.volumes.len() as u64,
-            Self::Neural(n) => n.volume_count(),
-        }
-    }
-
-    pub fn sarsa(&self) -> Option<&SarsaGuide> {
-        match self {
-            Self::Sarsa(s) => Some(s.as_ref()),
-            Self::Neural(_) => None,
-        }
-    }
-
-    pub fn neural(&self) -> Option<&NeuralGuide> {
-        match self {
-            Self::Neural(n) => Some(n.as_ref()),
-            Self::Sarsa(_) => None,
-        }
+    /// Each volume's learned share of BSDF sampling, where it learns one.
+    pub fn bsdf_shares(&self) -> gpu::Result<Option<Vec<f32>>> {
+        self.volume_table()
+            .map(|t| t.download_bsdf_shares())
+            .transpose()
     }
 }
 
@@ -744,7 +655,7 @@ mod tests {
 
     #[test]
     fn settings_round_trip_through_their_tables() {
-        let sarsa = GuideSettings::Sarsa(SarsaSettings {
+        let sarsa = GuideSettings::from(SarsaSettings {
             common: Common {
                 grid: [6, 8],
                 epsilon: Some(0.25),
@@ -762,7 +673,7 @@ mod tests {
             atomics: sarsa::Atomics::Cas,
             learn_epsilon: Some(false),
         });
-        let neural = GuideSettings::Neural(NeuralSettings {
+        let neural = GuideSettings::from(NeuralSettings {
             width: 8,
             layers: 3,
             learning_rate: Some(1e-3),
@@ -812,7 +723,7 @@ mod tests {
         assert!(!on_transitions.learns_epsilon());
         assert_eq!(on_transitions.table().epsilon(), EPSILON_FIXED);
         // Unset, it stays out of a saved table, so the default follows the mode.
-        let table = GuideSettings::Sarsa(sarsa).to_table();
+        let table = GuideSettings::from(sarsa).to_table();
         assert!(!table.contains_key("epsilon"), "{table:?}");
     }
 

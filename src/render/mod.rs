@@ -408,7 +408,7 @@ impl Renderer {
         let guide = match &settings.guide {
             Some(g) => {
                 g.check_device(scene, ctx.info()).map_err(SettingsError)?;
-                Some(Guide::new(ctx, scene, g, settings.seed, pixels)?)
+                Some(g.build(ctx, scene, settings.seed, pixels)?)
             }
             None => None,
         };

@@ -3,27 +3,32 @@
 pub use crate::bsdf::Sampling;
 use crate::guide::GuideSettings;
 use crate::scene::Scene;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-/// Path-tracing method. Learned guides add variants here.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Forward path tracing with BSDF sampling.
-    Pt,
-    /// Expected Sarsa guiding: Q-values in radiance volumes.
-    Sarsa,
-    /// Neural-Q guiding: an MLP gives every sector's Q at a point.
-    Neural,
-}
+/// Path-tracing method: plain path tracing, or a guide's name (see
+/// `guide::GUIDES`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Method(&'static str);
 
 impl Method {
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Pt => "pt",
-            Method::Sarsa => "sarsa",
-            Method::Neural => "neural",
+    /// Forward path tracing with BSDF sampling.
+    pub const PT: Method = Method("pt");
+
+    /// The method of a guide, by the name in its `GuideEntry`.
+    pub(crate) const fn guided(name: &'static str) -> Method {
+        Method(name)
+    }
+
+    /// The method of guide `name`, if there is one (or `pt`).
+    pub fn named(name: &str) -> Option<Method> {
+        if name == Self::PT.0 {
+            return Some(Self::PT);
         }
+        crate::guide::guide_named(name).map(|g| Method(g.name))
+    }
+
+    pub fn name(self) -> &'static str {
+        self.0
     }
 
     /// The method's name, `+nee` added with NEE (`sarsa+nee`).
@@ -33,7 +38,33 @@ impl Method {
 
     /// Whether the method learns a guide (its settings: the table of its name).
     pub fn is_guided(self) -> bool {
-        self != Method::Pt
+        self != Method::PT
+    }
+}
+
+impl Serialize for Method {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.0)
+    }
+}
+
+/// `--method`'s values: `pt`, then every guide.
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        static ALL: std::sync::LazyLock<Vec<Method>> = std::sync::LazyLock::new(|| {
+            std::iter::once(Method::PT)
+                .chain(crate::guide::GUIDES.iter().map(|g| Method(g.name)))
+                .collect()
+        });
+        &ALL
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        let about = match crate::guide::guide_named(self.0) {
+            Some(g) => g.about,
+            None => "Forward path tracing with BSDF sampling",
+        };
+        Some(clap::builder::PossibleValue::new(self.0).help(about))
     }
 }
 
@@ -152,9 +183,8 @@ impl RenderSettings {
                 ))
             }
             (Some(m), _) => m,
-            (None, Some("sarsa")) => Method::Sarsa,
-            (None, Some(_)) => Method::Neural,
-            (None, None) => Method::Pt,
+            (None, Some(g)) => Method::named(g).unwrap_or(Method::PT),
+            (None, None) => Method::PT,
         };
         // Both tables are checked, so a typo fails whatever the method.
         for (name, table) in &scene.guide_tables {

@@ -304,7 +304,7 @@ pub struct Scene {
     pub defaults: RenderDefaults,
     /// The `[sarsa]` and `[neural]` tables, as written; render settings
     /// check and read them.
-    pub guide_tables: [(&'static str, toml::Table); 2],
+    pub guide_tables: Vec<(String, toml::Table)>,
     /// Light from beyond the scene, if any.
     pub environment: Option<environment::Environment>,
     pub materials: Vec<Material>,
@@ -642,7 +642,7 @@ struct Parts {
     /// refuse the scene.
     drop_degenerate: bool,
     defaults: RenderDefaults,
-    guide_tables: [(&'static str, toml::Table); 2],
+    guide_tables: Vec<(String, toml::Table)>,
     environment: Option<environment::Environment>,
     materials: Vec<Material>,
     textures: Vec<texture::Texture>,
@@ -720,7 +720,7 @@ fn read_toml(path: &Path, loader: &Loader<'_>) -> Result<Parts, SceneError> {
         filter: PixelFilter::Box,
         drop_degenerate: false,
         defaults: file.render,
-        guide_tables: [("sarsa", file.sarsa), ("neural", file.neural)],
+        guide_tables: file.guides,
         environment,
         materials,
         textures,

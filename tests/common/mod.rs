@@ -97,10 +97,7 @@ pub fn run_renderer(ctx: &Arc<GpuContext>, scene: &Scene, o: Overrides) -> rende
 /// A small render of shipped scene `name` (64 spp at 32×32) guided by
 /// `guide`, run to its end.
 pub fn run_guided(name: &str, guide: GuideSettings) -> render::Renderer {
-    let method = match guide {
-        GuideSettings::Sarsa(_) => render::Method::Sarsa,
-        GuideSettings::Neural(_) => render::Method::Neural,
-    };
+    let method = render::Method::named(guide.name()).unwrap();
     let o = Overrides {
         method: Some(method),
         spp: Some(64),

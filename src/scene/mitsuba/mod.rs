@@ -87,10 +87,7 @@ pub(super) fn read(
         camera,
         drop_degenerate: true,
         defaults: b.defaults,
-        guide_tables: [
-            ("sarsa", toml::Table::new()),
-            ("neural", toml::Table::new()),
-        ],
+        guide_tables: Vec::new(),
         environment,
         materials: b.materials,
         textures: b.textures.used,
