@@ -169,6 +169,10 @@ fn compile(compiler: &shaderc::Compiler, path: &Path, defines: &[&str]) -> Vec<u
     for d in defines {
         options.add_macro_definition(d, Some("1"));
     }
+    // The modes measured not to pay (glsl/shared.h, EXPERIMENT).
+    if std::env::var_os("CARGO_FEATURE_EXPERIMENTS").is_some() {
+        options.add_macro_definition("EXPERIMENTS", Some("1"));
+    }
     options.set_include_callback(|requested, _kind, requester, _depth| {
         // Includes resolve relative to the including file.
         let base = Path::new(requester).parent().unwrap_or(Path::new("glsl"));

@@ -49,11 +49,11 @@ const bool GUIDE_LEARNS = GUIDED;
 #endif
 
 // Q of sector k from its probability p: a sector's weight is p times the
-// total, and is Q, or Q cos(theta_k) with FLAG_COS_DISTRIBUTION. (No read
+// total, and is Q cos(theta_k), or Q with FLAG_Q_DISTRIBUTION. (No read
 // of Q in the trace kernel.)
 float guide_q(GuideVertex g, uint k, float p) {
     float w = p * guide_total(g);
-    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? w / sector_cos(k, grid_a(), grid_b()) : w;
+    return !EXPERIMENT(FLAG_Q_DISTRIBUTION) ? w / sector_cos(k, grid_a(), grid_b()) : w;
 }
 
 // How much of the guide's side of the mixture a lobe keeps: all for a

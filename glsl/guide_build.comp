@@ -6,7 +6,7 @@
 // (2 pi / n) sum_j Q_j cos(theta_j) (with FLAG_MAX_TARGET, which only Neural-Q
 // sets, max_j Q_j cos(theta_j)), the total weight of its distribution
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
-// sectors (proportional to Q, or to Q cos(theta) with FLAG_COS_DISTRIBUTION)
+// sectors (proportional to Q cos(theta), or to Q with FLAG_Q_DISTRIBUTION)
 // as an alias table in whole units (see SectorEntry), so a sample costs one
 // read instead of a CDF search. With FLAG_GUIDE_LIGHTS it likewise folds
 // NEE's tries of each light and builds the volume's choice of light.
@@ -108,11 +108,11 @@ void set_column(uint i, uint units, uint alias) {
 
 // A sector's weight in its volume's distribution, from its Q (at least 0),
 // the share of Q that NEE carries, qd, and cos(theta): Q, or Q cos(theta)
-// with FLAG_COS_DISTRIBUTION; with NEE, Q less qd, as scattering should
+// unless FLAG_Q_DISTRIBUTION; with NEE, Q less qd, as scattering should
 // find what NEE does not.
 float distribution_weight(float q, float qd, float cos_k) {
     float qs = (params.flags & FLAG_NEE) != 0u ? max(q - qd, 0.0) : q;
-    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? qs * cos_k : qs;
+    return !EXPERIMENT(FLAG_Q_DISTRIBUTION) ? qs * cos_k : qs;
 }
 
 // First index from `from` on whose column is short of (or, with `large`, at
@@ -264,7 +264,7 @@ void main() {
             sectors[base + k].weights = floatBitsToUint(w);
         }
     }
-    bool max_target = (params.flags & FLAG_MAX_TARGET) != 0u;
+    bool max_target = EXPERIMENT(FLAG_MAX_TARGET);
     volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
     if (!BUILD_TABLE) {
         return;

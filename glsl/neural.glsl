@@ -37,7 +37,7 @@ layout(std430, set = 0, binding = B_NEURAL_VERTICES) readonly buffer Vertices { 
 // Or, with FLAG_VERTEX_ENCODING (the thesis's, for small scenes): every
 // scene vertex relative to p, over the scene's extent, then n, then zeros.
 void neural_encode(vec3 p, vec3 n) {
-    if ((params.flags & FLAG_VERTEX_ENCODING) != 0u) {
+    if (EXPERIMENT(FLAG_VERTEX_ENCODING)) {
         uint count = batch.vertex_count;
         for (uint v = 0u; v < count; v++) {
             vec3 d = (neural_vertices[v].xyz - p) * batch.bounds_scale.xyz;
@@ -87,7 +87,7 @@ GuideVertex neural_infer(vec3 p, vec3 n) {
     mlp_hidden_layers();
     uint a = grid_a();
     uint b = grid_b();
-    bool cos_weights = (params.flags & FLAG_COS_DISTRIBUTION) != 0u;
+    bool cos_weights = !EXPERIMENT(FLAG_Q_DISTRIBUTION);
     float total = 0.0;
     float sum = 0.0;
     float best = 0.0;
@@ -107,7 +107,7 @@ GuideVertex neural_infer(vec3 p, vec3 n) {
             best = max(best, qc);
         }
     }
-    float reach = (params.flags & FLAG_MAX_TARGET) != 0u ? best : sum * 2.0 * PI / float(MLP_OUTPUTS);
+    float reach = EXPERIMENT(FLAG_MAX_TARGET) ? best : sum * 2.0 * PI / float(MLP_OUTPUTS);
     return GuideVertex(p, n, total, reach);
 }
 
@@ -140,7 +140,7 @@ float guide_sector_q(GuideVertex g, uint k) {
     if (g.total <= 0.0) {
         return 0.0;
     }
-    return (params.flags & FLAG_COS_DISTRIBUTION) != 0u ? neural_w[k] / sector_cos(k, grid_a(), grid_b()) : neural_w[k];
+    return !EXPERIMENT(FLAG_Q_DISTRIBUTION) ? neural_w[k] / sector_cos(k, grid_a(), grid_b()) : neural_w[k];
 }
 
 // Inverse CDF by a scan; rounding past the end falls to the last sector of

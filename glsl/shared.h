@@ -124,8 +124,16 @@
 #define FLAG_UNIFORM 2
 // Guides: record updates this pass (off once learning is frozen).
 #define FLAG_LEARN 4
-// Guides: sample sectors in proportion to Q * cos(theta) instead of Q.
-#define FLAG_COS_DISTRIBUTION 8
+// Modes measured not to pay (docs/guides.md, "Experiments"): their flags are
+// read, and their code built, only with the cargo feature `experiments`
+// (build.rs then defines EXPERIMENTS).
+#ifdef EXPERIMENTS
+#define EXPERIMENT(flag) ((params.flags & (flag)) != 0u)
+#else
+#define EXPERIMENT(flag) false
+#endif
+// Guides: sample sectors in proportion to Q instead of Q * cos(theta).
+#define FLAG_Q_DISTRIBUTION 8
 // Neural: the Q-learning target (max over sectors) instead of the expected one.
 #define FLAG_MAX_TARGET 16
 // Neural: encode the state by the scene's vertices relative to it (thesis).

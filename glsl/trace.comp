@@ -78,64 +78,85 @@ uint light_of(uint triangle) {
     return lo;
 }
 
-// The state of the path being traced, shared by begin_path and bounce.
-uvec2 pixel;
-uint rng;
-vec3 origin;
-vec3 dir;
-vec3 radiance;
-vec3 throughput;
-uint depth;
-uint path_length;
-uint rays;
-float prev_bsdf_pdf; // 0 marks the camera ray: no MIS for what it hits
+// The pass's settings, set once by main and only read after.
 #ifdef WITH_NEE
 bool nee;
 #else
 const bool nee = false;
 #endif
 float eps;
-// The vertex the path's ray left from, the sector it took there and the Q
-// the guide gave that sector, to learn from once the ray lands.
-GuideVertex prev_vertex;
-uint prev_sector;
-float prev_q;
-// Whether prev_q is what the guide expects along the path's ray (else the
-// roulette follows the throughput alone).
-bool guided_roulette;
 // Whether this pass learns (never in a kernel without GUIDE_LEARNS).
 bool learn;
-// The guide's estimate of the radiance this path's first hit sends to the
-// camera: the scale Russian roulette compares a path's prospects with.
-float path_estimate;
-// A transition that lands on a delta vertex (a mirror, glass) learns where
-// the path next reaches one that is not (or ends): its target is what
-// arrives there times the delta bounces' weights, one sample of what the
-// delta vertex sends back. The guide's own estimate there (guide_reflect)
-// knows nothing of what lies behind glass. `chaining` while such a
-// transition waits; a path that ends on the way learns nothing from it.
-bool chaining;
-GuideVertex chain_from;
-uint chain_sector;
-float chain_q;
-float chain_weight;
-// The share of BSDF sampling learns from the radiance L a sampled direction
-// brought, squared (mixture_gradient). The path's own estimate of it is
-// known once the path ends: what it gathered after the sample, per unit of
-// the throughput it then had. (Q, which bootstraps from a small start,
-// underestimates light that arrives after many bounces, and would steer
-// the share away from BSDF sampling just where the guide knows least.)
-// Kept for the first two sampled vertices of a path, held in registers.
-GuideVertex share_from0;
-float share_mix0; // mixture_gradient; 0: none kept
-float share_throughput0;
-float share_radiance0;
-GuideVertex share_from1;
-float share_mix1;
-float share_throughput1;
-float share_radiance1;
-uint td_count;
-float td_sq_sum;
+
+// A path being traced: begin_path starts it, each bounce moves it on.
+struct Path {
+    uint rng;
+    vec3 origin;
+    vec3 dir;
+    vec3 radiance;
+    vec3 throughput;
+    uint depth;
+    uint hits; // surfaces its rays reached (PathSample.lengths)
+    uint rays;
+    float prev_bsdf_pdf; // 0 marks the camera ray: no MIS for what it hits
+    // The squared TD errors of the transitions the guide learned from it.
+    uint td_count;
+    float td_sq_sum;
+};
+
+// What the guide keeps of a path, to learn from it and to steer its roulette.
+struct Trail {
+    // The vertex the path's ray left from, the sector it took there and the
+    // Q the guide gave that sector, to learn from once the ray lands.
+    GuideVertex prev_vertex;
+    uint prev_sector;
+    float prev_q;
+    // Whether prev_q is what the guide expects along the path's ray (else
+    // the roulette follows the throughput alone).
+    bool guided_roulette;
+    // The guide's estimate of the radiance this path's first hit sends to
+    // the camera: the scale Russian roulette compares a path's prospects with.
+    float path_estimate;
+    // A transition that lands on a delta vertex (a mirror, glass) learns
+    // where the path next reaches one that is not (or ends): its target is
+    // what arrives there times the delta bounces' weights, one sample of
+    // what the delta vertex sends back. The guide's own estimate there
+    // (guide_reflect) knows nothing of what lies behind glass. `chaining`
+    // while such a transition waits; a path that ends on the way learns
+    // nothing from it.
+    bool chaining;
+    GuideVertex chain_from;
+    uint chain_sector;
+    float chain_q;
+    float chain_weight;
+    // The share of BSDF sampling learns from the radiance L a sampled
+    // direction brought, squared (mixture_gradient). The path's own estimate
+    // of it is known once the path ends: what it gathered after the sample,
+    // per unit of the throughput it then had. (Q, which bootstraps from a
+    // small start, underestimates light that arrives after many bounces, and
+    // would steer the share away from BSDF sampling just where the guide
+    // knows least.) Kept for the first two sampled vertices of a path.
+    GuideVertex share_from0;
+    float share_mix0; // mixture_gradient; 0: none kept
+    float share_throughput0;
+    float share_radiance0;
+    GuideVertex share_from1;
+    float share_mix1;
+    float share_throughput1;
+    float share_radiance1;
+    // The transition the current ray completes, kept by scatter() where the
+    // ray landed for the one call of guide_learn in bounce(): lavapipe runs
+    // the code of every call site, the guide's atomics included, at every
+    // vertex.
+    GuideVertex land_from;
+    uint land_sector;
+    float land_q;
+    float land_le;
+    float land_mis_weight;
+    float land_reflected;
+    float land_direct;
+    float land_scale;
+};
 
 // A point of the pixel, as an offset from its corner, drawn from the
 // scene's pixel filter (PIXEL_FILTER): the image converges to the one a
@@ -159,7 +180,7 @@ vec2 filter_offset(vec2 u) {
 // pixel at the border gathers only samples inside the image, so its filter
 // is cut at the border: draws that land outside are drawn again (a box
 // filter's never do).
-vec2 image_point() {
+vec2 image_point(uvec2 pixel, inout uint rng) {
     vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
     if (PIXEL_FILTER == FILTER_BOX) {
         return p;
@@ -176,119 +197,107 @@ vec2 image_point() {
 
 // Starts sample `sample_index` of this pixel: a camera ray through a point
 // of the pixel drawn from the pixel filter.
-void begin_path(uint sample_index) {
-    rng = rng_init(pixel.y * params.width + pixel.x, sample_index, params.seed);
-    vec2 point = image_point();
+void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) {
+    path.rng = rng_init(pixel.y * params.width + pixel.x, sample_index, params.seed);
+    vec2 point = image_point(pixel, path.rng);
     vec2 ndc = vec2(
         2.0 * point.x / float(params.width) - 1.0,
         1.0 - 2.0 * point.y / float(params.height));
-    origin = params.cam_pos.xyz;
-    dir = normalize(params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz);
-    radiance = vec3(0.0);
-    throughput = vec3(1.0);
-    depth = 0u;
-    path_length = 0u;
-    rays = 0u;
-    prev_bsdf_pdf = 0.0;
+    path.origin = params.cam_pos.xyz;
+    path.dir = normalize(params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz);
+    path.radiance = vec3(0.0);
+    path.throughput = vec3(1.0);
+    path.depth = 0u;
+    path.hits = 0u;
+    path.rays = 0u;
+    path.prev_bsdf_pdf = 0.0;
     guide_begin_path();
-    prev_vertex = guide_none();
-    prev_sector = 0u;
-    prev_q = 0.0;
-    guided_roulette = false;
-    path_estimate = 0.0;
-    chaining = false;
-    share_mix0 = 0.0;
-    share_mix1 = 0.0;
-    td_count = 0u;
-    td_sq_sum = 0.0;
+    trail.prev_vertex = guide_none();
+    trail.prev_sector = 0u;
+    trail.prev_q = 0.0;
+    trail.guided_roulette = false;
+    trail.path_estimate = 0.0;
+    trail.chaining = false;
+    trail.share_mix0 = 0.0;
+    trail.share_mix1 = 0.0;
+    path.td_count = 0u;
+    path.td_sq_sum = 0.0;
 }
 
-// The transition the current ray completes, kept by scatter() where the ray
-// landed for the one call of guide_learn in bounce(): lavapipe runs the code
-// of every call site, the guide's atomics included, at every vertex.
-GuideVertex land_from;
-uint land_sector;
-float land_q;
-float land_le;
-float land_mis_weight;
-float land_reflected;
-float land_direct;
-float land_scale;
-
-void keep_share_sample(GuideVertex g, float mix) {
-    if (share_mix0 == 0.0) {
-        share_from0 = g;
-        share_mix0 = mix;
-        share_throughput0 = luminance(throughput);
-        share_radiance0 = luminance(radiance);
-    } else if (share_mix1 == 0.0) {
-        share_from1 = g;
-        share_mix1 = mix;
-        share_throughput1 = luminance(throughput);
-        share_radiance1 = luminance(radiance);
+void keep_share_sample(inout Trail trail, Path path, GuideVertex g, float mix) {
+    if (trail.share_mix0 == 0.0) {
+        trail.share_from0 = g;
+        trail.share_mix0 = mix;
+        trail.share_throughput0 = luminance(path.throughput);
+        trail.share_radiance0 = luminance(path.radiance);
+    } else if (trail.share_mix1 == 0.0) {
+        trail.share_from1 = g;
+        trail.share_mix1 = mix;
+        trail.share_throughput1 = luminance(path.throughput);
+        trail.share_radiance1 = luminance(path.radiance);
     }
 }
 
-float share_gradient(float mix, float t, float r) {
-    float l = t > 0.0 ? max(luminance(radiance) - r, 0.0) / t : 0.0;
+float share_gradient(Path path, float mix, float t, float r) {
+    float l = t > 0.0 ? max(luminance(path.radiance) - r, 0.0) / t : 0.0;
     return mix * l * l;
 }
 
 // At the path's end: each kept sample's gradient to the guide.
-void learn_share_samples() {
-    if (share_mix0 != 0.0) {
-        guide_learn_share(share_from0, share_gradient(share_mix0, share_throughput0, share_radiance0));
+void learn_share_samples(Trail trail, Path path) {
+    if (trail.share_mix0 != 0.0) {
+        guide_learn_share(trail.share_from0, share_gradient(path, trail.share_mix0, trail.share_throughput0, trail.share_radiance0));
     }
-    if (share_mix1 != 0.0) {
-        guide_learn_share(share_from1, share_gradient(share_mix1, share_throughput1, share_radiance1));
+    if (trail.share_mix1 != 0.0) {
+        guide_learn_share(trail.share_from1, share_gradient(path, trail.share_mix1, trail.share_throughput1, trail.share_radiance1));
     }
 }
 
-void land(float le, float mis_weight, float reflected, float direct) {
-    land_from = chaining ? chain_from : prev_vertex;
-    land_sector = chaining ? chain_sector : prev_sector;
-    land_q = chaining ? chain_q : prev_q;
-    land_scale = chaining ? chain_weight : 1.0;
-    chaining = false;
-    land_le = le * land_scale;
-    land_mis_weight = mis_weight;
-    land_reflected = reflected * land_scale;
-    land_direct = direct * land_scale;
+void land(inout Trail trail, float le, float mis_weight, float reflected, float direct) {
+    trail.land_from = trail.chaining ? trail.chain_from : trail.prev_vertex;
+    trail.land_sector = trail.chaining ? trail.chain_sector : trail.prev_sector;
+    trail.land_q = trail.chaining ? trail.chain_q : trail.prev_q;
+    trail.land_scale = trail.chaining ? trail.chain_weight : 1.0;
+    trail.chaining = false;
+    trail.land_le = le * trail.land_scale;
+    trail.land_mis_weight = mis_weight;
+    trail.land_reflected = reflected * trail.land_scale;
+    trail.land_direct = direct * trail.land_scale;
 }
 
 // The path's ray landed on a delta vertex, from a vertex the guide covers
 // or through delta vertices from one: the transition waits (see chaining).
-void pass_through_delta() {
-    if (!chaining) {
-        chain_from = prev_vertex;
-        chain_sector = prev_sector;
-        chain_q = prev_q;
-        chain_weight = 1.0;
-        chaining = true;
+void pass_through_delta(inout Trail trail) {
+    if (!trail.chaining) {
+        trail.chain_from = trail.prev_vertex;
+        trail.chain_sector = trail.prev_sector;
+        trail.chain_q = trail.prev_q;
+        trail.chain_weight = 1.0;
+        trail.chaining = true;
     }
-    land_from = guide_none();
+    trail.land_from = guide_none();
 }
 
 // After a bounce the guide did not sample (a delta lobe, rough glass) from
 // vertex g: guides learn along reflections, which stay in g's hemisphere.
-void follow_unguided(GuideVertex g, vec3 local, vec3 weight) {
+void follow_unguided(inout Trail trail, GuideVertex g, vec3 local, vec3 weight) {
     bool up = local.z > 0.0;
-    if (GUIDE_LEARNS && !chaining && guide_covers(g)) {
-        prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
-        prev_q = up ? guide_sector_q(g, prev_sector) : 0.0;
-        guided_roulette = true;
+    if (GUIDE_LEARNS && !trail.chaining && guide_covers(g)) {
+        trail.prev_sector = up ? hemisphere_sector(local, grid_a(), grid_b()) : 0u;
+        trail.prev_q = up ? guide_sector_q(g, trail.prev_sector) : 0.0;
+        trail.guided_roulette = true;
     } else {
         // Not looked up (a kernel without the learning code, a pass that
         // does not learn, no volume there) or a transition waiting
         // (chaining), whose Q stands for the path: the roulette keeps what
         // the vertex before expected from this direction, per unit of the
         // throughput it had then.
-        prev_q /= max(luminance(weight), 1e-6);
-        if (chaining) {
-            chain_weight *= luminance(weight);
+        trail.prev_q /= max(luminance(weight), 1e-6);
+        if (trail.chaining) {
+            trail.chain_weight *= luminance(weight);
         }
     }
-    prev_vertex = up ? g : guide_none();
+    trail.prev_vertex = up ? g : guide_none();
 }
 
 // NEE's light at g, drawn by u: the guide's choice where it learns one
@@ -302,41 +311,41 @@ uint nee_choose_light(GuideVertex g, float u, out float p) {
 // The probability that NEE at the vertex the ray left would have picked
 // light `light` (an index of NEE's list): the guide's learned choice, else
 // `by_power`, pt's.
-float nee_pick_probability(uint light, float by_power) {
-    return GUIDE_LIGHTS ? guide_light_probability(prev_vertex, light) : by_power;
+float nee_pick_probability(Trail trail, uint light, float by_power) {
+    return GUIDE_LIGHTS ? guide_light_probability(trail.prev_vertex, light) : by_power;
 }
 
 // The path's ray left the scene: the sky, weighed against NEE's draws of
 // it as an emitter is.
-void gather_sky() {
-    vec3 le = ENVIRONMENT ? environment_eval(dir) : vec3(0.0);
+void gather_sky(inout Path path, inout Trail trail) {
+    vec3 le = ENVIRONMENT ? environment_eval(path.dir) : vec3(0.0);
     float weight = 1.0;
-    if (ENVIRONMENT && nee && prev_bsdf_pdf > 0.0) {
+    if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky is the last of NEE's lights.
-        float pick = nee_pick_probability(params.light_count - 1u, params.environment.x);
-        weight = power_heuristic(prev_bsdf_pdf, pick * environment_pdf(dir));
+        float pick = nee_pick_probability(trail, params.light_count - 1u, params.environment.x);
+        weight = power_heuristic(path.prev_bsdf_pdf, pick * environment_pdf(path.dir));
     }
-    radiance += throughput * le * weight;
+    path.radiance += path.throughput * le * weight;
     if (learn) {
-        land(luminance(le), weight, 0.0, 0.0);
+        land(trail, luminance(le), weight, 0.0, 0.0);
     }
 }
 
 // The path's ray reached an emitter, which ends it; emitters emit on their
 // front side only.
-void gather_emitter(Hit hit, Triangle tri, Material mat, float cos_out) {
+void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
     if (cos_out > 0.0) {
-        if (nee && prev_bsdf_pdf > 0.0) {
-            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(light_of(hit.triangle), 0.0) / tri.area
+        if (nee && path.prev_bsdf_pdf > 0.0) {
+            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(trail, light_of(hit.triangle), 0.0) / tri.area
                                           : tri.light_pdf;
             float light_pdf = area_pdf * hit.t * hit.t / cos_out;
-            weight = power_heuristic(prev_bsdf_pdf, light_pdf);
+            weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);
         }
-        radiance += throughput * mat.emission.rgb * weight;
+        path.radiance += path.throughput * mat.emission.rgb * weight;
     }
     if (learn) {
-        land(cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
+        land(trail, cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
     }
 }
 
@@ -356,10 +365,10 @@ struct Shading {
 // the sample weighed by MIS against the bounce's density (the mixture at
 // `sampled_from`). Adds it to the path's radiance and returns its luminance
 // (what the transition that reached s learns NEE brought there).
-float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from, bool transmits) {
+float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from, bool transmits) {
     float direct_lum = 0.0;
     float pick_pdf;
-    uint light = nee_choose_light(here, rng_next(rng), pick_pdf);
+    uint light = nee_choose_light(here, rng_next(path.rng), pick_pdf);
     uvec4 entry = FETCH(light_texels, int(light));
     float brought = 0.0;
     // A delta light: its one direction, its pick's probability as the
@@ -376,7 +385,7 @@ float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_fro
         light_pdf = uintBitsToFloat(entry.z);
     } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
         // The sky: a direction by its brightness, unbounded.
-        wi = environment_sample(vec4(rng_next2(rng), rng_next2(rng)), light_pdf);
+        wi = environment_sample(vec4(rng_next2(path.rng), rng_next2(path.rng)), light_pdf);
         light_pdf *= GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
         le = environment_eval(wi);
         dist = 3.0e38;
@@ -384,7 +393,7 @@ float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_fro
     } else {
         Triangle lt = load_triangle(entry.x);
         float area_pdf = GUIDE_LIGHTS ? pick_pdf / lt.area : lt.light_pdf;
-        vec2 u = rng_next2(rng);
+        vec2 u = rng_next2(path.rng);
         if (u.x + u.y > 1.0) {
             u = 1.0 - u;
         }
@@ -400,7 +409,7 @@ float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_fro
     }
     float cos_x = dot(s.ns, wi);
     if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {
-        rays += 1u;
+        path.rays += 1u;
         // A direction the shading normal allows may lie below the
         // geometric surface, as rough glass's transmission does: the
         // shadow ray then leaves from beneath.
@@ -423,7 +432,7 @@ float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_fro
             float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
             vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * le;
             vec3 direct = f_le * weight / light_pdf;
-            radiance += throughput * direct;
+            path.radiance += path.throughput * direct;
             direct_lum = luminance(direct);
             brought = luminance(f_le) / light_pdf * pick_pdf;
         }
@@ -440,7 +449,7 @@ float next_event(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_fro
 // Sets the path's next ray and throughput; false when the path ends (a
 // direction of zero density). `mix`: the sample's gradient for the share of
 // BSDF sampling, in a pass that learns.
-bool sample_bounce(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from,
+bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from,
                    bool delta, bool transmits, bool glossy, out float mix) {
     vec3 local;
     vec3 weight;
@@ -450,26 +459,26 @@ bool sample_bounce(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_f
     // vertex would (and what that ray hits takes no MIS, as NEE cannot
     // find it); else its base, of density (1 - share) times the sampler's.
     float delta_share = bsdf_delta_share(bsdf, s.wo);
-    bool take_delta = delta || (delta_share > 0.0 && rng_next(rng) < delta_share);
+    bool take_delta = delta || (delta_share > 0.0 && rng_next(path.rng) < delta_share);
     if (take_delta) {
-        local = bsdf_sample_delta(bsdf, s.wo, rng_next(rng), weight);
+        local = bsdf_sample_delta(bsdf, s.wo, rng_next(path.rng), weight);
         weight /= delta ? 1.0 : delta_share;
-        follow_unguided(here, local, weight);
+        follow_unguided(trail, here, local, weight);
     } else {
         uint sector = 0u;
         float p_sector = 0.0;
         if (GUIDED) {
-            local = mixture_sample(sampled_from, bsdf, s.wo, vec3(rng_next2(rng), rng_next(rng)), sector, p_sector);
+            local = mixture_sample(sampled_from, bsdf, s.wo, vec3(rng_next2(path.rng), rng_next(path.rng)), sector, p_sector);
             pdf = mixture_pdf_in(sampled_from, bsdf, s.wo, local, p_sector);
-            prev_vertex = here;
-            prev_sector = sector;
-            prev_q = guide_q(here, sector, p_sector);
-            guided_roulette = guide_covers(here);
+            trail.prev_vertex = here;
+            trail.prev_sector = sector;
+            trail.prev_q = guide_q(here, sector, p_sector);
+            trail.guided_roulette = guide_covers(here);
         } else {
             vec2 square;
             // The third number picks a rough lobe; drawn only where there is one.
             bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC)) != 0u;
-            local = bsdf_sample(bsdf, s.wo, vec3(rng_next2(rng), rough ? rng_next(rng) : 0.0), square);
+            local = bsdf_sample(bsdf, s.wo, vec3(rng_next2(path.rng), rough ? rng_next(path.rng) : 0.0), square);
             pdf = bsdf_pdf(bsdf, s.wo, local);
         }
         pdf *= 1.0 - delta_share;
@@ -480,10 +489,10 @@ bool sample_bounce(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_f
         if (transmits) {
             // Rough glass: sampled by its BSDF alone, learned through as a
             // delta vertex.
-            follow_unguided(here, local, weight);
+            follow_unguided(trail, here, local, weight);
         }
         mix = learn ? mixture_gradient(sampled_from, bsdf, s.wo, local, p_sector, pdf, weight) : 0.0;
-        if (glossy && (learn || depth == 0u)) {
+        if (glossy && (learn || path.depth == 0u)) {
             // What a glossy lobe reflects of the light the guide expects,
             // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
             // the mixture's own draw, Q of its sector times f cos / pdf
@@ -491,25 +500,25 @@ bool sample_bounce(Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_f
             // sampling table's weight (prev_q), which with NEE leaves out
             // NEE's share.
             float estimate = luminance(weight) * guide_sector_q(here, sector);
-            land_reflected = estimate * land_scale;
-            if (depth == 0u) {
-                path_estimate = estimate;
+            trail.land_reflected = estimate * trail.land_scale;
+            if (path.depth == 0u) {
+                trail.path_estimate = estimate;
             }
         }
     }
-    throughput *= weight;
-    prev_bsdf_pdf = pdf;
-    dir = normalize(local.x * s.t + local.y * s.b + local.z * s.ns);
-    origin = s.point + ((SHADING_NORMALS ? dot(dir, s.ng) > 0.0 : local.z > 0.0) ? eps : -eps) * s.ng;
+    path.throughput *= weight;
+    path.prev_bsdf_pdf = pdf;
+    path.dir = normalize(local.x * s.t + local.y * s.b + local.z * s.ns);
+    path.origin = s.point + ((SHADING_NORMALS ? dot(path.dir, s.ng) > 0.0 : local.z > 0.0) ? eps : -eps) * s.ng;
     return true;
 }
 
 // Russian roulette from RR_START_DEPTH on; false ends the path.
-bool survives_roulette() {
-    if (depth + 1u < RR_START_DEPTH) {
+bool survives_roulette(inout Path path, Trail trail) {
+    if (path.depth + 1u < RR_START_DEPTH) {
         return true;
     }
-    float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
+    float q = min(max(path.throughput.r, max(path.throughput.g, path.throughput.b)), 0.95);
     // Guided paths toward light carry small weights because their pdf
     // is high, so throughput alone would end exactly the paths the guide
     // chose. They also survive by what they are expected to bring:
@@ -517,32 +526,32 @@ bool survives_roulette() {
     // against the estimate for the whole path (weight window at 1).
     // Never below the throughput rule, so a Q that underestimates ends
     // no more of a path's continuations than that rule would.
-    if (guided_roulette && path_estimate > 0.0) {
-        float expected = luminance(throughput) * prev_q;
-        q = max(q, clamp(expected / path_estimate, 0.1, 0.95));
+    if (trail.guided_roulette && trail.path_estimate > 0.0) {
+        float expected = luminance(path.throughput) * trail.prev_q;
+        q = max(q, clamp(expected / trail.path_estimate, 0.1, 0.95));
     }
-    if (rng_next(rng) >= q) {
+    if (rng_next(path.rng) >= q) {
         return false;
     }
-    throughput /= q;
+    path.throughput /= q;
     return true;
 }
 
 // Traces the path's current ray and scatters once; false when the path ended.
-bool scatter() {
-    Hit hit = trace_ray(origin, dir, FAR);
-    rays += 1u;
+bool scatter(inout Path path, inout Trail trail) {
+    Hit hit = trace_ray(path.origin, path.dir, FAR);
+    path.rays += 1u;
     if (hit.triangle == NO_HIT) {
-        gather_sky();
+        gather_sky(path, trail);
         return false;
     }
-    path_length += 1u;
+    path.hits += 1u;
     Triangle tri = load_triangle(hit.triangle);
     Material mat = load_material(tri.material);
     vec3 n = normalize(cross(tri.e1, tri.e2));
-    float cos_out = -dot(n, dir);
+    float cos_out = -dot(n, path.dir);
     if (tri.light_pdf > 0.0) {
-        gather_emitter(hit, tri, mat, cos_out);
+        gather_emitter(path, trail, hit, tri, mat, cos_out);
         return false;
     }
 
@@ -552,13 +561,13 @@ bool scatter() {
     // as in Mitsuba; rays still leave off the geometric surface (ng).
     Shading s;
     s.ng = cos_out > 0.0 ? n : -n;
-    s.point = origin + hit.t * dir;
+    s.point = path.origin + hit.t * path.dir;
     s.position = s.point + s.ng * eps;
     bool front = cos_out > 0.0;
     s.ns = s.ng;
     if (SHADING_NORMALS) {
         vec3 sn = shading_normal(hit.triangle, tri, s.point);
-        front = dot(sn, dir) < 0.0;
+        front = dot(sn, path.dir) < 0.0;
         s.ns = front ? sn : -sn;
     }
     Bsdf bsdf = bsdf_of(mat, front);
@@ -570,7 +579,7 @@ bool scatter() {
     // Rough glass: sampled and reached by NEE on both sides, not guided.
     bool transmits = bsdf_transmits(bsdf);
     make_frame(s.ns, s.t, s.b);
-    s.wo = vec3(-dot(dir, s.t), -dot(dir, s.b), SHADING_NORMALS ? -dot(dir, s.ns) : abs(cos_out));
+    s.wo = vec3(-dot(path.dir, s.t), -dot(path.dir, s.b), SHADING_NORMALS ? -dot(path.dir, s.ns) : abs(cos_out));
     // A delta vertex or rough glass is never guided: unless it learns, the
     // guide's lookup there (a network inference, for neural) would only tune
     // the roulette. Its bounces learn as a delta vertex's (chaining).
@@ -589,47 +598,47 @@ bool scatter() {
     bool glossy = GUIDE_LEARNS && !unguided && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
     float reflected = 0.0;
     if (!GUIDE_LEARNS) {
-        reflected = depth == 0u ? bsdf_reflect(bsdf, s.wo, guide_irradiance(here)) : 0.0;
-    } else if (learn || depth == 0u) {
+        reflected = path.depth == 0u ? bsdf_reflect(bsdf, s.wo, guide_irradiance(here)) : 0.0;
+    } else if (learn || path.depth == 0u) {
         reflected = guide_reflect(here, bsdf, s.wo);
     }
-    if (depth == 0u) {
-        path_estimate = reflected;
+    if (path.depth == 0u) {
+        trail.path_estimate = reflected;
     }
-    if (depth >= params.max_depth) {
+    if (path.depth >= params.max_depth) {
         if (learn) {
             // (A glossy lobe here, where the path ends, learns 0 for what it
             // would reflect: only paths max_depth long reach it.)
-            land(0.0, 1.0, reflected, 0.0);
+            land(trail, 0.0, 1.0, reflected, 0.0);
         }
         return false;
     }
 
-    float direct_lum = nee && !delta ? next_event(s, bsdf, here, sampled_from, transmits) : 0.0;
+    float direct_lum = nee && !delta ? next_event(path, s, bsdf, here, sampled_from, transmits) : 0.0;
     if (learn) {
-        if (unguided && (chaining || guide_covers(prev_vertex))) {
-            pass_through_delta();
+        if (unguided && (trail.chaining || guide_covers(trail.prev_vertex))) {
+            pass_through_delta(trail);
         } else {
-            land(0.0, 1.0, reflected, direct_lum);
+            land(trail, 0.0, 1.0, reflected, direct_lum);
         }
     }
     float mix;
-    if (!sample_bounce(s, bsdf, here, sampled_from, delta, transmits, glossy, mix) || !survives_roulette()) {
+    if (!sample_bounce(path, trail, s, bsdf, here, sampled_from, delta, transmits, glossy, mix) || !survives_roulette(path, trail)) {
         return false;
     }
     if (mix != 0.0) {
-        keep_share_sample(here, mix);
+        keep_share_sample(trail, path, here, mix);
     }
-    depth += 1u;
+    path.depth += 1u;
     return true;
 }
 
 // scatter(), then, in a pass that learns, learning from where its ray landed.
-bool bounce() {
-    bool more = scatter();
+bool bounce(inout Path path, inout Trail trail) {
+    bool more = scatter(path, trail);
     if (learn) {
-        guide_learn(land_from, land_sector, land_q, land_le, land_mis_weight,
-                    land_reflected, land_direct, td_sq_sum, td_count, rng);
+        guide_learn(trail.land_from, trail.land_sector, trail.land_q, trail.land_le, trail.land_mis_weight,
+                    trail.land_reflected, trail.land_direct, path.td_sq_sum, path.td_count, path.rng);
     }
     return more;
 }
@@ -650,17 +659,13 @@ uint claim(bool needs, uint slot) {
     return base + subgroupBallotExclusiveBitCount(ballot);
 }
 
-// The pixel and sample index of the lane's path (see main).
-uint index;
-uint sample_index;
-
 // Begins item `item` of a dispatch of `count` samples per pixel: sample
-// item % count of pixel item / count.
-void begin_item(uint item, uint count) {
+// item % count (`sample_index`) of pixel item / count (`index`).
+void begin_item(uint item, uint count, out uint index, out uint sample_index, out Path path, out Trail trail) {
     index = item / count;
     sample_index = item % count;
-    pixel = uvec2(index % params.width, index / params.width);
-    begin_path(params.pass_index + sample_index);
+    uvec2 pixel = uvec2(index % params.width, index / params.width);
+    begin_path(pixel, params.pass_index + sample_index, path, trail);
 }
 
 void main() {
@@ -684,8 +689,13 @@ void main() {
     uint item = claim(true, slot);
     uint taken = 1u;
     bool alive = item < total;
+    // The lane's path: the pixel (`index`) and sample it traces.
+    uint index;
+    uint sample_index;
+    Path path;
+    Trail trail;
     if (alive) {
-        begin_item(item, count);
+        begin_item(item, count, index, sample_index, path, trail);
     }
     // Lanes stay in the loop until their whole subgroup is done, for claim.
     for (uint step = 0u; step < MAX_TRACE_STEPS; ++step) {
@@ -694,22 +704,22 @@ void main() {
         }
         bool ended = false;
         if (alive) {
-            ended = !bounce();
+            ended = !bounce(path, trail);
         }
         if (ended) {
             // Only the words accumulate reads (see PathSample).
             uint out_slot = (first_slot + sample_index) * pixels + index;
-            uint lengths = path_length | (rays << PATH_RAYS_SHIFT);
+            uint lengths = path.hits | (path.rays << PATH_RAYS_SHIFT);
             if (GUIDE_LEARNS) {
-                samples[out_slot].td_count = td_count;
-                samples[out_slot].td_sq_sum = td_sq_sum;
+                samples[out_slot].td_count = path.td_count;
+                samples[out_slot].td_sq_sum = path.td_sq_sum;
                 lengths |= PATH_LEARNED;
             }
-            samples[out_slot].radiance = radiance;
+            samples[out_slot].radiance = path.radiance;
             samples[out_slot].lengths = lengths;
             if (learn) {
-                learn_share_samples();
-                guide_end_path(index, rng);
+                learn_share_samples(trail, path);
+                guide_end_path(index, path.rng);
             }
         }
         // A lane takes up to `count` paths as long as any are left, and more
@@ -722,7 +732,7 @@ void main() {
             alive = needs && next < total;
             taken += 1u;
             if (alive) {
-                begin_item(next, count);
+                begin_item(next, count, index, sample_index, path, trail);
             }
         }
     }

@@ -544,11 +544,14 @@ fn neural_render_reports_loss_and_training_passes() {
             "neural.width=8",
             "--set",
             "neural.grid=[4, 4]",
-            "--set",
-            "neural.target=max",
             "--validation",
-            "-o",
         ])
+        // The Q-learning target too, where it is built.
+        .args(match cfg!(feature = "experiments") {
+            true => &["--set", "neural.target=max"][..],
+            false => &[],
+        })
+        .arg("-o")
         .arg(dir.join("n.exr"))
         .arg("--stats")
         .arg(&json)
@@ -599,7 +602,16 @@ fn bad_neural_options() {
         );
     }
     // The Cornell box's 32 vertices, encoded, overflow a 64-wide network's
-    // workgroup memory.
+    // workgroup memory; without the experiments, the encoding is refused.
+    let vertices_error: &[&str] = if cfg!(feature = "experiments") {
+        &[
+            "encoding = \"vertices\"",
+            "vertices give",
+            "width = 28 would fit",
+        ]
+    } else {
+        &["encoding = \"vertices\"", "--features experiments"]
+    };
     expect_error(
         &dir,
         &scene,
@@ -612,11 +624,7 @@ fn bad_neural_options() {
             "neural.width=64",
         ],
         &[],
-        &[
-            "encoding = \"vertices\"",
-            "vertices give",
-            "width = 28 would fit",
-        ],
+        vertices_error,
     );
     expect_error(
         &dir,

@@ -9,7 +9,9 @@ use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
 use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target, Training};
-use qtrace::guide::{Common, Distribution, GuideSettings, NeuralGuide, NeuralSettings};
+use qtrace::guide::{
+    Common, DeviceGuide, Distribution, GuideSettings, NeuralGuide, NeuralSettings,
+};
 use qtrace::render::{probe, Method, Overrides};
 use qtrace::sampling;
 use qtrace::shaders::MlpTarget;
@@ -233,25 +235,34 @@ fn neural_with_nee_converges_to_pt_on_the_cornell_box() {
     unbiased("cornell-box", true, 256, small());
 }
 
+/// The modes measured not to pay, where qtrace is built with them (the
+/// `experiments` feature): the Q-learning target and sampling in
+/// proportion to Q; else the defaults.
+fn experiments(settings: NeuralSettings) -> NeuralSettings {
+    if !cfg!(feature = "experiments") {
+        return settings;
+    }
+    NeuralSettings {
+        target: Target::Max,
+        common: Common {
+            distribution: Distribution::Q,
+            ..settings.common.clone()
+        },
+        ..settings
+    }
+}
+
 /// Inference at every vertex, with the Q-learning target, sampling in
 /// proportion to Q, and the image restarted after 128 training passes.
+#[cfg(feature = "experiments")]
 #[test]
 fn neural_converges_to_pt_on_the_indirectly_lit_room() {
-    unbiased(
-        "indirect-room",
-        false,
-        1024,
-        NeuralSettings {
-            inference: Inference::Vertices,
-            target: Target::Max,
-            common: Common {
-                distribution: Distribution::Q,
-                reset_after: Some(128),
-                ..Default::default()
-            },
-            ..small()
-        },
-    );
+    let mut settings = experiments(NeuralSettings {
+        inference: Inference::Vertices,
+        ..small()
+    });
+    settings.common.reset_after = Some(128);
+    unbiased("indirect-room", false, 1024, settings);
 }
 
 /// Inference at the volumes samples from tables instead of the network, here
@@ -270,24 +281,19 @@ fn neural_inferring_at_volumes_converges_to_pt_on_the_cornell_box() {
     );
 }
 
-/// ... with NEE, the Q-learning target (the tables' max sums) and sampling
-/// in proportion to Q.
+/// ... with NEE (with the experiments: the Q-learning target, the tables'
+/// max sums, and sampling in proportion to Q).
 #[test]
 fn neural_inferring_at_volumes_with_nee_converges_to_pt_on_the_indirectly_lit_room() {
     unbiased(
         "indirect-room",
         true,
         256,
-        NeuralSettings {
+        experiments(NeuralSettings {
             inference: Inference::Volumes,
             training: Some(Training::Transitions),
-            target: Target::Max,
-            common: Common {
-                distribution: Distribution::Q,
-                ..Default::default()
-            },
             ..small()
-        },
+        }),
     );
 }
 
@@ -618,12 +624,14 @@ fn trace_kernel_offers_encoded_states() {
     check_offers(Encoding::Frequency);
 }
 
+#[cfg(feature = "experiments")]
 #[test]
 fn trace_kernel_offers_vertex_encoded_states() {
     check_offers(Encoding::Vertices);
 }
 
 /// The thesis's encoding, scene vertices relative to the point.
+#[cfg(feature = "experiments")]
 #[test]
 fn neural_with_vertex_encoding_converges_to_pt_on_the_cornell_box() {
     unbiased(
@@ -699,6 +707,7 @@ fn neural_sampler_matches_its_pdf() {
     check_sampler(Distribution::Qcos);
 }
 
+#[cfg(feature = "experiments")]
 #[test]
 fn neural_sampler_matches_its_pdf_in_proportion_to_q() {
     check_sampler(Distribution::Q);

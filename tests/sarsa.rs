@@ -474,10 +474,12 @@ fn sarsa_with_cas_atomics_converges_to_pt_on_the_cornell_box() {
     unbiased("cornell-box", false, Atomics::Cas, 1024, None);
 }
 
-/// Also with the image reset after 128 training passes.
+/// With the experiments (the `experiments` feature), also with the image
+/// reset after 128 training passes.
 #[test]
 fn sarsa_converges_to_pt_on_the_indirectly_lit_room() {
-    unbiased("indirect-room", false, Atomics::Auto, 1024, Some(128));
+    let reset_after = cfg!(feature = "experiments").then_some(128);
+    unbiased("indirect-room", false, Atomics::Auto, 1024, reset_after);
 }
 
 /// The white furnace has an analytic answer (every pixel is 1): the guided

@@ -125,7 +125,8 @@ impl Common {
         if !(self.initial_q.is_finite() && self.initial_q > 0.0) {
             return Err(format!("initial_q = {} must be positive", self.initial_q));
         }
-        Ok(())
+        experiment(self.reset_after.is_some(), "reset_after")?;
+        experiment(self.distribution == Distribution::Q, "distribution = \"q\"")
     }
 
     /// Whether volumes learn which light NEE picks, where there are several.
@@ -158,14 +159,25 @@ impl Common {
         let [a, b] = self.grid;
         p.sector_grid = a | (b << 16);
         p.guide_epsilon = self.epsilon(false);
-        p.flags &= !(shaders::FLAG_LEARN | shaders::FLAG_COS_DISTRIBUTION);
+        p.flags &= !(shaders::FLAG_LEARN | shaders::FLAG_Q_DISTRIBUTION);
         if learn {
             p.flags |= shaders::FLAG_LEARN;
         }
-        if self.distribution == Distribution::Qcos {
-            p.flags |= shaders::FLAG_COS_DISTRIBUTION;
+        if self.distribution == Distribution::Q {
+            p.flags |= shaders::FLAG_Q_DISTRIBUTION;
         }
     }
+}
+
+/// Refuses a mode measured not to pay (docs/guides.md, "Experiments")
+/// unless qtrace was built with the cargo feature `experiments`.
+pub(crate) fn experiment(used: bool, what: &str) -> Result<(), String> {
+    if used && !cfg!(feature = "experiments") {
+        return Err(format!(
+            "{what} is an experiment that was measured not to pay (docs/guides.md, \"Experiments\"); it needs qtrace built with `--features experiments`"
+        ));
+    }
+    Ok(())
 }
 
 /// A share of BSDF sampling at its cap: the learned share is the sigmoid of
@@ -227,10 +239,46 @@ pub fn thinned(index: u32, k: u32) -> bool {
     (u64::from(index) - start) % (2u64 << j) == 0
 }
 
+/// What every guide's settings have by being a serde struct: written for
+/// all of them at once.
+pub trait SettingsBase {
+    /// The settings as JSON (stats, render states), floats as written (an
+    /// f32 0.3 as 0.3, as `serde_json::to_string` writes it).
+    fn to_json(&self) -> serde_json::Value;
+    /// The settings as their table, every key written out.
+    fn to_table(&self) -> toml::Table;
+    fn clone_boxed(&self) -> Box<dyn GuideConfig>;
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<T: GuideConfig + Serialize + Clone> SettingsBase for T {
+    fn to_json(&self) -> serde_json::Value {
+        serde_json::to_string(self)
+            .and_then(|text| serde_json::from_str(&text))
+            .unwrap_or_default()
+    }
+
+    fn to_table(&self) -> toml::Table {
+        match toml::Value::try_from(self) {
+            Ok(toml::Value::Table(t)) => t,
+            _ => unreachable!("guide settings serialize to a table"),
+        }
+    }
+
+    fn clone_boxed(&self) -> Box<dyn GuideConfig> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
 /// A guide's settings, behind [`GuideSettings`]: its table, its checks, and
 /// the trace kernels and device state it builds. Each guide's module
-/// implements it for its settings and lists the guide in [`GUIDES`].
-pub trait GuideConfig: std::fmt::Debug + Send + Sync + 'static {
+/// implements it for its settings (a serde struct) and lists the guide in
+/// [`GUIDES`].
+pub trait GuideConfig: SettingsBase + std::fmt::Debug + Send + Sync + 'static {
     /// The method (and table) name.
     fn name(&self) -> &'static str;
     /// The keys every guide has.
@@ -240,10 +288,6 @@ pub trait GuideConfig: std::fmt::Debug + Send + Sync + 'static {
     /// Whether each volume learns its share of BSDF sampling, which
     /// [`stands_back`] reads.
     fn learns_shares(&self) -> bool;
-    /// The settings as JSON (stats, render states).
-    fn to_json(&self) -> serde_json::Value;
-    /// The settings as their table, every key written out.
-    fn to_table(&self) -> toml::Table;
     /// Checks its own keys' ranges, and that it fits `scene`.
     fn validate(&self, scene: &Scene) -> Result<(), String>;
     /// Checks the guide fits `device`'s memory limits, before building it.
@@ -264,8 +308,6 @@ pub trait GuideConfig: std::fmt::Debug + Send + Sync + 'static {
         seed: u32,
         pixels: u64,
     ) -> gpu::Result<Guide>;
-    fn clone_boxed(&self) -> Box<dyn GuideConfig>;
-    fn as_any(&self) -> &dyn Any;
 }
 
 /// A guide: its name, what `--method` says of it, and how its table reads.
@@ -399,22 +441,6 @@ impl GuideSettings {
     }
 }
 
-/// A settings struct as JSON, its floats as written (an f32 0.3 as 0.3, as
-/// `serde_json::to_string` writes it, not the f64 nearest the f32).
-pub(crate) fn json_of<T: Serialize>(settings: &T) -> serde_json::Value {
-    serde_json::to_string(settings)
-        .and_then(|text| serde_json::from_str(&text))
-        .unwrap_or_default()
-}
-
-/// A settings struct as a TOML table.
-pub(crate) fn table_of<T: Serialize>(settings: &T) -> toml::Table {
-    match toml::Value::try_from(settings) {
-        Ok(toml::Value::Table(t)) => t,
-        _ => unreachable!("guide settings serialize to a table"),
-    }
-}
-
 /// Where guide settings come from besides the scene's own tables: a file
 /// of `[sarsa]` / `[neural]` tables, then `guide.key=value` assignments.
 #[derive(Clone, Debug, Default)]
@@ -513,9 +539,20 @@ fn restore_blob(buffer: &Buffer, name: &str, blobs: &[(String, Vec<u8>)]) -> Res
     buffer.overwrite(bytes).map_err(|e| e.to_string())
 }
 
+/// Any guide as `Any`, for a downcast to its own type.
+pub trait AsAny {
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<T: DeviceGuide> AsAny for T {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
 /// A guide's state on the device and the passes it adds to a render:
 /// everything the renderer asks of a guide.
-pub trait DeviceGuide: Any {
+pub trait DeviceGuide: AsAny + Any {
     /// Whether its trace kernels pick NEE's light (the CONSTANT_GUIDE_LIGHTS
     /// specialization constant).
     fn chooses_lights(&self) -> bool;
@@ -553,7 +590,6 @@ pub trait DeviceGuide: Any {
         scene: &Scene,
         count: usize,
     ) -> Result<(Vec<Vec<f32>>, String), crate::render::RenderError>;
-    fn as_any(&self) -> &dyn Any;
 }
 
 /// A guide on the device.
@@ -691,6 +727,31 @@ mod tests {
             let back = GuideSettings::from_table(g.name(), &toml::from_str(&text).unwrap());
             assert_eq!(back.as_ref(), Ok(&g), "{text}");
         }
+    }
+
+    /// The modes measured not to pay need the `experiments` feature.
+    #[test]
+    fn experiments_need_their_feature() {
+        let q = Common {
+            distribution: Distribution::Q,
+            ..Default::default()
+        };
+        let reset = Common {
+            reset_after: Some(4),
+            ..Default::default()
+        };
+        let max = NeuralSettings {
+            target: neural::Target::Max,
+            ..Default::default()
+        };
+        let built = cfg!(feature = "experiments");
+        for result in [q.validate(), reset.validate(), max.validate()] {
+            match result {
+                Err(e) => assert!(!built && e.contains("--features experiments"), "{e}"),
+                Ok(()) => assert!(built, "an experiment passed without its feature"),
+            }
+        }
+        assert!(Common::default().validate().is_ok());
     }
 
     #[test]

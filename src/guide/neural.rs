@@ -8,9 +8,7 @@
 use super::mlp::{Adam, MlpShape};
 use super::network::Network;
 use super::sarsa::{self, SarsaGuide, SarsaSettings};
-use super::{
-    json_of, table_of, Common, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings,
-};
+use super::{Common, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings};
 use crate::bench::learned;
 use crate::gpu::{
     self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
@@ -20,7 +18,6 @@ use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
-use std::any::Any;
 use std::sync::Arc;
 
 /// The bootstrap term of a transition's target.
@@ -361,6 +358,11 @@ impl NeuralSettings {
         if self.training() == Training::Volumes && self.inference != Inference::Volumes {
             return Err("training = \"volumes\" needs inference = \"volumes\"".into());
         }
+        super::experiment(self.target == Target::Max, "target = \"max\"")?;
+        super::experiment(
+            self.encoding == Encoding::Vertices,
+            "encoding = \"vertices\"",
+        )?;
         self.shape().validate()
     }
 
@@ -526,14 +528,6 @@ impl GuideConfig for NeuralSettings {
         self.learns_epsilon()
     }
 
-    fn to_json(&self) -> serde_json::Value {
-        json_of(self)
-    }
-
-    fn to_table(&self) -> toml::Table {
-        table_of(self)
-    }
-
     fn validate(&self, scene: &Scene) -> Result<(), String> {
         NeuralSettings::validate(self).and_then(|()| self.validate_for(scene))
     }
@@ -570,19 +564,13 @@ impl GuideConfig for NeuralSettings {
     ) -> gpu::Result<Guide> {
         Ok(Box::new(NeuralGuide::new(ctx, scene, self, seed, pixels)?))
     }
-
-    fn clone_boxed(&self) -> Box<dyn GuideConfig> {
-        Box::new(self.clone())
-    }
-
-    fn as_any(&self) -> &dyn Any {
-        self
-    }
 }
 
 impl DeviceGuide for NeuralGuide {
     fn chooses_lights(&self) -> bool {
-        NeuralGuide::chooses_lights(self)
+        self.table
+            .as_ref()
+            .is_some_and(|t| t.guide.chooses_lights())
     }
 
     fn constants(&self) -> Vec<u32> {
@@ -594,23 +582,101 @@ impl DeviceGuide for NeuralGuide {
     }
 
     fn bindings(&self) -> Vec<(u32, &Buffer)> {
-        NeuralGuide::bindings(self)
+        // With training on the volumes, targets go to the means' tallies
+        // (bound first, so they win over the sampling tables' own).
+        let mut b: Vec<(u32, &Buffer)> = self
+            .targets
+            .as_ref()
+            .map_or(Vec::new(), |t| t.means.tally_bindings().to_vec());
+        b.extend(kernel_bindings(
+            &self.network,
+            &self.vertex_buffer,
+            &self.pending,
+        ));
+        if let Some(t) = &self.table {
+            b.extend(t.guide.bindings());
+        }
+        b
     }
 
     fn set_params(&self, p: &mut PassParams, learn: bool) {
-        NeuralGuide::set_params(self, p, learn)
+        let s = &self.settings;
+        s.common.set_params(p, learn);
+        if s.learns_epsilon() {
+            // As Sarsa's: the means learn the share, the tables copy it.
+            p.guide_epsilon = s.common.epsilon(true);
+            p.flags |= shaders::FLAG_LEARN_MIX;
+        }
+        if s.target == Target::Max {
+            p.flags |= shaders::FLAG_MAX_TARGET;
+        }
+        if s.encoding == Encoding::Vertices {
+            p.flags |= shaders::FLAG_VERTEX_ENCODING;
+        }
+        p.volume_count = self.volume_count() as u32;
+        if let Some(t) = &self.table {
+            // The flag and count its tables' updates need.
+            let mut q = *p;
+            t.guide.set_params(&mut q, learn);
+            p.flags |= q.flags & shaders::FLAG_GUIDE_LIGHTS;
+            p.light_count = q.light_count;
+        }
     }
 
     fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
-        NeuralGuide::record_update(self, rec, params)
+        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
+            // Fold the pass's targets into the means, train on rows drawn
+            // from them, then refill the sampling tables from the network,
+            // leaving out the share NEE carries as Sarsa's do.
+            t.means.record_update(rec, params);
+            let mut p = *params;
+            p.volume_count = t.means.volumes.len() as u32;
+            let steps = if self.settings.trains_in_pass(params.pass_index) {
+                self.settings.steps()
+            } else {
+                0
+            };
+            for step in 0..steps {
+                p.selector = step;
+                rec.dispatch(Pass {
+                    name: "mlp gather from volumes",
+                    pipeline: &t.gather,
+                    set: &t.gather_set,
+                    push: bytemuck::bytes_of(&p),
+                    groups: [self.network.capacity.div_ceil(shaders::MLP_LANES), 1, 1],
+                });
+                self.network.record_step(rec);
+            }
+            self.network.record_reset(rec);
+            table.guide.record_copy_learned(rec, &t.means);
+            table.record_refresh(rec, params);
+            return;
+        }
+        rec.dispatch(Pass {
+            name: "mlp gather",
+            pipeline: &self.gather,
+            set: &self.gather_set,
+            push: bytemuck::bytes_of(params),
+            groups: [1, 1, 1],
+        });
+        self.network.record_training(rec, self.settings.steps());
+        if let Some(t) = &self.table {
+            t.record_refresh(rec, params);
+        }
     }
 
     fn bytes(&self) -> u64 {
-        NeuralGuide::bytes(self)
+        self.network.bytes()
+            + self.table.as_ref().map_or(0, |t| t.guide.bytes())
+            + self.targets.as_ref().map_or(0, |t| t.means.bytes())
     }
 
     fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
-        NeuralGuide::save(self)
+        let mut blobs = self.network.save()?;
+        if let Some(t) = &self.targets {
+            blobs.extend(t.means.save()?);
+        }
+        Ok(blobs)
     }
 
     fn restore(
@@ -619,11 +685,19 @@ impl DeviceGuide for NeuralGuide {
         blobs: &[(String, Vec<u8>)],
         nee: bool,
     ) -> Result<(), String> {
-        NeuralGuide::restore(self, ctx, blobs, nee)
+        self.network.restore(blobs)?;
+        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
+            t.means.restore(ctx, blobs)?;
+            ctx.submit(None, |rec| table.guide.record_copy_learned(rec, &t.means))
+                .map_err(|e| e.to_string())?;
+        }
+        self.refresh_for(ctx, nee).map_err(|e| e.to_string())
     }
 
     fn volume_count(&self) -> u64 {
-        NeuralGuide::volume_count(self)
+        self.table
+            .as_ref()
+            .map_or(0, |t| t.guide.volumes.len() as u64)
     }
 
     fn grid(&self) -> [u32; 2] {
@@ -642,10 +716,6 @@ impl DeviceGuide for NeuralGuide {
             rows.len()
         );
         Ok((rows, at))
-    }
-
-    fn as_any(&self) -> &dyn Any {
-        self
     }
 }
 
@@ -876,40 +946,6 @@ impl NeuralGuide {
         self.targets.as_ref().map(|t| &t.means)
     }
 
-    /// Radiance volumes the tables hold (inference at the volumes), else 0.
-    pub fn volume_count(&self) -> u64 {
-        self.table
-            .as_ref()
-            .map_or(0, |t| t.guide.volumes.len() as u64)
-    }
-
-    /// What the network has learned, to resume from (the tables follow
-    /// from it), and the target means it trains on.
-    pub fn save(&self) -> gpu::Result<Vec<(&'static str, Vec<u8>)>> {
-        let mut blobs = self.network.save()?;
-        if let Some(t) = &self.targets {
-            blobs.extend(t.means.save()?);
-        }
-        Ok(blobs)
-    }
-
-    /// Restores what [`NeuralGuide::save`] gave, and the tables from it as
-    /// a pass with (`nee`) or without NEE leaves them.
-    pub fn restore(
-        &mut self,
-        ctx: &Arc<GpuContext>,
-        blobs: &[(String, Vec<u8>)],
-        nee: bool,
-    ) -> Result<(), String> {
-        self.network.restore(blobs)?;
-        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
-            t.means.restore(ctx, blobs)?;
-            ctx.submit(None, |rec| table.guide.record_copy_learned(rec, &t.means))
-                .map_err(|e| e.to_string())?;
-        }
-        self.refresh_for(ctx, nee).map_err(|e| e.to_string())
-    }
-
     /// The network's input for a point p with normal n (as the GPU encodes it).
     pub fn encode(&self, p: Vec3, n: Vec3) -> Vec<f32> {
         match self.settings.encoding {
@@ -922,108 +958,6 @@ impl NeuralGuide {
                 n,
             ),
         }
-    }
-
-    /// Buffers the trace kernel binds.
-    pub fn bindings(&self) -> Vec<(u32, &Buffer)> {
-        // With training on the volumes, targets go to the means' tallies
-        // (bound first, so they win over the sampling tables' own).
-        let mut b: Vec<(u32, &Buffer)> = self
-            .targets
-            .as_ref()
-            .map_or(Vec::new(), |t| t.means.tally_bindings().to_vec());
-        b.extend(kernel_bindings(
-            &self.network,
-            &self.vertex_buffer,
-            &self.pending,
-        ));
-        if let Some(t) = &self.table {
-            b.extend(t.guide.bindings());
-        }
-        b
-    }
-
-    /// The pass parameters the trace kernel reads.
-    pub fn set_params(&self, p: &mut PassParams, learn: bool) {
-        let s = &self.settings;
-        s.common.set_params(p, learn);
-        if s.learns_epsilon() {
-            // As Sarsa's: the means learn the share, the tables copy it.
-            p.guide_epsilon = s.common.epsilon(true);
-            p.flags |= shaders::FLAG_LEARN_MIX;
-        }
-        if s.target == Target::Max {
-            p.flags |= shaders::FLAG_MAX_TARGET;
-        }
-        if s.encoding == Encoding::Vertices {
-            p.flags |= shaders::FLAG_VERTEX_ENCODING;
-        }
-        p.volume_count = self.volume_count() as u32;
-        if let Some(t) = &self.table {
-            // The flag and count its tables' updates need.
-            let mut q = *p;
-            t.guide.set_params(&mut q, learn);
-            p.flags |= q.flags & shaders::FLAG_GUIDE_LIGHTS;
-            p.light_count = q.light_count;
-        }
-    }
-
-    /// Whether its paths pick NEE's light from its tables.
-    pub fn chooses_lights(&self) -> bool {
-        self.table
-            .as_ref()
-            .is_some_and(|t| t.guide.chooses_lights())
-    }
-
-    /// Records the training on what the pass offered: the gather that packs
-    /// the offered transitions into the batch, then the steps.
-    pub fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams) {
-        if let (Some(t), Some(table)) = (&self.targets, &self.table) {
-            // Fold the pass's targets into the means, train on rows drawn
-            // from them, then refill the sampling tables from the network,
-            // leaving out the share NEE carries as Sarsa's do.
-            t.means.record_update(rec, params);
-            let mut p = *params;
-            p.volume_count = t.means.volumes.len() as u32;
-            let steps = if self.settings.trains_in_pass(params.pass_index) {
-                self.settings.steps()
-            } else {
-                0
-            };
-            for step in 0..steps {
-                p.selector = step;
-                rec.dispatch(Pass {
-                    name: "mlp gather from volumes",
-                    pipeline: &t.gather,
-                    set: &t.gather_set,
-                    push: bytemuck::bytes_of(&p),
-                    groups: [self.network.capacity.div_ceil(shaders::MLP_LANES), 1, 1],
-                });
-                self.network.record_step(rec);
-            }
-            self.network.record_reset(rec);
-            table.guide.record_copy_learned(rec, &t.means);
-            table.record_refresh(rec, params);
-            return;
-        }
-        rec.dispatch(Pass {
-            name: "mlp gather",
-            pipeline: &self.gather,
-            set: &self.gather_set,
-            push: bytemuck::bytes_of(params),
-            groups: [1, 1, 1],
-        });
-        self.network.record_training(rec, self.settings.steps());
-        if let Some(t) = &self.table {
-            t.record_refresh(rec, params);
-        }
-    }
-
-    /// Device memory the network and its batch hold, and the tables.
-    pub fn bytes(&self) -> u64 {
-        self.network.bytes()
-            + self.table.as_ref().map_or(0, |t| t.guide.bytes())
-            + self.targets.as_ref().map_or(0, |t| t.means.bytes())
     }
 }
 

@@ -3,9 +3,7 @@
 
 use super::lookup::VolumeLookup;
 use super::volumes::Volume;
-use super::{
-    json_of, table_of, volumes, Common, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings,
-};
+use super::{volumes, Common, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings};
 use crate::bench::learned;
 use crate::gpu::{
     self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
@@ -15,7 +13,6 @@ use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams, SectorEntry};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
-use std::any::Any;
 use std::sync::Arc;
 
 /// How the GPU adds targets.
@@ -366,14 +363,6 @@ impl GuideConfig for SarsaSettings {
         self.learns_epsilon()
     }
 
-    fn to_json(&self) -> serde_json::Value {
-        json_of(self)
-    }
-
-    fn to_table(&self) -> toml::Table {
-        table_of(self)
-    }
-
     fn validate(&self, _scene: &Scene) -> Result<(), String> {
         SarsaSettings::validate(self)
     }
@@ -403,14 +392,6 @@ impl GuideConfig for SarsaSettings {
     ) -> gpu::Result<Guide> {
         let guide = SarsaGuide::new(ctx, scene, self, seed, self.common.picks_lights())?;
         Ok(Box::new(guide))
-    }
-
-    fn clone_boxed(&self) -> Box<dyn GuideConfig> {
-        Box::new(self.clone())
-    }
-
-    fn as_any(&self) -> &dyn Any {
-        self
     }
 }
 
@@ -480,10 +461,6 @@ impl DeviceGuide for SarsaGuide {
             list.join(", ")
         );
         Ok((rows, at))
-    }
-
-    fn as_any(&self) -> &dyn Any {
-        self
     }
 }
 

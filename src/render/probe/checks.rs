@@ -2,7 +2,7 @@
 
 use super::{launch, run};
 use crate::gpu::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass};
-use crate::guide::{NeuralGuide, SarsaGuide};
+use crate::guide::{DeviceGuide, NeuralGuide, SarsaGuide};
 use crate::render::{pass_params, GpuScene, RenderError, RenderSettings};
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams};
