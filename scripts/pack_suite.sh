@@ -39,7 +39,11 @@ strip -o "$stage/suite/qtrace" "$target/release/qtrace"
     echo "built_qtrace=$(realpath "$target/release/qtrace")"
     echo "built_commit=$(git rev-parse HEAD)"
 } > "$stage/suite/paths"
-(cd "$stage/suite/debs" && apt-get download libvulkan1 vulkan-validationlayers >&2)
+# The Vulkan loader and validation layer, and glvnd's libraries, without
+# which NVIDIA's Vulkan driver does not load on a node that has only the
+# driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'").
+(cd "$stage/suite/debs" && apt-get download libvulkan1 vulkan-validationlayers \
+    libglvnd0 libegl1 libgl1 libglx0 libopengl0 libgles2 >&2)
 # The bench's charts need a font, which a GPU node may lack.
 font=/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf
 if [ -e "$font" ]; then

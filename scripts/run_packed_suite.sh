@@ -2,8 +2,8 @@
 # Runs the suite packed by scripts/pack_suite.sh on this machine, with the
 # validation layer on, then a speed table of every method on three scenes.
 # Run it as root in a checkout of the commit the archive was built from: it
-# unpacks the Vulkan loader and validation layer into / when the machine
-# has no loader, and recreates the absolute paths the tests were built with:
+# unpacks the Vulkan loader, the validation layer and glvnd's libraries
+# into / (Debian 12's packages), and recreates the absolute paths the tests were built with:
 # the repository, by a symbolic link to this checkout where nothing is
 # there, and the qtrace binary, copied over whatever is at its path. Each
 # test binary gets at most SECONDS (default 120); the whole log goes to
@@ -22,10 +22,17 @@ trap 'rm -rf "$work"' EXIT
 tar xzf "$pack" -C "$work"
 . "$work/suite/paths"
 
-if ! ldconfig -p | grep -q libvulkan.so.1 ||
-    [ ! -e /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json ]; then
-    for deb in "$work"/suite/debs/*.deb; do dpkg -x "$deb" /; done
-    ldconfig
+# Always: a node may have a loader and NVIDIA's driver but not glvnd's
+# libraries, and then no Vulkan device (an H200 node with Ubuntu 24.04 and
+# driver 580 did); Debian's packages of them go into / beside the driver.
+for deb in "$work"/suite/debs/*.deb; do dpkg -x "$deb" /; done
+ldconfig
+# NVIDIA's driver where the loader does not look for it (some containers).
+nvidia_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -e "$nvidia_icd" ] &&
+    ! ls /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | grep -q nvidia; then
+    export VK_DRIVER_FILES="$nvidia_icd"
+    export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 fi
 if [ -z "${QTRACE_FONT:-}" ] && [ ! -e /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] &&
     [ -e "$work/suite/DejaVuSans.ttf" ]; then

@@ -245,6 +245,10 @@ pub trait SettingsBase {
     /// The settings as JSON (stats, render states), floats as written (an
     /// f32 0.3 as 0.3, as `serde_json::to_string` writes it).
     fn to_json(&self) -> serde_json::Value;
+    /// The settings as `serde_json::to_value` gives them, each f32 widened
+    /// to the f64 nearest it (0.3 as 0.30000001192092896): how render
+    /// states have always recorded them, so that a state still resumes.
+    fn to_value(&self) -> serde_json::Value;
     /// The settings as their table, every key written out.
     fn to_table(&self) -> toml::Table;
     fn clone_boxed(&self) -> Box<dyn GuideConfig>;
@@ -256,6 +260,10 @@ impl<T: GuideConfig + Serialize + Clone> SettingsBase for T {
         serde_json::to_string(self)
             .and_then(|text| serde_json::from_str(&text))
             .unwrap_or_default()
+    }
+
+    fn to_value(&self) -> serde_json::Value {
+        serde_json::to_value(self).unwrap_or_default()
     }
 
     fn to_table(&self) -> toml::Table {
@@ -380,6 +388,12 @@ impl<T: GuideConfig> From<T> for GuideSettings {
 }
 
 impl GuideSettings {
+    /// As render states record them: `{"name": {settings}}`, by
+    /// `SettingsBase::to_value`.
+    pub fn state_value(&self) -> serde_json::Value {
+        serde_json::json!({ self.name(): self.0.to_value() })
+    }
+
     /// The settings of guide `T`'s type, if these are its.
     pub fn downcast<T: GuideConfig>(&self) -> Option<&T> {
         self.0.as_any().downcast_ref()
@@ -727,6 +741,18 @@ mod tests {
             let back = GuideSettings::from_table(g.name(), &toml::from_str(&text).unwrap());
             assert_eq!(back.as_ref(), Ok(&g), "{text}");
         }
+    }
+
+    /// Render states record settings as earlier builds did (each f32
+    /// widened), so that their states still resume; stats write them as
+    /// given.
+    #[test]
+    fn states_record_settings_as_before() {
+        let g = GuideSettings::from(SarsaSettings::default());
+        let state = g.state_value();
+        assert_eq!(state["sarsa"]["initial_q"], f64::from(1e-2f32));
+        let stats = serde_json::to_string(&g).unwrap();
+        assert!(stats.contains("\"initial_q\":0.01"), "{stats}");
     }
 
     /// The modes measured not to pay need the `experiments` feature.

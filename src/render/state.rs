@@ -36,7 +36,10 @@ impl Identity {
             seed: s.seed,
             max_depth: s.max_depth,
             sampling: format!("{:?}", s.sampling).to_lowercase(),
-            guide: serde_json::to_value(&s.guide).unwrap_or_default(),
+            guide: s
+                .guide
+                .as_ref()
+                .map_or(serde_json::Value::Null, |g| g.state_value()),
         }
     }
 
