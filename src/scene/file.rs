@@ -64,7 +64,7 @@ impl<'de> Visitor<'de> for FileVisitor {
     fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<SceneFile, A::Error> {
         let (mut mesh, mut environment, mut camera) = (None, None, None);
         let (mut render, mut procedural) = (RenderDefaults::default(), Vec::new());
-        let mut guides = Vec::new();
+        let mut guides: Vec<(String, toml::Table)> = Vec::new();
         while let Some(Key(key)) = map.next_key()? {
             match key.as_str() {
                 "mesh" => mesh = Some(map.next_value()?),
@@ -75,6 +75,12 @@ impl<'de> Visitor<'de> for FileVisitor {
                 _ => guides.push((key.clone(), map.next_value()?)),
             }
         }
+        // In the guides' order, whatever the file's.
+        guides.sort_by_key(|(name, _)| {
+            crate::guide::GUIDES
+                .iter()
+                .position(|g| g.name == name.as_str())
+        });
         Ok(SceneFile {
             mesh,
             environment,
