@@ -335,17 +335,19 @@ void gather_sky(inout Path path, inout Trail trail) {
 // front side only.
 void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
+    vec3 le = vec3(0.0);
     if (cos_out > 0.0) {
+        le = emitted(mat, hit.triangle, barycentric(tri, path.origin + hit.t * path.dir));
         if (nee && path.prev_bsdf_pdf > 0.0) {
             float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(trail, light_of(hit.triangle), 0.0) / tri.area
                                           : tri.light_pdf;
             float light_pdf = area_pdf * hit.t * hit.t / cos_out;
             weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);
         }
-        path.radiance += path.throughput * mat.emission.rgb * weight;
+        path.radiance += path.throughput * le * weight;
     }
     if (learn) {
-        land(trail, cos_out > 0.0 ? luminance(mat.emission.rgb) : 0.0, weight, 0.0, 0.0);
+        land(trail, luminance(le), weight, 0.0, 0.0);
     }
 }
 
@@ -405,7 +407,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
         float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
         faces = cos_y > 0.0;
         light_pdf = area_pdf * dist2 / cos_y;
-        le = load_material(lt.material).emission.rgb;
+        le = emitted(load_material(lt.material), entry.x, u);
     }
     float cos_x = dot(s.ns, wi);
     if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {

@@ -79,6 +79,8 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-c.xml",
         "tests/fixtures/mitsuba/coverage-d.xml",
         "tests/fixtures/mitsuba/coverage-e.xml",
+        "tests/fixtures/mitsuba/coverage-f.xml",
+        "tests/fixtures/mitsuba/coverage-g.xml",
     ]
     .iter()
     .map(PathBuf::from)

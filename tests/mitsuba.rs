@@ -278,6 +278,16 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             5,
             "no texture has the id 't'",
         ),
+        (
+            "<shape type=\"cube\"><emitter type=\"area\"><ref name=\"scale\" id=\"t\"/></emitter></shape>",
+            5,
+            "area's 'scale' cannot be a texture in qtrace (area takes one for radiance)",
+        ),
+        (
+            "<emitter type=\"point\"><ref name=\"intensity\" id=\"t\"/></emitter>",
+            5,
+            "emitter 'point'",
+        ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),
         ("<shape type=\"cube\"", 6, "malformed XML"),
@@ -499,6 +509,21 @@ fn textured_scene_agrees_with_mitsuba() {
         (Method::NEURAL, true),
     ] {
         check("coverage-e", &scene, &[("res", "64")], method(m, nee, 1024));
+    }
+}
+
+#[test]
+fn textured_lights_agree_with_mitsuba() {
+    // Area lights whose radiance is a bitmap and a checkerboard: what a
+    // camera ray sees of them, and what NEE and BSDF sampling bring of
+    // them; sarsa learns from them.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-g.xml");
+    for (m, nee, spp) in [
+        (Method::PT, true, 1024),
+        (Method::PT, false, 2048),
+        (Method::SARSA, true, 1024),
+    ] {
+        check("coverage-g", &scene, &[("res", "64")], method(m, nee, spp));
     }
 }
 

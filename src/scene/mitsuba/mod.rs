@@ -469,7 +469,7 @@ impl Builder<'_, '_> {
         let kind = el.plugin()?;
         let p = Props::new(el);
         let mesh = self.shape_mesh(el, kind, &p)?;
-        let emission = area_emission(&p)?;
+        let emission = area_emission(&p, &mut self.textures, self.loader)?;
         let (desc, shared) = self.shape_bsdf(&p)?;
         p.finish()?;
         let label = format!(
@@ -477,7 +477,7 @@ impl Builder<'_, '_> {
             el.attr("id").unwrap_or("unnamed"),
             el.line
         );
-        if let Some(le) = emission {
+        if let Some((le, radiance_texture)) = emission {
             // qtrace's paths end at an emitter: exact for a black BSDF.
             let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
             if desc.null || !black {
@@ -499,7 +499,9 @@ impl Builder<'_, '_> {
                 surface: desc.surface,
                 emission: le,
                 one_sided: desc.one_sided,
-                textures: desc.textures,
+                // Paths end at an emitter: its BSDF's textures go unread,
+                // and the colour slot holds a radiance texture.
+                textures: [radiance_texture, None, None],
             });
             self.add(el, &label, mesh, m);
             return Ok(());
@@ -981,7 +983,11 @@ fn ior(el: &Element, p: &Props, name: &str, default: &str) -> Result<f32, SceneE
 }
 
 /// The radiance of a shape's nested `area` emitter, if it has one.
-fn area_emission(p: &Props) -> Result<Option<Vec3>, SceneError> {
+fn area_emission(
+    p: &Props,
+    textures: &mut textures::Textures,
+    loader: &Loader<'_>,
+) -> Result<Option<(Vec3, Option<u32>)>, SceneError> {
     let mut emission = None;
     for e in p.nested("emitter") {
         if e.plugin()? != "area" {
@@ -994,14 +1000,20 @@ fn area_emission(p: &Props) -> Result<Option<Vec3>, SceneError> {
             return Err(e.error("a shape has one area emitter"));
         }
         let ep = Props::new(e);
-        let radiance = ep
-            .radiance("radiance")?
-            .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?;
+        // A radiance texture: its mean weighs the light for NEE's choice.
+        let given =
+            textures.given(e, &ep, "area", loader)?[crate::shaders::TEXTURE_SLOT_COLOR as usize];
+        let radiance = match given {
+            Some((_, mean)) => mean,
+            None => ep
+                .radiance("radiance")?
+                .ok_or_else(|| e.error("emitter 'area' needs a radiance"))?,
+        };
         if radiance.min_element() < 0.0 {
             return Err(e.error("the area emitter's radiance is negative"));
         }
         ep.finish()?;
-        emission = Some(radiance);
+        emission = Some((radiance, given.map(|(i, _)| i)));
     }
     Ok(emission)
 }

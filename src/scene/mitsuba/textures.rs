@@ -20,7 +20,8 @@ pub struct Textures {
     index: HashMap<String, u32>,
 }
 
-/// The BSDF parameters a texture may give, and the material slot it fills.
+/// The BSDF (or area emitter) parameters a texture may give, and the
+/// material slot it fills.
 pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
     const COLOR: u32 = TEXTURE_SLOT_COLOR;
     const SECOND: u32 = TEXTURE_SLOT_SECOND;
@@ -46,6 +47,9 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("diffuse_reflectance", COLOR),
             ("specular_reflectance", SECOND),
         ],
+        // An emitter's material: paths end there, so its colour slot holds
+        // the radiance.
+        "area" => &[("radiance", COLOR)],
         _ => &[],
     }
 }
