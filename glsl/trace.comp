@@ -308,11 +308,11 @@ uint nee_choose_light(GuideVertex g, float u, out float p) {
     return GUIDE_LIGHTS ? guide_choose_light(g, u, p) : pick_light(u);
 }
 
-// The probability that NEE at the vertex the ray left would have picked
-// light `light` (an index of NEE's list): the guide's learned choice, else
-// `by_power`, pt's.
-float nee_pick_probability(Trail trail, uint light, float by_power) {
-    return GUIDE_LIGHTS ? guide_light_probability(trail.prev_vertex, light) : by_power;
+// The probability that NEE at vertex `from` (the one the ray left) would
+// have picked light `light` (an index of NEE's list): the guide's learned
+// choice, else `by_power`, pt's.
+float nee_pick_probability(GuideVertex from, uint light, float by_power) {
+    return GUIDE_LIGHTS ? guide_light_probability(from, light) : by_power;
 }
 
 // The path's ray left the scene: the sky, weighed against NEE's draws of
@@ -322,7 +322,7 @@ void gather_sky(inout Path path, inout Trail trail) {
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky is the last of NEE's lights.
-        float pick = nee_pick_probability(trail, params.light_count - 1u, params.environment.x);
+        float pick = nee_pick_probability(trail.prev_vertex, params.light_count - 1u, params.environment.x);
         weight = power_heuristic(path.prev_bsdf_pdf, pick * environment_pdf(path.dir));
     }
     path.radiance += path.throughput * le * weight;
@@ -339,7 +339,7 @@ void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, M
     if (cos_out > 0.0) {
         le = emitted(mat, hit.triangle, barycentric(tri, path.origin + hit.t * path.dir));
         if (nee && path.prev_bsdf_pdf > 0.0) {
-            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(trail, light_of(hit.triangle), 0.0) / tri.area
+            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(trail.prev_vertex, light_of(hit.triangle), 0.0) / tri.area
                                           : tri.light_pdf;
             float light_pdf = area_pdf * hit.t * hit.t / cos_out;
             weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);

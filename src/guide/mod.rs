@@ -442,17 +442,6 @@ impl GuideSettings {
             .and_then(|()| self.0.validate(scene));
         checked.map_err(|e| format!("[{}] {e}", self.name()))
     }
-
-    /// Builds the guide for `scene`, for a render of `pixels` pixels.
-    pub fn build(
-        &self,
-        ctx: &Arc<GpuContext>,
-        scene: &Scene,
-        seed: u32,
-        pixels: u64,
-    ) -> gpu::Result<Guide> {
-        self.0.build(ctx, scene, seed, pixels)
-    }
 }
 
 /// Where guide settings come from besides the scene's own tables: a file
