@@ -148,7 +148,11 @@ fn texture_coordinates_are_mitsubas() {
         ("<shape type=\"ply\"><string name=\"filename\" value=\"q.ply\"/><boolean name=\"flip_tex_coords\" value=\"true\"/>{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.8], 1e-5),
     ];
     for (shape, o, d, want, tolerance) in cases {
-        let body = shape.replace("{}", moved);
+        // Textured, as a scene keeps texture coordinates only for textures.
+        let textured = format!(
+            "{moved}<bsdf type=\"diffuse\"><texture type=\"checkerboard\" name=\"reflectance\"/></bsdf>"
+        );
+        let body = shape.replace("{}", &textured);
         let scene = load_text(&with_body(&body)).unwrap();
         let o = o + Vec3::new(10.0, 0.0, 0.0);
         let (t, i) = scene.intersect_brute(o, d).unwrap();

@@ -5,7 +5,7 @@
 //! sides of a branch cost, so uniform steps are what pays).
 
 use crate::shaders::{BvhNode, BVH_LEAF, BVH_NO_CHILD};
-use glam::Vec3;
+use glam::{Vec3, Vec3A, Vec4};
 
 const BINS: usize = 16;
 /// Deepest tree the builder makes (the recursion stays shallow).
@@ -14,18 +14,19 @@ const MAX_DEPTH: u32 = 64;
 /// hold 2^32 triangles, so the depth stays below MAX_DEPTH whatever the geometry.
 const MEDIAN_DEPTH: u32 = MAX_DEPTH - 33;
 
+/// A box; four lanes each, so the builder's passes use SIMD.
 #[derive(Clone, Copy)]
 struct Aabb {
-    min: Vec3,
-    max: Vec3,
+    min: Vec3A,
+    max: Vec3A,
 }
 
 impl Aabb {
     const EMPTY: Aabb = Aabb {
-        min: Vec3::splat(f32::INFINITY),
-        max: Vec3::splat(f32::NEG_INFINITY),
+        min: Vec3A::splat(f32::INFINITY),
+        max: Vec3A::splat(f32::NEG_INFINITY),
     };
-    fn grow(&mut self, p: Vec3) {
+    fn grow(&mut self, p: Vec3A) {
         self.min = self.min.min(p);
         self.max = self.max.max(p);
     }
@@ -34,7 +35,7 @@ impl Aabb {
         self.max = self.max.max(o.max);
     }
     fn area(&self) -> f32 {
-        let d = (self.max - self.min).max(Vec3::ZERO);
+        let d = (self.max - self.min).max(Vec3A::ZERO);
         2.0 * (d.x * d.y + d.y * d.z + d.z * d.x)
     }
 }
@@ -64,14 +65,44 @@ const NO_CHILD: Child = Child {
     reference: BVH_NO_CHILD,
 };
 
-/// Builds the tree over `order`, a slice of the whole triangle order that
+/// A triangle as the builder moves it: its box and its index together, so
+/// that each pass over a range reads memory in order rather than gathering
+/// from tables indexed by triangle. The index rides in `lo.w`, offset so
+/// that its bits read as a float of 1 or more: a denormal in that unused
+/// lane (as small indices, or half of one, would be) slows every SIMD op.
+#[derive(Clone, Copy)]
+struct Prim {
+    lo: Vec4,
+    hi: Vec4,
+}
+
+/// The bits of 1.0; triangle indices stay below 2^30.
+const INDEX_OFFSET: u32 = 0x3f80_0000;
+
+impl Prim {
+    fn min(&self) -> Vec3A {
+        Vec3A::from_vec4(self.lo)
+    }
+    fn max(&self) -> Vec3A {
+        Vec3A::from_vec4(self.hi)
+    }
+    fn index(&self) -> u32 {
+        self.lo.w.to_bits() - INDEX_OFFSET
+    }
+    fn centroid(&self) -> Vec3A {
+        0.5 * (self.min() + self.max())
+    }
+}
+
+/// A range's box and the box of its centroids.
+type Boxes = (Aabb, Aabb);
+
+/// Builds the tree over `prims`, a slice of the whole triangle order that
 /// starts at `base`; subtrees of large ranges are built on other threads
 /// into builders of their own, whose nodes their parent then adopts.
 struct Builder<'a, 'o> {
     triangles: &'a [[Vec3; 3]],
-    bounds: &'a [Aabb],
-    centroids: &'a [Vec3],
-    order: &'o mut [u32],
+    prims: &'o mut [Prim],
     base: usize,
     /// The nodes this builder fills, the next to fill, and the index of
     /// the first in the whole tree: a subtree over k triangles has k - 1
@@ -96,24 +127,24 @@ pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
 
 /// [`build`] on up to `threads` threads: the same tree whatever their number.
 fn build_with(triangles: &[[Vec3; 3]], threads: usize) -> Bvh {
-    let bounds: Vec<Aabb> = triangles
+    let mut prims: Vec<Prim> = triangles
         .iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(i, t)| {
             let mut b = Aabb::EMPTY;
-            t.iter().for_each(|&p| b.grow(p));
-            b
+            t.iter().for_each(|&p| b.grow(p.into()));
+            Prim {
+                lo: b.min.extend(f32::from_bits(i as u32 + INDEX_OFFSET)),
+                hi: b.max.extend(0.0),
+            }
         })
         .collect();
-    let centroids: Vec<Vec3> = bounds.iter().map(|b| 0.5 * (b.min + b.max)).collect();
-    let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
     let n = triangles.len();
     // The root always exists: with one leaf child, or none, below two triangles.
     let mut nodes = vec![BvhNode::default(); n.max(2) - 1];
     let mut builder = Builder {
         triangles,
-        bounds: &bounds,
-        centroids: &centroids,
-        order: &mut order,
+        prims: &mut prims,
         base: 0,
         nodes: &mut nodes,
         next: 0,
@@ -121,21 +152,21 @@ fn build_with(triangles: &[[Vec3; 3]], threads: usize) -> Bvh {
         depth: 0,
         parallel_levels: threads.max(1).next_power_of_two().trailing_zeros(),
     };
-    let all = if n >= 2 {
-        builder.split(0, n, 0).1
+    let boxes = builder.range_boxes(0, n);
+    if n >= 2 {
+        builder.split(0, n, 0, &boxes);
     } else {
         let only = if n == 1 { builder.leaf(0) } else { NO_CHILD };
         builder.nodes[0] = node_of(&only, &NO_CHILD);
         builder.depth = 1;
-        builder.range_bounds(0, n).0
-    };
+    }
     let depth = builder.depth;
     set_escapes(&mut nodes);
     Bvh {
         nodes,
-        order,
+        order: prims.iter().map(Prim::index).collect(),
         depth,
-        bounds: (all.min, all.max),
+        bounds: (boxes.0.min.into(), boxes.0.max.into()),
     }
 }
 
@@ -156,10 +187,10 @@ fn inner(c: u32) -> bool {
 /// Where a walk in direction octant `o` goes once a node's subtree is done:
 /// the first inner child goes on to its sibling (if inner), anything else to
 /// where its parent goes. A parent comes before its children, so one pass
-/// per octant does it.
+/// in order does it (all octants at each node: the nodes are read once).
 fn set_escapes(nodes: &mut [BvhNode]) {
-    for o in 0..8 {
-        for n in 0..nodes.len() {
+    for n in 0..nodes.len() {
+        for o in 0..8 {
             let [first, second] = ordered_children(&nodes[n], o);
             let escape = nodes[n].escapes[o];
             if inner(first) {
@@ -191,32 +222,34 @@ fn node_of(a: &Child, b: &Child) -> BvhNode {
 }
 
 impl Builder<'_, '_> {
-    fn range_bounds(&self, start: usize, end: usize) -> (Aabb, Aabb) {
+    fn range_boxes(&self, start: usize, end: usize) -> Boxes {
         let mut b = Aabb::EMPTY;
         let mut c = Aabb::EMPTY;
-        for &i in &self.order[start..end] {
-            b.merge(&self.bounds[i as usize]);
-            c.grow(self.centroids[i as usize]);
+        for p in &self.prims[start..end] {
+            b.grow(p.min());
+            b.grow(p.max());
+            c.grow(p.centroid());
         }
         (b, c)
     }
 
     fn leaf(&self, position: usize) -> Child {
-        let [v0, v1, v2] = self.triangles[self.order[position] as usize];
+        let [v0, v1, v2] = self.triangles[self.prims[position].index() as usize];
         Child {
             points: [v0, v1 - v0, v2 - v0],
             reference: BVH_LEAF | (self.base + position) as u32,
         }
     }
 
-    /// The child for triangles `start..end`: a leaf, or a subtree.
-    fn child(&mut self, start: usize, end: usize, depth: u32) -> Child {
+    /// The child for triangles `start..end`, whose boxes are `boxes`: a
+    /// leaf, or a subtree.
+    fn child(&mut self, start: usize, end: usize, depth: u32, boxes: &Boxes) -> Child {
         if end - start == 1 {
             self.leaf(start)
         } else {
-            let (index, b) = self.split(start, end, depth);
+            let index = self.split(start, end, depth, boxes);
             Child {
-                points: [b.min, b.max, Vec3::ZERO],
+                points: [boxes.0.min.into(), boxes.0.max.into(), Vec3::ZERO],
                 reference: index,
             }
         }
@@ -227,27 +260,24 @@ impl Builder<'_, '_> {
     /// thread would have numbered them.
     fn children_in_parallel(
         &mut self,
-        start: usize,
-        mid: usize,
-        end: usize,
+        (start, mid, end): (usize, usize, usize),
         depth: u32,
+        halves: &[Boxes; 2],
     ) -> [Child; 2] {
-        let (triangles, bounds, centroids) = (self.triangles, self.bounds, self.centroids);
+        let triangles = self.triangles;
         let levels = self.parallel_levels - 1;
-        let (lo, hi) = self.order[start..end].split_at_mut(mid - start);
+        let (lo, hi) = self.prims[start..end].split_at_mut(mid - start);
         let left_nodes = (mid - start).max(1) - 1;
         let right_nodes = (end - mid).max(1) - 1;
         let rest = &mut self.nodes[self.next..];
         let (nodes_lo, rest) = rest.split_at_mut(left_nodes);
         let nodes_hi = &mut rest[..right_nodes];
         let first = self.node_base + self.next;
-        let sub = |order: &mut [u32], base: usize, nodes: &mut [BvhNode], node_base: usize| {
-            let n = order.len();
+        let sub = |prims: &mut [Prim], base, nodes: &mut [BvhNode], node_base, boxes| {
+            let n = prims.len();
             let mut b = Builder {
                 triangles,
-                bounds,
-                centroids,
-                order,
+                prims,
                 base,
                 nodes,
                 next: 0,
@@ -255,13 +285,13 @@ impl Builder<'_, '_> {
                 depth: 0,
                 parallel_levels: levels,
             };
-            let child = b.child(0, n, depth + 1);
+            let child = b.child(0, n, depth + 1, boxes);
             (child, b.depth)
         };
         let (base_lo, base_hi) = (self.base + start, self.base + mid);
         let (a, b) = std::thread::scope(|s| {
-            let right = s.spawn(move || sub(hi, base_hi, nodes_hi, first + left_nodes));
-            let left = sub(lo, base_lo, nodes_lo, first);
+            let right = s.spawn(move || sub(hi, base_hi, nodes_hi, first + left_nodes, &halves[1]));
+            let left = sub(lo, base_lo, nodes_lo, first, &halves[0]);
             (left, right.join().expect("a BVH builder thread"))
         });
         self.next += left_nodes + right_nodes;
@@ -269,53 +299,71 @@ impl Builder<'_, '_> {
         [a.0, b.0]
     }
 
-    /// Builds the subtree of triangles `start..end` (at least two) and returns
-    /// its root node's index and box.
-    fn split(&mut self, start: usize, end: usize, depth: u32) -> (u32, Aabb) {
+    /// Builds the subtree of triangles `start..end` (at least two), whose
+    /// boxes are `boxes`, and returns its root node's index.
+    fn split(&mut self, start: usize, end: usize, depth: u32, boxes: &Boxes) -> u32 {
         self.depth = self.depth.max(depth + 1);
         let node = self.next;
         self.next += 1;
-        let (bounds, centroid_bounds) = self.range_bounds(start, end);
+        let centroid_bounds = &boxes.1;
         let extent = centroid_bounds.max - centroid_bounds.min;
         let axis = extent.max_position();
-        let mid = if extent[axis] <= 0.0 || depth >= MEDIAN_DEPTH {
-            // Coinciding centroids (or a deep tree): halve by position.
-            self.median_split(start, end, axis)
+        let sah = if extent[axis] <= 0.0 || depth >= MEDIAN_DEPTH {
+            None // Coinciding centroids (or a deep tree): halve by position.
         } else {
-            self.sah_split(start, end, axis, &centroid_bounds)
+            self.sah_split(start, end, axis, centroid_bounds)
         };
+        let (mid, halves) = sah.unwrap_or_else(|| {
+            let mid = self.median_split(start, end, axis);
+            (
+                mid,
+                [self.range_boxes(start, mid), self.range_boxes(mid, end)],
+            )
+        });
         let children = if self.parallel_levels > 0 && end - start >= PARALLEL_MIN {
-            self.children_in_parallel(start, mid, end, depth)
+            self.children_in_parallel((start, mid, end), depth, &halves)
         } else {
-            [(start, mid), (mid, end)].map(|(s, e)| self.child(s, e, depth + 1))
+            [(start, mid, &halves[0]), (mid, end, &halves[1])]
+                .map(|(s, e, h)| self.child(s, e, depth + 1, h))
         };
         self.nodes[node] = BvhNode {
             axis: axis as u32,
             ..node_of(&children[0], &children[1])
         };
-        ((self.node_base + node) as u32, bounds)
+        (self.node_base + node) as u32
     }
 
     fn median_split(&mut self, start: usize, end: usize, axis: usize) -> usize {
         let mid = (start + end) / 2;
-        let centroids = self.centroids;
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
-            centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+        self.prims[start..end].select_nth_unstable_by(mid - start, |a, b| {
+            a.centroid()[axis].total_cmp(&b.centroid()[axis])
         });
         mid
     }
 
     /// Partitions at the cheapest of the bin planes on `axis` (both sides
-    /// non-empty), or at the median when every centroid falls in one bin.
-    fn sah_split(&mut self, start: usize, end: usize, axis: usize, cb: &Aabb) -> usize {
+    /// non-empty) and returns where, with the two sides' boxes; `None`
+    /// when every centroid falls in one bin.
+    fn sah_split(
+        &mut self,
+        start: usize,
+        end: usize,
+        axis: usize,
+        cb: &Aabb,
+    ) -> Option<(usize, [Boxes; 2])> {
         let lo = cb.min[axis];
         let scale = BINS as f32 / (cb.max[axis] - lo);
-        let bin_of = |c: Vec3| (((c[axis] - lo) * scale) as usize).min(BINS - 1);
-        let mut bins = [(Aabb::EMPTY, 0usize); BINS];
-        for &i in &self.order[start..end] {
-            let b = &mut bins[bin_of(self.centroids[i as usize])];
-            b.0.merge(&self.bounds[i as usize]);
-            b.1 += 1;
+        let bin_of = |c: Vec3A| (((c[axis] - lo) * scale) as usize).min(BINS - 1);
+        // Each bin's box, its centroids' box and its count: the sides'
+        // boxes come from them, so no pass over a side is needed later.
+        let mut bins = [(Aabb::EMPTY, Aabb::EMPTY, 0usize); BINS];
+        for p in &self.prims[start..end] {
+            let c = p.centroid();
+            let b = &mut bins[bin_of(c)];
+            b.0.grow(p.min());
+            b.0.grow(p.max());
+            b.1.grow(c);
+            b.2 += 1;
         }
         // Cost of splitting after bin k: left areas from the left, right from the right.
         let mut right_cost = [0.0f32; BINS];
@@ -323,7 +371,7 @@ impl Builder<'_, '_> {
         let mut n = 0;
         for k in (1..BINS).rev() {
             acc.merge(&bins[k].0);
-            n += bins[k].1;
+            n += bins[k].2;
             right_cost[k] = if n > 0 { acc.area() * n as f32 } else { 0.0 };
         }
         let mut best = (f32::INFINITY, 0usize);
@@ -331,26 +379,31 @@ impl Builder<'_, '_> {
         let mut n = 0;
         for k in 0..BINS - 1 {
             acc.merge(&bins[k].0);
-            n += bins[k].1;
+            n += bins[k].2;
             let cost = if n > 0 { acc.area() * n as f32 } else { 0.0 } + right_cost[k + 1];
             if n > 0 && n < end - start && cost < best.0 {
                 best = (cost, k);
             }
         }
         if best.0 == f32::INFINITY {
-            return self.median_split(start, end, axis);
+            return None;
         }
         let split_bin = best.1;
-        let centroids = self.centroids;
-        let slice = &mut self.order[start..end];
+        let mut halves = [(Aabb::EMPTY, Aabb::EMPTY); 2];
+        for (k, bin) in bins.iter().enumerate() {
+            let h = &mut halves[usize::from(k > split_bin)];
+            h.0.merge(&bin.0);
+            h.1.merge(&bin.1);
+        }
+        let slice = &mut self.prims[start..end];
         let mut left = 0;
         for i in 0..slice.len() {
-            if bin_of(centroids[slice[i] as usize]) <= split_bin {
+            if bin_of(slice[i].centroid()) <= split_bin {
                 slice.swap(i, left);
                 left += 1;
             }
         }
-        start + left
+        Some((start + left, halves))
     }
 }
 

@@ -522,6 +522,13 @@ impl Scene {
                 "the scene has more than {max_triangles} triangles, the most a scene may have"
             )));
         }
+        // Texture coordinates serve only textures: a large mesh's would
+        // cost memory for nothing.
+        let uvs = if materials.iter().any(Material::textured) {
+            uvs
+        } else {
+            Vec::new()
+        };
         let extent = extent_of(&positions, &sources, &source_of)?;
         let zero_area = |t: &[Vec3; 3]| {
             0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() <= 1e-12 * extent * extent
@@ -563,7 +570,11 @@ impl Scene {
             });
         }
 
+        // Packed before the BVH, and each table dropped once the device's
+        // form is made: a 10M-triangle scene's peak memory is set here.
+        let normals = pack_normals(normals);
         let bvh = bvh::build(&positions);
+        let normals = in_order(normals, &bvh.order);
         let mut triangles: Vec<shaders::Triangle> = bvh
             .order
             .iter()
@@ -580,6 +591,7 @@ impl Scene {
                 }
             })
             .collect();
+        drop(positions);
         // NEE weighs the sky by the power it sends into the scene: its
         // radiance over a disk as wide as the scene.
         let sky_weight = environment
@@ -587,12 +599,7 @@ impl Scene {
             .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
         let (lights, delta_entries) =
             build_lights(&mut triangles, &materials, &delta_lights, sky_weight);
-        let normals = device_normals(&normals, &bvh.order);
-        let mut uvs: Vec<_> = bvh
-            .order
-            .iter()
-            .filter_map(|&i| uvs.get(i as usize).copied())
-            .collect();
+        let mut uvs = in_order(uvs, &bvh.order);
         if uvs.is_empty() && materials.iter().any(Material::textured) {
             uvs = vec![BARYCENTRIC_UVS; triangles.len()];
         }
@@ -754,19 +761,28 @@ fn extent_of(
     Ok((hi - lo).length().max(1e-6))
 }
 
-/// Per-vertex normals packed in BVH order for the device; none where every
-/// triangle is flat (the kernels then shade with the faces' normals).
-fn device_normals(normals: &[[Vec3; 3]], order: &[u32]) -> Vec<[u32; 4]> {
+/// Per-vertex normals packed for the device; none where every triangle is
+/// flat (the kernels then shade with the faces' normals).
+fn pack_normals(normals: Vec<[Vec3; 3]>) -> Vec<[u32; 4]> {
     if normals.iter().all(|n| n[0] == n[1] && n[1] == n[2]) {
         return Vec::new();
     }
-    order
+    normals
         .iter()
-        .map(|&i| {
-            let [a, b, c] = normals[i as usize].map(pack_normal);
+        .map(|n| {
+            let [a, b, c] = n.map(pack_normal);
             [a, b, c, 0]
         })
         .collect()
+}
+
+/// `items` (one per triangle, or none) in the BVH's order: `k`-th is the
+/// old `items[order[k]]`.
+fn in_order<T: Copy>(items: Vec<T>, order: &[u32]) -> Vec<T> {
+    if items.is_empty() {
+        return items;
+    }
+    order.iter().map(|&i| items[i as usize]).collect()
 }
 
 /// The triangles without those `zero_area` says have none, and one warning
