@@ -17,6 +17,9 @@ pub struct Buffer {
     name: String,
 }
 
+/// The largest staging buffer an upload uses.
+pub const STAGING_BYTES: u64 = 64 << 20;
+
 /// Fault injection for tests: with `QTRACE_FAIL_ALLOCATION=N` in the
 /// environment, the N-th buffer allocation of the process (from 0) fails as
 /// a device out of memory would, so tests can check that every allocation
@@ -48,15 +51,6 @@ impl Buffer {
         };
         if injected_failure() {
             return Err(failed(gpu_allocator::AllocationError::OutOfMemory));
-        }
-        let limit = ctx.info().max_storage_buffer_range;
-        if size > limit {
-            return Err(Error::BufferTooLarge {
-                name: name.into(),
-                size,
-                limit,
-                device: ctx.info().name.clone(),
-            });
         }
         // Vulkan forbids empty buffers; an empty list still needs a binding.
         let size = size.max(16);
@@ -133,18 +127,14 @@ impl Buffer {
         name: &str,
         data: &[T],
     ) -> Result<Self> {
-        let bytes: &[u8] = bytemuck::cast_slice(data);
-        let buffer = Self::gpu_only(ctx, name, bytes.len() as u64)?;
-        if !bytes.is_empty() {
-            let staging = Self::upload(ctx, &format!("{name} (staging)"), bytes.len() as u64)?;
-            staging.write(data);
-            ctx.submit(None, |rec| rec.copy(&staging, &buffer))?;
-        }
+        let buffer = Self::gpu_only(ctx, name, std::mem::size_of_val(data) as u64)?;
+        buffer.overwrite(data)?;
         Ok(buffer)
     }
 
     /// Overwrites the start of a device-local buffer with `data`, copied
-    /// through a staging buffer.
+    /// through a staging buffer of at most [`STAGING_BYTES`], a piece at a
+    /// time: a large scene's tables need no second copy of themselves.
     pub fn overwrite<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         if bytes.is_empty() {
@@ -153,10 +143,16 @@ impl Buffer {
         let staging = Self::upload(
             &self.ctx,
             &format!("{} (staging)", self.name),
-            bytes.len() as u64,
+            (bytes.len() as u64).min(STAGING_BYTES),
         )?;
-        staging.write(data);
-        self.ctx.submit(None, |rec| rec.copy(&staging, self))
+        for (k, piece) in bytes.chunks(STAGING_BYTES as usize).enumerate() {
+            staging.write(piece);
+            let offset = k as u64 * STAGING_BYTES;
+            self.ctx.submit(None, |rec| {
+                rec.copy_region(&staging, self, offset, piece.len() as u64)
+            })?;
+        }
+        Ok(())
     }
 
     /// The whole contents of a device-local buffer, copied through a readback buffer.

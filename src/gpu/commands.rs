@@ -171,6 +171,11 @@ impl Recorder<'_> {
 
     /// Copies the whole of `src` into `dst`.
     pub fn copy(&mut self, src: &Buffer, dst: &Buffer) {
+        self.copy_region(src, dst, 0, src.size().min(dst.size()));
+    }
+
+    /// Copies `size` bytes from the start of `src` to `dst` at `offset`.
+    pub fn copy_region(&mut self, src: &Buffer, dst: &Buffer, offset: u64, size: u64) {
         // The copy reads what shaders or earlier copies wrote.
         self.barrier(
             vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
@@ -178,7 +183,7 @@ impl Recorder<'_> {
             vk::PipelineStageFlags::TRANSFER,
             vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE,
         );
-        let region = [vk::BufferCopy::default().size(src.size().min(dst.size()))];
+        let region = [vk::BufferCopy::default().dst_offset(offset).size(size)];
         unsafe {
             self.ctx
                 .device

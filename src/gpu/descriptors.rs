@@ -41,6 +41,20 @@ impl DescriptorSet {
                     })
             })
             .collect::<Result<_>>()?;
+        // A storage binding sees the whole buffer, which the device bounds
+        // (a texel view checks its own limit below).
+        let info = ctx.info();
+        for &(_, kind, buf) in &chosen {
+            if kind == BindingKind::StorageBuffer && buf.capacity() > info.max_storage_buffer_range
+            {
+                return Err(Error::BufferTooLarge {
+                    name: buf.name().into(),
+                    size: buf.capacity(),
+                    limit: info.max_storage_buffer_range,
+                    device: info.name.clone(),
+                });
+            }
+        }
         let device = &ctx.device;
         let count = |kind: BindingKind| chosen.iter().filter(|c| c.1 == kind).count() as u32;
         let sizes: Vec<_> = [BindingKind::StorageBuffer, BindingKind::UniformTexelBuffer]

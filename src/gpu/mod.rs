@@ -11,7 +11,7 @@ mod pipeline;
 mod shader;
 mod timestamps;
 
-pub use buffer::Buffer;
+pub use buffer::{Buffer, STAGING_BYTES};
 pub use commands::{Pass, Recorder};
 pub use context::{list_devices, ContextOptions, DeviceInfo, GpuContext, Reads};
 pub use descriptors::DescriptorSet;
@@ -31,7 +31,7 @@ pub enum Error {
     NoMatchingDevice(String),
     #[error("Vulkan device '{device}' lacks {feature}")]
     MissingFeature { device: String, feature: String },
-    #[error("buffer '{name}' needs {size} bytes but device '{device}' allows at most {limit} bytes per storage buffer")]
+    #[error("buffer '{name}' needs {size} bytes but device '{device}' allows at most {limit} bytes per storage buffer (`--reads texel` reads the scene through texel buffers, which may hold more)")]
     BufferTooLarge {
         name: String,
         size: u64,
