@@ -132,10 +132,21 @@ impl Buffer {
         Ok(buffer)
     }
 
-    /// Overwrites the start of a device-local buffer with `data`, copied
-    /// through a staging buffer of at most [`STAGING_BYTES`], a piece at a
-    /// time: a large scene's tables need no second copy of themselves.
+    /// Overwrites the start of a device-local buffer with `data`: written
+    /// in place where the host sees its memory (a CPU device's), else
+    /// [`Buffer::stage`]d.
     pub fn overwrite<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
+        if self.mapped().is_some() {
+            self.write(data);
+            return Ok(());
+        }
+        self.stage(data)
+    }
+
+    /// Overwrites the start of the buffer with `data` copied through a
+    /// staging buffer of at most [`STAGING_BYTES`], a piece at a time: a
+    /// large scene's tables need no second copy of themselves.
+    pub fn stage<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         if bytes.is_empty() {
             return Ok(());
