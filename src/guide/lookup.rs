@@ -12,7 +12,7 @@
 //! tree walk.
 
 use super::volumes::Volume;
-use super::volumes::{dmin2, faces_same_way, nearest_where, within_box_distance};
+use super::volumes::{dmin2, faces_same_way, nearest_from, within_box_distance};
 use crate::scene::Scene;
 use crate::shaders::{Triangle, NO_VOLUME};
 use glam::{Vec2, Vec3};
@@ -80,10 +80,7 @@ impl VolumeLookup {
                                 break mine;
                             }
                             let part = &triangles[start..(start + run).min(triangles.len())];
-                            let cells = part
-                                .iter()
-                                .map(|t| triangle_cells(t, volumes, cell, offset));
-                            mine.push((start, cells.collect::<Vec<_>>()));
+                            mine.push((start, run_cells(part, volumes, cell, offset)));
                         }
                     })
                 })
@@ -217,38 +214,143 @@ fn grid_of(t: &Triangle, cell: f32, offset: f32) -> [u32; 2] {
     [cells_along(e1, cell), cells_along(e2, cell)]
 }
 
-fn triangle_cells(t: &Triangle, volumes: &[Volume], cell: f32, offset: f32) -> TriangleCells {
+/// Triangles of one cell that share one search of the k-d tree.
+const GROUP: usize = 16;
+
+/// The cells of consecutive triangles `part`. Neighbours in the BVH's
+/// order lie close together, so the one-cell triangles among them search the
+/// tree once per [`GROUP`], for every volume that any of them could need,
+/// and each picks its own from that pool: the same lists as searching the
+/// tree for each (the pool holds each one's search, in the tree's order).
+fn run_cells(part: &[Triangle], volumes: &[Volume], cell: f32, offset: f32) -> Vec<TriangleCells> {
+    // Each side's nearest volume starts from the last triangle's.
+    let mut hints = [None; 2];
+    let planned: Vec<_> = part
+        .iter()
+        .map(|t| {
+            let p = plan_triangle(t, volumes, cell, offset, hints);
+            if let Some(p) = &p {
+                hints = p
+                    .sides
+                    .each_ref()
+                    .map(|s| s.search.as_ref().map(|s| s.first));
+            }
+            p
+        })
+        .collect();
+    let m = margin(cell, offset);
+    let mut out = Vec::with_capacity(part.len());
+    for group in planned.chunks(GROUP) {
+        let small = |p: &&Option<Planned>| p.as_ref().is_some_and(|p| p.dims == [1, 1]);
+        let searches = group
+            .iter()
+            .filter(small)
+            .flatten()
+            .flat_map(|p| p.sides.iter().filter_map(|s| s.search.as_ref()));
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        let mut r2 = 0.0f32;
+        for s in searches {
+            (lo, hi, r2) = (lo.min(s.lo), hi.max(s.hi), r2.max(s.r2));
+        }
+        let mut pool = Vec::new();
+        if lo.x <= hi.x {
+            within_box_distance(volumes, lo, hi, r2, &mut |j| pool.push(j));
+        }
+        for p in group {
+            let pool = small(&p).then_some(&pool[..]);
+            out.push(triangle_cells(p.as_ref(), volumes, m, pool));
+        }
+    }
+    out
+}
+
+/// A triangle's grid and its two sides, searched as far as knowing where
+/// their candidates lie; `None` for an emitter.
+struct Planned {
+    dims: [u32; 2],
+    sides: [PlannedSide; 2],
+}
+
+struct PlannedSide {
+    normal: Vec3,
+    grid: CellGrid,
+    /// The whole grid's region.
+    region: Vec<Vec3>,
+    /// `None` where no volume faces this side.
+    search: Option<Search>,
+}
+
+fn plan_triangle(
+    t: &Triangle,
+    volumes: &[Volume],
+    cell: f32,
+    offset: f32,
+    hints: [Option<u32>; 2],
+) -> Option<Planned> {
+    if t.light_pdf > 0.0 {
+        // Paths end on emitters: nothing looks a volume up there.
+        return None;
+    }
     let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
     let n = e1.cross(e2).normalize();
+    let dims = grid_of(t, cell, offset);
+    let m = margin(cell, offset);
+    let side = |normal: Vec3, hint: Option<u32>| {
+        // Query points sit one ray offset off the surface, on the shaded side.
+        let grid = CellGrid {
+            origin: v0 + normal * offset,
+            e1,
+            e2,
+            dims,
+        };
+        let region = grid.block([0, 0], dims);
+        let search = plan_search(volumes, &region, m, |v| faces_same_way(v, normal), hint);
+        PlannedSide {
+            normal,
+            grid,
+            region,
+            search,
+        }
+    };
+    Some(Planned {
+        dims,
+        sides: [side(n, hints[0]), side(-n, hints[1])],
+    })
+}
+
+/// The cells of a planned triangle; its candidates are searched in the
+/// whole tree, or among `pool` where that holds them.
+fn triangle_cells(
+    planned: Option<&Planned>,
+    volumes: &[Volume],
+    m: f32,
+    pool: Option<&[u32]>,
+) -> TriangleCells {
+    let Some(planned) = planned else {
+        return TriangleCells {
+            dims: [1, 1],
+            cells: vec![[NO_VOLUME, 0]; 2],
+            items: Vec::new(),
+        };
+    };
+    let [nu, nv] = planned.dims;
     let mut out = TriangleCells {
-        dims: [1, 1],
+        dims: planned.dims,
         cells: Vec::new(),
         items: Vec::new(),
     };
-    if t.light_pdf > 0.0 {
-        // Paths end on emitters: nothing looks a volume up there.
-        out.cells = vec![[NO_VOLUME, 0]; 2];
-        return out;
-    }
-    let [nu, nv] = grid_of(t, cell, offset);
-    out.dims = [nu, nv];
-    let m = margin(cell, offset);
-    for side in [n, -n] {
-        // Query points sit one ray offset off the surface, on the shaded side.
-        let origin = v0 + side * offset;
-        let grid = CellGrid {
-            origin,
-            e1,
-            e2,
-            dims: [nu, nv],
-        };
+    for side in &planned.sides {
         // The tree is searched once, for the whole grid; each half of a
         // block of cells then searches its block's candidates only (see
         // `candidates`), down to single cells.
-        let all = grid.block([0, 0], [nu, nv]);
-        let found = candidates(volumes, &all, m, |v| faces_same_way(v, side));
+        let accept = |v: &Volume| faces_same_way(v, side.normal);
+        let found = side.search.as_ref().map_or_else(Vec::new, |s| {
+            s.candidates(volumes, pool, &side.region, m, accept)
+        });
         let mut cells = vec![Vec::new(); (nu * nv) as usize];
-        grid.split(volumes, &found, [0, 0], [nu, nv], m, &mut cells);
+        side.grid
+            .split(volumes, &found, [0, 0], [nu, nv], m, &mut cells);
         for found in &cells {
             match found.as_slice() {
                 [] => out.cells.push([NO_VOLUME, 0]),
@@ -369,27 +471,67 @@ fn clip_to_triangle(quad: [Vec2; 4]) -> Vec<Vec2> {
     out
 }
 
-/// Volumes `accept` lets through that can be nearest to some point within
-/// `margin` of the convex polygon `region`, nearest to its centre first;
-/// searched in the whole k-d tree.
-fn candidates(
+/// Where the candidates of a region lie: its centre, the nearest volume
+/// to it, and the box and squared distance of [`search_box`].
+struct Search {
+    centre: Vec3,
+    first: u32,
+    lo: Vec3,
+    hi: Vec3,
+    r2: f32,
+}
+
+/// The search for the volumes `accept` lets through that can be nearest to
+/// some point within `margin` of the convex polygon `region`; `None` where
+/// `accept` lets none through. `hint` starts the search for the nearest.
+fn plan_search(
     volumes: &[Volume],
     region: &[Vec3],
     margin: f32,
-    accept: impl Fn(&Volume) -> bool + Copy,
-) -> Vec<u32> {
+    accept: impl Fn(&Volume) -> bool,
+    hint: Option<u32>,
+) -> Option<Search> {
     let centre = region.iter().copied().sum::<Vec3>() / region.len() as f32;
-    let Some(first) = nearest_where(volumes, centre, accept) else {
-        return Vec::new();
-    };
+    let first = nearest_from(volumes, centre, accept, hint)?;
     let (lo, hi, r2) = search_box(volumes, region, margin, first);
-    let mut found = Vec::new();
-    within_box_distance(volumes, lo, hi, r2, &mut |j| {
-        if accept(&volumes[j as usize]) {
-            found.push(j);
+    Some(Search {
+        centre,
+        first,
+        lo,
+        hi,
+        r2,
+    })
+}
+
+impl Search {
+    /// The candidates, nearest to the region's centre first: found in the
+    /// whole k-d tree, or in `pool`, a part of it (in the tree's order)
+    /// that holds every volume within the search's distance of its box.
+    fn candidates(
+        &self,
+        volumes: &[Volume],
+        pool: Option<&[u32]>,
+        region: &[Vec3],
+        margin: f32,
+        accept: impl Fn(&Volume) -> bool,
+    ) -> Vec<u32> {
+        let mut found = Vec::new();
+        let mut take = |j: u32| {
+            if accept(&volumes[j as usize]) {
+                found.push(j);
+            }
+        };
+        match pool {
+            Some(pool) => pool
+                .iter()
+                .filter(|&&j| {
+                    dmin2(self.lo, self.hi, volumes[j as usize].position.into()) <= self.r2
+                })
+                .for_each(|&j| take(j)),
+            None => within_box_distance(volumes, self.lo, self.hi, self.r2, &mut take),
         }
-    });
-    undominated(volumes, found, region, margin, centre)
+        undominated(volumes, found, region, margin, self.centre)
+    }
 }
 
 /// As `candidates`, searched among `known`: the candidates of a region that

@@ -133,7 +133,25 @@ pub fn nearest_kd(volumes: &[Volume], p: Vec3, n: Vec3) -> Option<u32> {
 
 /// Nearest volume to `p` among those `accept` lets through, via the k-d tree.
 pub fn nearest_where(volumes: &[Volume], p: Vec3, accept: impl Fn(&Volume) -> bool) -> Option<u32> {
-    let mut best: Option<(f32, u32)> = None;
+    nearest_from(volumes, p, accept, None)
+}
+
+/// [`nearest_where`], starting from `hint` (a volume likely near `p`, such
+/// as a neighbour's answer) where `accept` lets it through: its distance
+/// prunes the walk from the first step. A volume exactly as near as the
+/// hint may be returned in its place.
+pub fn nearest_from(
+    volumes: &[Volume],
+    p: Vec3,
+    accept: impl Fn(&Volume) -> bool,
+    hint: Option<u32>,
+) -> Option<u32> {
+    let mut best: Option<(f32, u32)> = hint.filter(|&h| accept(&volumes[h as usize])).map(|h| {
+        (
+            Vec3::from(volumes[h as usize].position).distance_squared(p),
+            h,
+        )
+    });
     let mut stack = vec![(0usize, volumes.len(), 0.0f32)];
     while let Some((lo, hi, plane_d2)) = stack.pop() {
         if lo >= hi || best.is_some_and(|(d, _)| plane_d2 >= d) {
