@@ -106,6 +106,36 @@ fn with_body(body: &str) -> String {
     )
 }
 
+/// The sensor, film and integrator parameters that exporters write and that
+/// do not change a pinhole camera's image load without a word (Mitsuba 3.9.1
+/// loads this scene too).
+#[test]
+fn an_exporters_sensor_and_film_load() {
+    let scene = load_text(
+        r#"<scene version="3.0.0">
+<integrator type="path"><integer name="max_depth" value="65"/><boolean name="hide_emitters" value="false"/></integrator>
+<sensor type="perspective">
+  <string name="fov_axis" value="smaller"/>
+  <float name="near_clip" value="0.001"/><float name="far_clip" value="100.0"/>
+  <float name="focus_distance" value="1000"/>
+  <float name="shutter_open" value="0"/><float name="shutter_close" value="0"/>
+  <float name="fov" value="39.3077"/>
+  <transform name="to_world"><lookat origin="0, 1, 6.8" target="0, 1, 0" up="0, 1, 0"/></transform>
+  <sampler type="independent"><integer name="sample_count" value="64"/><integer name="seed" value="3"/></sampler>
+  <film type="hdrfilm">
+    <integer name="width" value="64"/><integer name="height" value="48"/>
+    <string name="file_format" value="openexr"/><string name="pixel_format" value="rgb"/>
+    <string name="component_format" value="float16"/><boolean name="sample_border" value="false"/>
+    <rfilter type="tent"/>
+  </film>
+</sensor>
+<shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+</scene>"#,
+    )
+    .unwrap();
+    assert_eq!(scene.camera.fov_degrees, 39.3077);
+}
+
 #[test]
 fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     let scene = load_text(&with_body(

@@ -366,6 +366,10 @@ impl Builder<'_, '_> {
         // Clipping planes keep the scene in front of the camera whole.
         p.ignore("near_clip");
         p.ignore("far_clip");
+        // A pinhole is in focus at every distance, and no shape moves.
+        p.ignore("focus_distance");
+        p.ignore("shutter_open");
+        p.ignore("shutter_close");
         for sampler in p.nested("sampler") {
             self.sampler(sampler)?;
         }
