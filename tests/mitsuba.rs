@@ -224,6 +224,10 @@ fn spectra_turn_into_mitsubas_rgb() {
     let (a, e) = case("400:0.5, 700:0.5", "400:1, 700:1");
     assert!(close(a, [0.497671, 0.499878, 0.497455]), "{a}");
     assert!(close(e, [1.19969, 0.949521, 0.903443]), "{e}");
+    // One value: a grey reflectance, but an emitted flat spectrum's colour.
+    let (a, e) = case("0.5", "5");
+    assert!(close(a, [0.5; 3]), "{a}");
+    assert!(close(e, [6.02397, 4.74146, 4.54458]), "{e}");
     let s = "400:0.1, 500:0.5, 600:0.9, 700:0.2";
     let (a, e) = case(s, s);
     assert!(close(a, [0.833828, 0.68912, 0.265243]), "{a}");

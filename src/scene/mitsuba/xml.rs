@@ -417,6 +417,10 @@ impl<'e> Props<'e> {
                 }
                 let v = self.numbers(el, text)?;
                 match v[..] {
+                    // A flat spectrum emitted is, in Mitsuba's RGB variants,
+                    // its colour under CIE 1931 with no white point: equal
+                    // energy is pinkish in sRGB.
+                    [x] if emitted => x * EQUAL_ENERGY_RGB,
                     [x] => Vec3::splat(x),
                     _ => {
                         return Err(el.error(format!(
@@ -555,6 +559,11 @@ pub fn spectrum_to_rgb(el: &Element, text: &str, bounded: bool) -> Result<Vec3, 
     }
     Ok(clamped)
 }
+
+/// The linear sRGB of an emitted flat spectrum of 1, as Mitsuba 3.9.1's RGB
+/// variants have it (`mi.traverse` of an area emitter's `<spectrum
+/// name="radiance" value="1"/>`).
+const EQUAL_ENERGY_RGB: Vec3 = Vec3::new(1.204_794, 0.948_291, 0.908_916);
 
 /// 1 / the integral of the CIE 1931 ȳ over 360-830 nm, as Mitsuba 3 has it.
 const CIE_Y_NORMALIZATION: f64 = 1.0 / 106.750_259_399_414_06;
