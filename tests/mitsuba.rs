@@ -106,9 +106,10 @@ fn with_body(body: &str) -> String {
     )
 }
 
-/// The sensor, film and integrator parameters that exporters write and that
-/// do not change a pinhole camera's image load without a word (Mitsuba 3.9.1
-/// loads this scene too).
+/// The sensor, film, integrator and emitter parameters that exporters write
+/// and that do not change the image (a pinhole's focus and shutter, how often
+/// NEE picks an emitter) load without a word (Mitsuba 3.9.1 loads this
+/// scene too).
 #[test]
 fn an_exporters_sensor_and_film_load() {
     let scene = load_text(
@@ -129,7 +130,8 @@ fn an_exporters_sensor_and_film_load() {
     <rfilter type="tent"/>
   </film>
 </sensor>
-<shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+<shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/><float name="sampling_weight" value="2"/></emitter></shape>
+<emitter type="point"><float name="sampling_weight" value="0.5"/></emitter>
 </scene>"#,
     )
     .unwrap();

@@ -168,6 +168,8 @@ impl Builder<'_, '_> {
         use crate::shaders::{DELTA_DIRECTIONAL, DELTA_POINT, DELTA_SPOT};
         let kind = el.plugin()?;
         let p = Props::new(el);
+        // How often Mitsuba's NEE picks the emitter: noise, not the image.
+        p.ignore("sampling_weight");
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         let axis = to_world
             .transform_vector3(Vec3::Z)
@@ -224,7 +226,6 @@ impl Builder<'_, '_> {
                 if radiance.min_element() < 0.0 {
                     return Err(el.error("the constant emitter's radiance is negative"));
                 }
-                p.ignore("sampling_weight");
                 p.finish()?;
                 self.environment = Some(radiance);
                 return Ok(());
@@ -1004,6 +1005,7 @@ fn area_emission(
             return Err(e.error("a shape has one area emitter"));
         }
         let ep = Props::new(e);
+        ep.ignore("sampling_weight");
         // A radiance texture: its mean weighs the light for NEE's choice.
         let given =
             textures.given(e, &ep, "area", loader)?[crate::shaders::TEXTURE_SLOT_COLOR as usize];
