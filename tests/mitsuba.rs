@@ -126,7 +126,7 @@ fn an_exporters_sensor_and_film_load() {
   <film type="hdrfilm">
     <integer name="width" value="64"/><integer name="height" value="48"/>
     <string name="file_format" value="openexr"/><string name="pixel_format" value="rgb"/>
-    <string name="component_format" value="float16"/><boolean name="sample_border" value="false"/>
+    <string name="component_format" value="float16"/><boolean name="sample_border" value="false"/><boolean name="compensate" value="true"/>
     <rfilter type="tent"/>
   </film>
 </sensor>

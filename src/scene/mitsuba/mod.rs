@@ -446,6 +446,7 @@ impl Builder<'_, '_> {
             "component_format",
             "banner",
             "sample_border",
+            "compensate",
         ] {
             p.ignore(k);
         }
