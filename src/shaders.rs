@@ -35,7 +35,9 @@ pub mod spirv {
     }
 }
 
-#[repr(C)]
+/// Aligned to 64 bytes (its size stays 128) so that a CPU device can read
+/// the host's array of them in place (`Buffer::import_host`).
+#[repr(C, align(64))]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct BvhNode {
     pub a0: [f32; 3],

@@ -11,6 +11,8 @@ pub struct Buffer {
     ctx: Arc<GpuContext>,
     pub(super) raw: vk::Buffer,
     allocation: Option<Allocation>,
+    /// Host memory the device reads in place, and what keeps it alive.
+    imported: Option<(vk::DeviceMemory, Arc<dyn std::any::Any + Send + Sync>)>,
     size: u64,
     /// Bytes allocated: `size` rounded up to whole 16-byte texels.
     capacity: u64,
@@ -93,6 +95,7 @@ impl Buffer {
             ctx: ctx.clone(),
             raw,
             allocation: Some(allocation),
+            imported: None,
             size,
             capacity,
             name: name.into(),
@@ -121,6 +124,99 @@ impl Buffer {
         Self::new(ctx, name, size, MemoryLocation::GpuToCpu, usage)
     }
 
+    /// A buffer the shaders read straight from `data`, host memory that
+    /// `owner` keeps alive and unchanged for as long as the buffer lives:
+    /// where the device is a CPU that imports host memory, and `data` lies
+    /// as the import needs (whole 16-byte texels, 16-byte aligned). `None`
+    /// elsewhere: then copy it into a buffer of the device's own.
+    pub fn import_host<T: bytemuck::Pod>(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        data: &[T],
+        owner: Arc<dyn std::any::Any + Send + Sync>,
+    ) -> Result<Option<Self>> {
+        let (Some(page), Some(ext)) = (
+            ctx.info().host_import_alignment,
+            ctx.external_memory_host.as_ref(),
+        ) else {
+            return Ok(None);
+        };
+        let size = std::mem::size_of_val(data) as u64;
+        let address = data.as_ptr() as u64;
+        if size == 0 || size % 16 != 0 || address % 16 != 0 {
+            return Ok(None);
+        }
+        // The whole pages around the data: an allocation's pages are its
+        // process's, so the bytes around it may be mapped too (never written).
+        let start = address & !(page - 1);
+        let end = (address + size).next_multiple_of(page);
+        let offset = address - start;
+        let handle = vk::ExternalMemoryHandleTypeFlags::HOST_ALLOCATION_EXT;
+        let device = &ctx.device;
+        let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(handle);
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(
+                vk::BufferUsageFlags::STORAGE_BUFFER
+                    | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
+                    | vk::BufferUsageFlags::TRANSFER_SRC,
+            )
+            .sharing_mode(vk::SharingMode::EXCLUSIVE)
+            .push_next(&mut external);
+        let raw = unsafe { device.create_buffer(&info, None)? };
+        let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
+        let mut host = vk::MemoryHostPointerPropertiesEXT::default();
+        // SAFETY: `start` is the page holding `data`, mapped in this process.
+        let queried = unsafe {
+            (ext.fp().get_memory_host_pointer_properties_ext)(
+                device.handle(),
+                handle,
+                start as *const std::ffi::c_void,
+                &mut host,
+            )
+        };
+        let types = host.memory_type_bits & requirements.memory_type_bits;
+        log::debug!(
+            "import of '{name}': {queried:?}, memory types {types:#b}, offset {offset}, alignment {}",
+            requirements.alignment
+        );
+        if queried != vk::Result::SUCCESS || types == 0 || offset % requirements.alignment != 0 {
+            unsafe { device.destroy_buffer(raw, None) };
+            return Ok(None);
+        }
+        let mut import = vk::ImportMemoryHostPointerInfoEXT::default()
+            .handle_type(handle)
+            .host_pointer(start as *mut std::ffi::c_void);
+        let allocate = vk::MemoryAllocateInfo::default()
+            .allocation_size(end - start)
+            .memory_type_index(types.trailing_zeros())
+            .push_next(&mut import);
+        let memory = match unsafe { device.allocate_memory(&allocate, None) } {
+            Ok(m) => m,
+            Err(e) => {
+                unsafe { device.destroy_buffer(raw, None) };
+                return Err(e.into());
+            }
+        };
+        if let Err(e) = unsafe { device.bind_buffer_memory(raw, memory, offset) } {
+            unsafe {
+                device.destroy_buffer(raw, None);
+                device.free_memory(memory, None);
+            }
+            return Err(e.into());
+        }
+        ctx.set_name(raw, name);
+        Ok(Some(Self {
+            ctx: ctx.clone(),
+            raw,
+            allocation: None,
+            imported: Some((memory, owner)),
+            size,
+            capacity: size,
+            name: name.into(),
+        }))
+    }
+
     /// A device-local buffer holding `data`, copied through a staging buffer.
     pub fn gpu_only_with<T: bytemuck::Pod>(
         ctx: &Arc<GpuContext>,
@@ -146,7 +242,14 @@ impl Buffer {
     /// Overwrites the start of the buffer with `data` copied through a
     /// staging buffer of at most [`STAGING_BYTES`], a piece at a time: a
     /// large scene's tables need no second copy of themselves.
+    ///
+    /// Panics on a buffer imported from the host: its memory is its owner's.
     pub fn stage<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
+        assert!(
+            self.imported.is_none(),
+            "'{}' reads host memory it does not own",
+            self.name
+        );
         let bytes: &[u8] = bytemuck::cast_slice(data);
         if bytes.is_empty() {
             return Ok(());
@@ -238,5 +341,9 @@ impl Drop for Buffer {
             let _ = self.ctx.allocator.lock().unwrap().free(allocation);
         }
         unsafe { self.ctx.device.destroy_buffer(self.raw, None) };
+        if let Some((memory, _owner)) = self.imported.take() {
+            // The buffer is gone, so the memory may go; the owner after it.
+            unsafe { self.ctx.device.free_memory(memory, None) };
+        }
     }
 }

@@ -89,6 +89,10 @@ pub struct DeviceInfo {
     pub subgroup_ballot: bool,
     /// How the trace kernels read: the driver's choice, or the one asked for.
     pub reads: Reads,
+    /// A CPU device that reads host memory in place
+    /// (VK_EXT_external_memory_host): the alignment an imported range needs.
+    #[serde(skip)]
+    pub host_import_alignment: Option<u64>,
     #[serde(skip)]
     rank: u32,
     #[serde(skip)]
@@ -103,6 +107,8 @@ pub struct GpuContext {
     pub(super) queue: vk::Queue,
     pub(super) allocator: ManuallyDrop<Mutex<Allocator>>,
     pub(super) debug_utils: Option<ext::debug_utils::Device>,
+    /// Present where `DeviceInfo::host_import_alignment` is.
+    pub(super) external_memory_host: Option<ext::external_memory_host::Device>,
     messenger: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     validation_errors: Box<AtomicU32>,
     pub(super) submitter: Mutex<super::commands::Submitter>,
@@ -227,6 +233,17 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
     };
     let v = props.api_version;
     let reads = Reads::for_driver(driver.driver_id, &driver_name);
+    // On a CPU device, memory imported from the host is the same memory the
+    // device would have copied it into: a large scene's tables need no copy.
+    let host_import_alignment = (props.device_type == vk::PhysicalDeviceType::CPU
+        && has_device_extension(instance, pd, ext::external_memory_host::NAME))
+    .then(|| {
+        let mut host = vk::PhysicalDeviceExternalMemoryHostPropertiesEXT::default();
+        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut host);
+        unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+        host.min_imported_host_pointer_alignment
+    })
+    .filter(|&a| a > 0 && a.is_power_of_two());
     DeviceInfo {
         index,
         name: props
@@ -255,6 +272,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
             vk::SubgroupFeatureFlags::BALLOT | vk::SubgroupFeatureFlags::VOTE,
         ),
         reads,
+        host_import_alignment,
         rank,
         queue_family,
     }
@@ -384,6 +402,9 @@ impl GpuContext {
         if info.float_atomics {
             extensions.push(ext::shader_atomic_float::NAME.as_ptr());
         }
+        if info.host_import_alignment.is_some() {
+            extensions.push(ext::external_memory_host::NAME.as_ptr());
+        }
         let mut v12 = vk::PhysicalDeviceVulkan12Features::default()
             .shader_buffer_int64_atomics(info.int64_atomics);
         let features = vk::PhysicalDeviceFeatures::default().shader_int64(info.int64_atomics);
@@ -399,6 +420,9 @@ impl GpuContext {
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
         let debug_utils =
             has_debug_utils.then(|| ext::debug_utils::Device::new(&instance, &device));
+        let external_memory_host = info
+            .host_import_alignment
+            .map(|_| ext::external_memory_host::Device::new(&instance, &device));
 
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -463,6 +487,7 @@ impl GpuContext {
             queue,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             debug_utils,
+            external_memory_host,
             messenger,
             validation_errors,
             submitter: Mutex::new(submitter),

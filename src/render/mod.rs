@@ -117,7 +117,11 @@ impl GpuScene {
             sky,
             uvs,
             textures,
-            nodes: Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
+            // The largest table: a CPU device reads the scene's own copy.
+            nodes: match Buffer::import_host(ctx, "bvh nodes", &scene.nodes, scene.nodes.clone())? {
+                Some(imported) => imported,
+                None => Buffer::gpu_only_with(ctx, "bvh nodes", &scene.nodes)?,
+            },
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
             lights: Buffer::gpu_only_with(

@@ -324,7 +324,7 @@ pub struct Scene {
     /// then the environment's (`LIGHT_ENVIRONMENT`).
     pub delta_lights: Vec<shaders::DeltaLight>,
     pub delta_entries: Vec<shaders::Light>,
-    pub nodes: Vec<shaders::BvhNode>,
+    pub nodes: std::sync::Arc<Vec<shaders::BvhNode>>,
     pub bvh_depth: u32,
     /// The box around every triangle.
     pub bounds: (Vec3, Vec3),
@@ -619,7 +619,7 @@ impl Scene {
             lights,
             delta_lights: delta_lights.into_iter().map(|(l, _)| l).collect(),
             delta_entries,
-            nodes: bvh.nodes,
+            nodes: std::sync::Arc::new(bvh.nodes),
             bvh_depth: bvh.depth,
             bounds: bvh.bounds,
             extent,
