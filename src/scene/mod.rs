@@ -469,6 +469,7 @@ impl Scene {
         let xml = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("xml"));
+        let start = std::time::Instant::now();
         let parts = if xml {
             mitsuba::read(path, loader, loader.defines)?
         } else {
@@ -480,6 +481,11 @@ impl Scene {
             }
             read_toml(path, loader)?
         };
+        log::info!(
+            "{}: read in {:.2} s",
+            path.display(),
+            start.elapsed().as_secs_f64()
+        );
         Self::assemble(path, parts, fingerprint.get(), loader.max_triangles)
     }
 
@@ -573,7 +579,14 @@ impl Scene {
         // Packed before the BVH, and each table dropped once the device's
         // form is made: a 10M-triangle scene's peak memory is set here.
         let normals = pack_normals(normals);
+        let start = std::time::Instant::now();
         let bvh = bvh::build(&positions);
+        log::info!(
+            "BVH over {} triangles, depth {}, built in {:.2} s",
+            positions.len(),
+            bvh.depth,
+            start.elapsed().as_secs_f64()
+        );
         let normals = in_order(normals, &bvh.order);
         let mut triangles: Vec<shaders::Triangle> = bvh
             .order
