@@ -194,8 +194,10 @@ impl Buffer {
         let memory = match unsafe { device.allocate_memory(&allocate, None) } {
             Ok(m) => m,
             Err(e) => {
+                // The driver would not take this memory: a copy will do.
+                log::debug!("import of '{name}' refused: {e}");
                 unsafe { device.destroy_buffer(raw, None) };
-                return Err(e.into());
+                return Ok(None);
             }
         };
         if let Err(e) = unsafe { device.bind_buffer_memory(raw, memory, offset) } {
