@@ -2,7 +2,9 @@
 // Per volume, after a pass that learned (FLAG_LEARN): folds the targets the
 // pass accumulated into Q. With alpha = 1 / (1 + visits), Q is the running
 // mean of its targets, so Q <- (Q N + sum) / (N + count); the share NEE
-// carries likewise. Then, always: the irradiance-like sum the Sarsa target needs,
+// carries likewise. Then, always, from each sector's Q blended with its
+// volume's mean target as (N Q + m mean) / (N + m), m = Q_PRIOR_VISITS
+// (Q as it is in a volume never visited): the irradiance-like sum the Sarsa target needs,
 // (2 pi / n) sum_j Q_j cos(theta_j) (with FLAG_MAX_TARGET, which only Neural-Q
 // sets, max_j Q_j cos(theta_j)), the total weight of its distribution
 // (with P(k), it gives back Q(v, k) without reading Q), and the distribution over
@@ -247,12 +249,33 @@ void main() {
     float weighted = 0.0;
     float best = 0.0;
     float total = 0.0;
-    // Each sector's weight waits in its table entry for the second sweep.
+    // The volume's mean of every target it has had (and of NEE's share),
+    // which a sector with few visits of its own leans on (Q_PRIOR_VISITS).
+    float seen_all = 0.0;
+    float q_all = 0.0;
+    float qd_all = 0.0;
     for (uint k = 0u; k < n; ++k) {
         float q = q_values[base + k];
         float qd = q_direct[base + k];
         if (learned) {
             fold(base + k, q, qd);
+        }
+        float seen = float(visits_total[base + k]);
+        seen_all += seen;
+        q_all += seen * q;
+        qd_all += seen * qd;
+    }
+    q_all /= max(seen_all, 1.0);
+    qd_all /= max(seen_all, 1.0);
+    // Each sector's weight waits in its table entry for the second sweep.
+    for (uint k = 0u; k < n; ++k) {
+        float q = q_values[base + k];
+        float qd = q_direct[base + k];
+        if (seen_all > 0.0) {
+            float seen = float(visits_total[base + k]);
+            float m = float(Q_PRIOR_VISITS);
+            q = (q * seen + m * q_all) / (seen + m);
+            qd = (qd * seen + m * qd_all) / (seen + m);
         }
         float cos_k = sector_cos(k, a, b);
         q = max(q, 0.0);

@@ -144,6 +144,10 @@
 // [0.047, 0.953]: BSDF sampling never stops, so the image stays unbiased).
 #define MIX_LEARNING_RATE 0.3
 #define MIX_LOGIT_BOUND 3.0
+// Sarsa: the visits a sector's Q counts as having of its volume's mean
+// target where its sampling table and sums are built, so that a sector
+// seen once or never does not set the table alone (docs/guides.md).
+#define Q_PRIOR_VISITS 2
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128

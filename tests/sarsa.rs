@@ -15,6 +15,7 @@ use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides, RenderStats};
 use qtrace::sampling;
 use qtrace::scene::Material;
+use qtrace::shaders;
 use qtrace::shaders::SectorEntry;
 use std::f64::consts::PI;
 
@@ -273,6 +274,32 @@ fn sector_cosines(n: usize, grid: [u32; 2]) -> Vec<f64> {
         .collect()
 }
 
+/// Q of volume v's sectors as its tables and sums are built: each blended
+/// with the volume's mean target, as if it had had Q_PRIOR_VISITS more
+/// visits of it (Q as it is where the volume has had none).
+fn blended_q(q: &[f32], seen: &[u32], v: usize, n: usize) -> Vec<f64> {
+    let cells = v * n..(v + 1) * n;
+    let all: f64 = seen[cells.clone()].iter().map(|&s| s as f64).sum();
+    let m = shaders::Q_PRIOR_VISITS as f64;
+    let mean = q[cells.clone()]
+        .iter()
+        .zip(&seen[cells.clone()])
+        .map(|(&q, &s)| q as f64 * s as f64)
+        .sum::<f64>()
+        / all.max(1.0);
+    q[cells.clone()]
+        .iter()
+        .zip(&seen[cells])
+        .map(|(&q, &s)| {
+            if all > 0.0 {
+                (q as f64 * s as f64 + m * mean) / (s as f64 + m)
+            } else {
+                q as f64
+            }
+        })
+        .collect()
+}
+
 /// CPU reference of one batch: targets, then Q as the running mean of targets.
 fn cpu_update(
     q: &mut [f32],
@@ -283,7 +310,8 @@ fn cpu_update(
 ) -> Vec<f32> {
     let cos = sector_cosines(n, grid);
     let irradiance = |v: usize| -> f64 {
-        (0..n).map(|k| q[v * n + k] as f64 * cos[k]).sum::<f64>() * 2.0 * PI / n as f64
+        let q = blended_q(q, seen, v, n);
+        (0..n).map(|k| q[k] * cos[k]).sum::<f64>() * 2.0 * PI / n as f64
     };
     let targets: Vec<f32> = batch
         .iter()
@@ -388,13 +416,15 @@ fn check_update(atomics: Atomics) {
                 "{atomics:?} round {round} Q[{i}]: GPU {g} vs CPU {c}"
             );
         }
-        // And the distribution is Q·cos θ_k normalised (the default), to
-        // within the alias tables' whole units.
+        // And the distribution is Q·cos θ_k normalised (the default), Q
+        // blended with its volume's mean, to within the alias tables' whole
+        // units.
         let cos = sector_cosines(n, s.common.grid);
         let probs = guide.download_probabilities().unwrap();
         let unit = 1.0 / (n as u32 * SectorEntry::column_units(n as u32)) as f64;
         for v in 0..6 {
-            let w = |k: usize| q[v * n + k] as f64 * cos[k];
+            let blended = blended_q(&q, &seen, v, n);
+            let w = |k: usize| blended[k] * cos[k];
             let total: f64 = (0..n).map(w).sum();
             for (k, pk) in probabilities(&probs, v, n).iter().enumerate() {
                 let want = w(k) / total;
