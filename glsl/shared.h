@@ -317,6 +317,11 @@ struct Triangle {
 #define SKY_NONE 0
 #define SKY_TEXEL_WORDS 1
 #define SKY_DENSE 2
+// Specialization constant of the trace kernels: Mitsuba's hide_emitters (the
+// camera's ray passes through emitters, and the sky is black to a path whose
+// every bounce so far went straight through a null surface or a thin sheet,
+// Mitsuba's null lobe).
+#define CONSTANT_HIDE_EMITTERS 11
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

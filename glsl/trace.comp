@@ -39,6 +39,7 @@ layout(constant_id = CONSTANT_SHADING_NORMALS) const bool SHADING_NORMALS = fals
 layout(constant_id = CONSTANT_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX;
 // Whether the scene has lights only NEE reaches (B_DELTA_LIGHTS).
 layout(constant_id = CONSTANT_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
+layout(constant_id = CONSTANT_HIDE_EMITTERS) const bool HIDE_EMITTERS = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -99,6 +100,7 @@ struct Path {
     uint hits; // surfaces its rays reached (PathSample.lengths)
     uint rays;
     float prev_bsdf_pdf; // 0 marks the camera ray: no MIS for what it hits
+    bool sky_hidden; // HIDE_EMITTERS hides the sky from its ray
     // The squared TD errors of the transitions the guide learned from it.
     uint td_count;
     float td_sq_sum;
@@ -211,6 +213,7 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
     path.hits = 0u;
     path.rays = 0u;
     path.prev_bsdf_pdf = 0.0;
+    path.sky_hidden = HIDE_EMITTERS;
     guide_begin_path();
     trail.prev_vertex = guide_none();
     trail.prev_sector = 0u;
@@ -318,7 +321,7 @@ float nee_pick_probability(GuideVertex from, uint light, float by_power) {
 // The path's ray left the scene: the sky, weighed against NEE's draws of
 // it as an emitter is.
 void gather_sky(inout Path path, inout Trail trail) {
-    vec3 le = ENVIRONMENT ? environment_eval(path.dir) : vec3(0.0);
+    vec3 le = ENVIRONMENT && !(HIDE_EMITTERS && path.sky_hidden) ? environment_eval(path.dir) : vec3(0.0);
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky is the last of NEE's lights.
@@ -466,7 +469,13 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
         local = bsdf_sample_delta(bsdf, s.wo, rng_next(path.rng), weight);
         weight /= delta ? 1.0 : delta_share;
         follow_unguided(trail, here, local, weight);
+        if (HIDE_EMITTERS) {
+            path.sky_hidden = path.sky_hidden && bsdf_is(bsdf, MATERIAL_THIN) && local.z * s.wo.z < 0.0;
+        }
     } else {
+        if (HIDE_EMITTERS) {
+            path.sky_hidden = false;
+        }
         uint sector = 0u;
         float p_sector = 0.0;
         if (GUIDED) {
@@ -539,10 +548,33 @@ bool survives_roulette(inout Path path, Trail trail) {
     return true;
 }
 
+// The camera's ray past the emitters it meets (HIDE_EMITTERS), from
+// its first hit; a miss after more than a few.
+Hit pass_emitters(inout Path path, Hit hit) {
+    for (uint i = 0u; i < 16u; ++i) {
+        if (hit.triangle == NO_HIT) {
+            return hit;
+        }
+        Triangle tri = load_triangle(hit.triangle);
+        if (tri.light_pdf <= 0.0) {
+            return hit;
+        }
+        vec3 n = normalize(cross(tri.e1, tri.e2));
+        path.origin += hit.t * path.dir + (dot(n, path.dir) > 0.0 ? eps : -eps) * n;
+        hit = trace_ray(path.origin, path.dir, FAR);
+        path.rays += 1u;
+    }
+    hit.triangle = NO_HIT;
+    return hit;
+}
+
 // Traces the path's current ray and scatters once; false when the path ended.
 bool scatter(inout Path path, inout Trail trail) {
     Hit hit = trace_ray(path.origin, path.dir, FAR);
     path.rays += 1u;
+    if (HIDE_EMITTERS && path.hits == 0u) {
+        hit = pass_emitters(path, hit);
+    }
     if (hit.triangle == NO_HIT) {
         gather_sky(path, trail);
         return false;

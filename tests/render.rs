@@ -325,6 +325,39 @@ fn cornell_box_pt_and_nee_converge_to_the_same_image() {
     common::assert_same_expectation_binned("cornell-pt-vs-nee-per-pixel", &plain, &nee, 1);
 }
 
+/// `hide_emitters` (here on a TOML scene): the camera sees the ceiling
+/// through the Cornell box's light, and every pixel whose rays meet no
+/// emitter stays as it was, bit for bit (the same random numbers).
+#[test]
+fn hidden_emitters_show_what_lies_behind_them() {
+    let ctx = common::gpu();
+    let mut scene = common::scene("cornell-box");
+    let o = Overrides {
+        spp: Some(16),
+        width: Some(32),
+        height: Some(32),
+        nee: true,
+        seed: Some(1),
+        ..Default::default()
+    };
+    let shown = common::render_with(&ctx, &scene, o.clone());
+    scene.defaults.hide_emitters = true;
+    let hidden = common::render_with(&ctx, &scene, o);
+    let (mut same, mut dimmed) = (0, 0);
+    for (a, b) in shown.image.pixels.iter().zip(&hidden.image.pixels) {
+        if a == b {
+            same += 1;
+        } else {
+            assert!(b[0] < a[0], "a pixel grew brighter: {a:?} to {b:?}");
+            if a[0] > 2.0 && b[0] < 1.0 {
+                dimmed += 1;
+            }
+        }
+    }
+    assert!(dimmed >= 4, "{dimmed} pixels of the light went dark");
+    assert!(same > 900, "only {same} of 1024 pixels kept their value");
+}
+
 /// The trace kernels read the scene and the guides' tables through uniform
 /// texel buffers or through storage buffers (`--reads`; the driver decides
 /// by default): one image either way, bit for bit, for plain, learning,

@@ -447,6 +447,7 @@ impl Renderer {
         constants.push(scene.material_features());
         constants.push(!scene.delta_lights.is_empty() as u32);
         constants.push(gpu_scene.sky);
+        constants.push(scene.defaults.hide_emitters as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

@@ -110,6 +110,10 @@ pub struct RenderDefaults {
     pub height: Option<u32>,
     pub spp: Option<u32>,
     pub max_depth: Option<u32>,
+    /// Mitsuba's `hide_emitters`: the camera's rays pass through emitters,
+    /// and the sky is black where it is seen straight on.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub hide_emitters: bool,
 }
 
 /// Deterministically generated geometry, for scenes too large to commit.

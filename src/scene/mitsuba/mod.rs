@@ -310,9 +310,7 @@ impl Builder<'_, '_> {
         }
         // Where Russian roulette starts changes noise, not the image.
         p.ignore("rr_depth");
-        if p.boolean("hide_emitters")? == Some(true) {
-            return Err(el.error("hide_emitters is not supported"));
-        }
+        self.defaults.hide_emitters = p.boolean("hide_emitters")?.unwrap_or(false);
         p.finish()
     }
 
