@@ -146,6 +146,7 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
 <shape type="cube"><bsdf type="roughconductor"><string name="material" value="Au"/></bsdf></shape>
 <shape type="cube"><bsdf type="plastic"><boolean name="nonlinear" value="true"/></bsdf></shape>
 <shape type="sphere"><bsdf type="dielectric"/></shape>
+<shape type="cylinder"><float name="radius" value="0.5"/></shape>
 <shape type="cube"><bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf></shape>
 <shape type="cube"><bsdf type="roughplastic"><string name="distribution" value="ggx"/></bsdf></shape>
 <shape type="disk"><bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="$x"/></bsdf></bsdf></shape>
@@ -163,11 +164,14 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
 #[test]
 fn texture_coordinates_are_mitsubas() {
     let moved = r#"<transform name="to_world"><translate x="10"/></transform>"#;
-    let cases: [(&str, Vec3, Vec3, [f32; 2], f32); 14] = [
+    let cases: [(&str, Vec3, Vec3, [f32; 2], f32); 17] = [
         ("<shape type=\"rectangle\">{}</shape>", Vec3::new(0.3, -0.6, 2.0), -Vec3::Z, [0.65, 0.2], 1e-5),
         ("<shape type=\"disk\">{}</shape>", Vec3::new(0.3, -0.4, 2.0), -Vec3::Z, [0.5, 0.85242], 2e-3),
         ("<shape type=\"sphere\">{}</shape>", Vec3::new(0.3, -0.4, 3.0), -Vec3::Z, [0.85242, 0.16667], 2e-3),
         ("<shape type=\"sphere\">{}</shape>", Vec3::new(3.0, 0.2, 0.5), -Vec3::X, [0.03709, 0.33333], 2e-3),
+        ("<shape type=\"cylinder\">{}</shape>", Vec3::new(3.0, 0.2, 0.5), -Vec3::X, [0.03205, 0.5], 2e-3),
+        ("<shape type=\"cylinder\">{}</shape>", Vec3::new(-0.3, -3.0, 0.25), Vec3::Y, [0.70151, 0.25], 2e-3),
+        ("<shape type=\"cylinder\"><point name=\"p0\" x=\"-0.9\" y=\"0.15\" z=\"0.9\"/><point name=\"p1\" x=\"-0.1\" y=\"0.3\" z=\"0.5\"/><float name=\"radius\" value=\"0.15\"/>{}</shape>", Vec3::new(-0.5, 2.0, 0.7), -Vec3::Y, [0.73363, 0.52774], 2e-3),
         ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, -0.6, 3.0), -Vec3::Z, [0.2, 0.65], 1e-5),
         ("<shape type=\"cube\">{}</shape>", Vec3::new(3.0, 0.3, -0.6), -Vec3::X, [0.65, 0.8], 1e-5),
         ("<shape type=\"cube\">{}</shape>", Vec3::new(0.3, 3.0, -0.6), -Vec3::Y, [0.35, 0.8], 1e-5),

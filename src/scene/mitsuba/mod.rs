@@ -569,6 +569,17 @@ impl Builder<'_, '_> {
                 let (t, n, uv) = shapes::sphere(to_world, center, radius);
                 (t, Some(n), Some(uv))
             }
+            "cylinder" => {
+                let p0 = p.point("p0")?.unwrap_or(Vec3::ZERO);
+                let p1 = p.point("p1")?.unwrap_or(Vec3::Z);
+                let radius = p.float_or("radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(el.error(format!("cylinder radius {radius} must be positive")));
+                }
+                let (t, n, uv) = shapes::cylinder(to_world, p0, p1, radius)
+                    .ok_or_else(|| el.error("cylinder p0 and p1 are the same point"))?;
+                (t, Some(n), Some(uv))
+            }
             "obj" => self.obj(el, filename()?, to_world, (face_normals, flip_v()?))?,
             "ply" => self.ply(el, filename()?, to_world, (face_normals, flip_v()?))?,
             "serialized" => {
@@ -586,7 +597,7 @@ impl Builder<'_, '_> {
             }
             other => {
                 return Err(el.error(format!(
-                    "shape '{other}' is not supported; qtrace has obj, ply, serialized, rectangle, cube, disk and sphere"
+                    "shape '{other}' is not supported; qtrace has obj, ply, serialized, rectangle, cube, disk, sphere and cylinder"
                 )))
             }
         };

@@ -5,7 +5,7 @@
 use glam::{Mat3, Mat4, Vec2, Vec3};
 use std::f32::consts::PI;
 
-/// Segments around a disk or a sphere's equator.
+/// Segments around a disk, a cylinder or a sphere's equator.
 const SEGMENTS: u32 = 128;
 /// Rings from a sphere's pole to pole.
 const RINGS: u32 = 64;
@@ -188,6 +188,69 @@ pub fn sphere(
     )
 }
 
+/// Mitsuba's frame about a unit vector `n`: its (s, t), as its
+/// `coordinate_system` builds them (Duff et al. 2017).
+fn frame_about(n: Vec3) -> (Vec3, Vec3) {
+    let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// An open tube from `p0` to `p1` of radius `radius`, facing out, its
+/// normals at their corners, and Mitsuba's (u, v): the angle about the
+/// axis over 2π (from Mitsuba's frame about it) and the distance along it
+/// over its length. `None` where p0 and p1 coincide.
+#[allow(clippy::type_complexity)]
+pub fn cylinder(
+    to_world: Mat4,
+    p0: Vec3,
+    p1: Vec3,
+    radius: f32,
+) -> Option<(Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<[Vec2; 3]>)> {
+    let axis = p1 - p0;
+    let length = axis.length();
+    if !(length > 0.0) {
+        return None;
+    }
+    let d = axis / length;
+    let (s, t) = frame_about(d);
+    let n = SEGMENTS as f32;
+    // The prism's perimeter n 2 sin(pi / n) r made 2 pi r.
+    let r = radius * PI / (n * (PI / n).sin());
+    let local = Mat4::from_cols(
+        (s * r).extend(0.0),
+        (t * r).extend(0.0),
+        (d * length).extend(0.0),
+        p0.extend(1.0),
+    );
+    let rim = |i: u32, z: f32| {
+        let phi = 2.0 * PI * (i % SEGMENTS) as f32 / n;
+        Vec3::new(phi.cos(), phi.sin(), z)
+    };
+    let radial = |v: Vec3| Vec3::new(v.x, v.y, 0.0);
+    let (mut unit, mut uvs) = (Vec::new(), Vec::new());
+    for i in 0..SEGMENTS {
+        let (a, b, c, e) = (rim(i, 0.0), rim(i + 1, 0.0), rim(i, 1.0), rim(i + 1, 1.0));
+        let uv = |k: u32, z: f32| Vec2::new(k as f32 / n, z);
+        // Counter-clockwise seen from outside.
+        unit.push([a, b, e]);
+        uvs.push([uv(i, 0.0), uv(i + 1, 0.0), uv(i + 1, 1.0)]);
+        unit.push([a, e, c]);
+        uvs.push([uv(i, 0.0), uv(i + 1, 1.0), uv(i, 1.0)]);
+    }
+    let normals: Vec<[Vec3; 3]> = unit.iter().map(|t| t.map(radial)).collect();
+    let placed_to = to_world * local;
+    Some((
+        placed(placed_to, unit),
+        placed_normals(placed_to, &normals),
+        placed_uvs(placed_to, uvs),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -223,6 +286,54 @@ mod tests {
         }
         assert!(rectangle(m).0.iter().all(|t| normal(t).z > 0.99));
         assert!(disk(m).0.iter().all(|t| normal(t).z > 0.99));
+        // A tube along (1, 1, 1) from (1, 0, 0), of radius 0.5, length 3.
+        let (p0, p1) = (Vec3::X, Vec3::X + Vec3::splat(3.0f32.sqrt()));
+        let (c, normals, uvs) = cylinder(m, p0, p1, 0.5).unwrap();
+        assert!(
+            (area(&c) - 2.0 * PI * 0.5 * 3.0).abs() < 1e-3,
+            "{}",
+            area(&c)
+        );
+        let axis = (p1 - p0).normalize();
+        for ((t, n), uv) in c.iter().zip(&normals).zip(&uvs) {
+            for ((v, n), uv) in t.iter().zip(n).zip(uv) {
+                let along = (*v - p0).dot(axis);
+                let out = (*v - p0 - along * axis).normalize();
+                assert!(out.dot(*n) > 0.9999 && out.dot(normal(t)) > 0.99);
+                assert!((along / 3.0 - uv.y).abs() < 1e-5);
+            }
+        }
+        assert!(cylinder(m, p0, p0, 1.0).is_none());
+    }
+
+    #[test]
+    fn frames_are_mitsubas() {
+        // Mitsuba 3.9.1's coordinate_system(n).
+        for (n, s, t) in [
+            (
+                [0.882_108_6, 0.165_395_4, -0.441_054_3],
+                [0.460_037_4, -0.101_243, 0.882_108_6],
+                [0.101_243, -0.981_017, -0.165_395_4],
+            ),
+            (
+                [0.303_045_8, 0.505_076_2, 0.808_122],
+                [0.949_208_8, -0.084_652, -0.303_045_8],
+                [-0.084_652, 0.858_913_3, -0.505_076_2],
+            ),
+            ([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        ] {
+            let (fs, ft) = frame_about(Vec3::from(n));
+            assert!((fs - Vec3::from(s)).length() < 1e-5 && (ft - Vec3::from(t)).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn a_cylinders_angle_starts_where_mitsubas_does() {
+        // Mitsuba's default cylinder: along z, (u, v) = (0, 0) at (1, 0, 0).
+        let (c, _, uvs) = cylinder(Mat4::IDENTITY, Vec3::ZERO, Vec3::Z, 1.0).unwrap();
+        let r = PI / (SEGMENTS as f32 * (PI / SEGMENTS as f32).sin());
+        assert!((c[0][0] - Vec3::new(r, 0.0, 0.0)).length() < 1e-6);
+        assert_eq!(uvs[0][0], Vec2::ZERO);
     }
 
     #[test]
