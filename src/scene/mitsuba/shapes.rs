@@ -213,7 +213,7 @@ pub fn cylinder(
 ) -> Option<(Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<[Vec2; 3]>)> {
     let axis = p1 - p0;
     let length = axis.length();
-    if !(length > 0.0) {
+    if length == 0.0 || !length.is_finite() {
         return None;
     }
     let d = axis / length;
