@@ -147,6 +147,9 @@ fn a_scene_with_every_supported_shape_and_bsdf_loads() {
 <shape type="cube"><bsdf type="plastic"><boolean name="nonlinear" value="true"/></bsdf></shape>
 <shape type="sphere"><bsdf type="dielectric"/></shape>
 <shape type="cylinder"><float name="radius" value="0.5"/></shape>
+<shape type="shapegroup" id="g"><shape type="sphere"/><shape type="cube"><ref id="inc"/></shape></shape>
+<shape type="instance"><ref id="g"/><transform name="to_world"><translate x="5"/></transform></shape>
+<shape type="instance"><ref id="g"/></shape>
 <shape type="cube"><bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf></shape>
 <shape type="cube"><bsdf type="roughplastic"><string name="distribution" value="ggx"/></bsdf></shape>
 <shape type="disk"><bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="$x"/></bsdf></bsdf></shape>
@@ -331,6 +334,23 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "<emitter type=\"point\"><ref name=\"intensity\" id=\"t\"/></emitter>",
             5,
             "emitter 'point'",
+        ),
+        (
+            "<shape type=\"shapegroup\" id=\"g\">\n<shape type=\"cube\"><emitter type=\"area\"/></shape></shape>",
+            6,
+            "instancing of emitters is not supported",
+        ),
+        (
+            "<shape type=\"shapegroup\" id=\"g\">\n<shape type=\"shapegroup\" id=\"h\"/></shape>",
+            6,
+            "a shapegroup inside a shapegroup",
+        ),
+        ("<shape type=\"shapegroup\"/>", 5, "a shapegroup needs an id"),
+        ("<shape type=\"instance\">\n<ref id=\"g\"/></shape>", 6, "no shapegroup has the id 'g'"),
+        (
+            "<shape type=\"shapegroup\" id=\"g\"/><shape type=\"instance\"><ref id=\"g\"/><bsdf type=\"diffuse\"/></shape>",
+            5,
+            "bsdf",
         ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),

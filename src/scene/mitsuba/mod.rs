@@ -36,6 +36,8 @@ pub(super) fn read(
         max_depth: None,
         delta_lights: Vec::new(),
         textures: textures::Textures::default(),
+        groups: HashMap::new(),
+        instance_to_world: Mat4::IDENTITY,
         environment: None,
         envmap: None,
     };
@@ -131,6 +133,10 @@ struct Builder<'a, 'l> {
     /// directional light's per unit area, scaled at the end).
     delta_lights: Vec<(crate::shaders::DeltaLight, f32)>,
     textures: textures::Textures,
+    /// Shapegroups' shapes, by id, and the transform of the instance being
+    /// placed (identity outside one).
+    groups: HashMap<String, std::rc::Rc<Vec<Element>>>,
+    instance_to_world: Mat4,
     /// A `constant` emitter's radiance.
     environment: Option<Vec3>,
     /// An `envmap`: its file, size, linear texels (scaled) and rotation.
@@ -471,6 +477,11 @@ impl Builder<'_, '_> {
 
     fn shape(&mut self, el: &Element) -> Result<(), SceneError> {
         let kind = el.plugin()?;
+        match kind {
+            "shapegroup" => return self.shape_group(el),
+            "instance" => return self.instance(el),
+            _ => {}
+        }
         let p = Props::new(el);
         let mesh = self.shape_mesh(el, kind, &p)?;
         let emission = area_emission(&p, &mut self.textures, self.loader)?;
@@ -531,6 +542,51 @@ impl Builder<'_, '_> {
         };
         self.add(el, &label, mesh, m);
         Ok(())
+    }
+
+    /// A `shapegroup`: shapes kept by id until an `instance` places them.
+    fn shape_group(&mut self, el: &Element) -> Result<(), SceneError> {
+        let id = el
+            .attr("id")
+            .ok_or_else(|| el.error("a shapegroup needs an id"))?;
+        for c in &el.children {
+            if c.tag != "shape" {
+                return Err(c.error(format!("a shapegroup holds shapes, not <{}>", c.tag)));
+            }
+            if matches!(c.plugin()?, "shapegroup" | "instance") {
+                return Err(
+                    c.error("a shapegroup inside a shapegroup is not permitted (as in Mitsuba)")
+                );
+            }
+            if c.children.iter().any(|g| g.tag == "emitter") {
+                return Err(c.error("instancing of emitters is not supported (as in Mitsuba)"));
+            }
+        }
+        self.groups
+            .insert(id.to_string(), std::rc::Rc::new(el.children.clone()));
+        Ok(())
+    }
+
+    /// An `instance`: a shapegroup's shapes, placed by its `to_world`.
+    fn instance(&mut self, el: &Element) -> Result<(), SceneError> {
+        let p = Props::new(el);
+        let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
+        let refs = p.nested("ref");
+        p.finish()?;
+        let [r] = refs[..] else {
+            return Err(el.error("an instance names one shapegroup, by <ref id=...>"));
+        };
+        let id = r.required("id")?;
+        let shapes = self.groups.get(id).cloned().ok_or_else(|| {
+            r.error(format!(
+                "no shapegroup has the id '{id}' (a shapegroup must come before its instances)"
+            ))
+        })?;
+        let outer = self.instance_to_world;
+        self.instance_to_world = outer * to_world;
+        let placed = shapes.iter().try_for_each(|c| self.shape(c));
+        self.instance_to_world = outer;
+        placed
     }
 
     /// A shape's triangles (with normals and UVs where it has them), in
@@ -601,7 +657,7 @@ impl Builder<'_, '_> {
                 )))
             }
         };
-        Ok(if flip {
+        let mesh = if flip {
             (
                 triangles.into_iter().map(|[a, b, c]| [a, c, b]).collect(),
                 normals.map(|n| n.into_iter().map(|[a, b, c]| [-a, -c, -b]).collect()),
@@ -609,7 +665,8 @@ impl Builder<'_, '_> {
             )
         } else {
             (triangles, normals, uvs)
-        })
+        };
+        Ok(placed_by_instance(mesh, self.instance_to_world))
     }
 
     /// A shape's BSDF, nested or by reference (Mitsuba's default where it
@@ -995,6 +1052,36 @@ fn ior(el: &Element, p: &Props, name: &str, default: &str) -> Result<f32, SceneE
                 "{name} '{text}' is not a number or a material of Mitsuba's IOR table"
             ))
         })
+}
+
+/// A shapegroup's mesh placed by an instance's `m`, as Mitsuba places it:
+/// points transformed, normals transformed as normals, so that a mirroring
+/// `m` keeps each face's side (a mesh's own `to_world` does not).
+fn placed_by_instance((triangles, normals, uvs): Mesh, m: Mat4) -> Mesh {
+    if m == Mat4::IDENTITY {
+        return (triangles, normals, uvs);
+    }
+    let mirrors = glam::Mat3::from_mat4(m).determinant() < 0.0;
+    fn wound<T>([a, b, c]: [T; 3], mirrors: bool) -> [T; 3] {
+        if mirrors {
+            [a, c, b]
+        } else {
+            [a, b, c]
+        }
+    }
+    let normal_matrix = glam::Mat3::from_mat4(m).inverse().transpose();
+    (
+        triangles
+            .into_iter()
+            .map(|t| wound(t.map(|v| m.transform_point3(v)), mirrors))
+            .collect(),
+        normals.map(|n| {
+            n.into_iter()
+                .map(|t| wound(t.map(|v| (normal_matrix * v).normalize()), mirrors))
+                .collect()
+        }),
+        uvs.map(|uv| uv.into_iter().map(|t| wound(t, mirrors)).collect()),
+    )
 }
 
 /// The radiance of a shape's nested `area` emitter, if it has one.

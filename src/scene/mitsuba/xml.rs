@@ -14,7 +14,7 @@ use std::rc::Rc;
 const MAX_INCLUDE_DEPTH: usize = 16;
 
 /// One element of the document, its attributes already substituted.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct Element {
     pub tag: String,
     pub attrs: Vec<(String, String)>,
