@@ -408,8 +408,8 @@ struct PassStats {
 // Push constants shared by every pass of a render.
 struct PassParams {
     vec4 cam_pos;      // xyz, w = ray offset epsilon
-    vec4 cam_right;    // r * tan(horizontal fov / 2)
-    vec4 cam_up;       // u * tan(vertical fov / 2)
+    vec4 cam_right;    // r * tan(horizontal fov / 2), w = a thin lens's radius (0: a pinhole)
+    vec4 cam_up;       // u * tan(vertical fov / 2), w = the lens's focus distance
     vec4 cam_forward;  // f, w = the pixel filter's radius or deviation
     vec4 environment;  // x: the probability NEE picks the environment
     uint width;

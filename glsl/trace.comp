@@ -205,8 +205,18 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
     vec2 ndc = vec2(
         2.0 * point.x / float(params.width) - 1.0,
         1.0 - 2.0 * point.y / float(params.height));
+    vec3 through = params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz;
     path.origin = params.cam_pos.xyz;
-    path.dir = normalize(params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz);
+    if (params.cam_right.w > 0.0) {
+        // A thin lens of radius cam_right.w, in focus on the plane
+        // cam_up.w ahead: a point of the lens, aimed where the pinhole's
+        // ray meets that plane.
+        vec2 lens = params.cam_right.w * square_to_disk(rng_next2(path.rng));
+        vec3 offset = lens.x * normalize(params.cam_right.xyz) + lens.y * normalize(params.cam_up.xyz);
+        path.origin += offset;
+        through = through * params.cam_up.w - offset;
+    }
+    path.dir = normalize(through);
     path.radiance = vec3(0.0);
     path.throughput = vec3(1.0);
     path.depth = 0u;

@@ -667,3 +667,34 @@ fn hidden_emitters_agree_with_mitsuba() {
         );
     }
 }
+
+#[test]
+fn thin_lens_agrees_with_mitsuba() {
+    // Depth of field: spheres before, at and behind the plane in focus.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-i.xml");
+    for m in [Method::PT, Method::SARSA] {
+        check(
+            "coverage-i",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn a_thin_lens_needs_its_aperture() {
+    let text = with_body("").replace("type=\"perspective\"", "type=\"thinlens\"");
+    let Err(err) = load_text(&text) else {
+        panic!("loaded")
+    };
+    assert_eq!(err, "mem/s.xml:2: thinlens needs an aperture_radius");
+    let text = with_body("").replace(
+        "<sensor type=\"perspective\"/>",
+        "<sensor type=\"thinlens\"><float name=\"aperture_radius\" value=\"0.1\"/><float name=\"focus_distance\" value=\"-1\"/></sensor>",
+    );
+    let Err(err) = load_text(&text) else {
+        panic!("loaded")
+    };
+    assert_eq!(err, "mem/s.xml:2: focus_distance -1 must be positive");
+}

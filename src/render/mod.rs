@@ -176,8 +176,8 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
     }
     PassParams {
         cam_pos: c.position.extend(scene.ray_offset()).into(),
-        cam_right: (c.right * tx).extend(0.0).into(),
-        cam_up: (c.up * ty).extend(0.0).into(),
+        cam_right: (c.right * tx).extend(c.aperture_radius).into(),
+        cam_up: (c.up * ty).extend(c.focus_distance).into(),
         cam_forward: c.forward.extend(filter_size).into(),
         environment: [scene.environment_pick(), 0.0, 0.0, 0.0],
         width: s.width,

@@ -100,6 +100,16 @@ pub struct CameraDesc {
     pub up: [f32; 3],
     /// Vertical field of view in degrees.
     pub fov_y: f32,
+    /// A thin lens's radius (0, the default: a pinhole) and the distance
+    /// of the plane in focus (default: that of `look_at`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub aperture_radius: f32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus_distance: Option<f32>,
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 /// Defaults a scene suggests; command-line flags override them.

@@ -227,6 +227,10 @@ pub struct Camera {
     pub up: Vec3,
     pub fov_degrees: f32,
     pub fov_axis: FovAxis,
+    /// A thin lens's radius (0: a pinhole) and the distance along `forward`
+    /// of the plane it brings into focus.
+    pub aperture_radius: f32,
+    pub focus_distance: f32,
 }
 
 impl Camera {
@@ -240,6 +244,15 @@ impl Camera {
                 "camera fov_y {} must lie in (0, 180) degrees",
                 d.fov_y
             ));
+        }
+        if !(d.aperture_radius >= 0.0 && d.aperture_radius.is_finite()) {
+            return Err(format!(
+                "camera aperture_radius {} must be 0 (a pinhole) or more",
+                d.aperture_radius
+            ));
+        }
+        if let Some(f) = d.focus_distance.filter(|f| !(*f > 0.0 && f.is_finite())) {
+            return Err(format!("camera focus_distance {f} must be positive"));
         }
         let position = Vec3::from(d.position);
         let to = Vec3::from(d.look_at) - position;
@@ -259,6 +272,9 @@ impl Camera {
             up: right.cross(forward),
             fov_degrees: d.fov_y,
             fov_axis: FovAxis::Y,
+            aperture_radius: d.aperture_radius,
+            // In focus where the camera looks, unless told.
+            focus_distance: d.focus_distance.unwrap_or(to.length()),
         })
     }
 

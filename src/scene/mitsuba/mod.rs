@@ -324,12 +324,16 @@ impl Builder<'_, '_> {
         if self.camera.is_some() {
             return Err(el.error("a second <sensor>: qtrace renders one camera"));
         }
-        if el.plugin()? != "perspective" {
-            return Err(el.error(format!(
-                "{} is not supported; qtrace has the 'perspective' sensor",
-                plugin_name(el)
-            )));
-        }
+        let thin_lens = match el.plugin()? {
+            "perspective" => false,
+            "thinlens" => true,
+            _ => {
+                return Err(el.error(format!(
+                    "{} is not supported; qtrace has the 'perspective' and 'thinlens' sensors",
+                    plugin_name(el)
+                )))
+            }
+        };
         let p = Props::new(el);
         let axis = match p.string("fov_axis")?.unwrap_or("x") {
             "x" => FovAxis::X,
@@ -370,9 +374,26 @@ impl Builder<'_, '_> {
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         // Clipping planes keep the scene in front of the camera whole.
         p.ignore("near_clip");
-        p.ignore("far_clip");
-        // A pinhole is in focus at every distance, and no shape moves.
-        p.ignore("focus_distance");
+        let far_clip = p.float_or("far_clip", 10_000.0)?;
+        let (aperture_radius, focus_distance) = if thin_lens {
+            let radius = p
+                .float("aperture_radius")?
+                .ok_or_else(|| el.error("thinlens needs an aperture_radius"))?;
+            // Mitsuba's default focus: as far as the far clipping plane.
+            let focus = p.float_or("focus_distance", far_clip)?;
+            if !(radius >= 0.0 && radius.is_finite()) {
+                return Err(el.error(format!("aperture_radius {radius} must not be negative")));
+            }
+            if !(focus > 0.0 && focus.is_finite()) {
+                return Err(el.error(format!("focus_distance {focus} must be positive")));
+            }
+            (radius, focus)
+        } else {
+            // A pinhole is in focus at every distance.
+            p.ignore("focus_distance");
+            (0.0, 1.0)
+        };
+        // No shape moves.
         p.ignore("shutter_open");
         p.ignore("shutter_close");
         for sampler in p.nested("sampler") {
@@ -395,6 +416,8 @@ impl Builder<'_, '_> {
             up,
             fov_degrees: fov,
             fov_axis: axis,
+            aperture_radius,
+            focus_distance,
         });
         Ok(())
     }
