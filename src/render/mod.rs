@@ -68,8 +68,11 @@ impl GpuScene {
         // Buffers a scene may lack are bound all the same: one unused texel.
         let unused = |name: &str| Buffer::gpu_only_with(ctx, name, &[[0u32; 4]]);
         let (uvs, textures) = if scene.materials.iter().any(|m| m.textured()) {
-            let textures = crate::scene::texture::pack(&scene.textures, limit)
-                .map_err(|e| RenderError::Textures(scene.path.clone(), e))?;
+            let error = |e| RenderError::Textures(scene.path.clone(), e);
+            let fitted = crate::scene::texture::fit(&scene.textures, limit).map_err(error)?;
+            let textures =
+                crate::scene::texture::pack(fitted.as_deref().unwrap_or(&scene.textures), limit)
+                    .map_err(error)?;
             let uvs: Vec<[[f32; 2]; 4]> = scene
                 .uvs
                 .iter()
@@ -84,6 +87,25 @@ impl GpuScene {
         };
         let (environment, sky) = match &scene.environment {
             Some(e) => {
+                // A sky too large for one buffer even packed tight is halved
+                // until it fits, with a warning.
+                let original = e;
+                let mut fitted = std::borrow::Cow::Borrowed(e);
+                while 16 * fitted.words(true) as u64 > limit && fitted.width > 1 {
+                    fitted = std::borrow::Cow::Owned(fitted.halved());
+                }
+                let e = fitted.as_ref();
+                if e.width != original.width {
+                    log::warn!(
+                        "the sky '{}' ({}x{}) halved to {}x{}: it fits the {} MiB one device buffer may hold here no other way",
+                        e.name,
+                        original.width,
+                        original.height,
+                        e.width,
+                        e.height,
+                        limit >> 20
+                    );
+                }
                 // Texels a word each where they fit, else packed tighter.
                 let dense = 16 * e.words(false) as u64 > limit;
                 let bytes = 16 * e.words(dense) as u64;

@@ -68,6 +68,38 @@ impl Environment {
         env
     }
 
+    /// The map at about half its width and height: each new texel the mean
+    /// of the old map (as `eval` reads it, between texels) over the new
+    /// texel's span, a box of two columns by a tent of three rows; the pole
+    /// rows stay the poles.
+    pub fn halved(&self) -> Self {
+        let (w, h) = (self.width, self.height);
+        let (nw, nh) = (w.div_ceil(2), (h - 1).div_ceil(2) + 1);
+        // The old map at data point (x, y): columns wrap, rows clamp.
+        let at = |x: f32, y: f32| {
+            let y = y.clamp(0.0, (h - 1) as f32);
+            let (i, j) = (x.floor(), (y.floor() as usize).min(h - 2));
+            let (fx, fy) = (x - i, y - j as f32);
+            let col = |k: f32| (k as i64).rem_euclid(w as i64) as usize;
+            let (i0, i1) = (col(i), col(i + 1.0));
+            let row = |j: usize| self.texel(i0, j).lerp(self.texel(i1, j), fx);
+            row(j).lerp(row(j + 1), fy)
+        };
+        let (sx, sy) = (w as f32 / nw as f32, (h - 1) as f32 / (nh - 1) as f32);
+        let mut texels = Vec::with_capacity(nw * nh);
+        for j in 0..nh {
+            let y = j as f32 * sy;
+            for i in 0..nw {
+                let x = (i as f32 + 0.5) * sx - 0.5;
+                let column = |y: f32| 0.5 * (at(x - 0.25 * sx, y) + at(x + 0.25 * sx, y));
+                texels.push(
+                    0.25 * column(y - 0.5 * sy) + 0.5 * column(y) + 0.25 * column(y + 0.5 * sy),
+                );
+            }
+        }
+        Self::new(self.name.clone(), nw, nh, texels, self.to_local.inverse())
+    }
+
     /// One radiance from every direction: Mitsuba's `constant`.
     pub fn constant(radiance: Vec3) -> Self {
         Self::new("constant".into(), 1, 2, vec![radiance; 2], Mat3::IDENTITY)
@@ -414,6 +446,39 @@ mod tests {
             near_sun as f32 > 0.95 * n as f32,
             "{near_sun} of {n} near the sun"
         );
+    }
+
+    #[test]
+    fn a_halved_sky_keeps_its_power_and_its_sun() {
+        // A sky of a smooth gradient and a small sun, as a map too large
+        // for a device buffer would be halved: the power that reaches the
+        // scene (about) the same, the sun where it was.
+        let (w, h) = (256, 129);
+        let mut texels: Vec<Vec3> = (0..w * h)
+            .map(|i| Vec3::new(0.5, 0.6, 0.8) * (1.0 + (i / w) as f32 / h as f32))
+            .collect();
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            texels[(40 + dy) * w + 100 + dx] = Vec3::splat(2000.0);
+        }
+        let env = Environment::new("sun".into(), w, h, texels, Mat3::from_rotation_y(0.3));
+        let half = env.halved();
+        assert_eq!((half.width, half.height), (128, 65));
+        assert!(
+            (half.power / env.power - 1.0).abs() < 0.02,
+            "{} vs {}",
+            half.power,
+            env.power
+        );
+        let brightest = |e: &Environment| {
+            let i = (0..e.texels.len())
+                .max_by(|&a, &b| e.texels[a].x.total_cmp(&e.texels[b].x))
+                .unwrap();
+            let (x, y) = ((i % e.width) as f32 + 0.5, (i / e.width) as f32);
+            (x / e.width as f32, y / (e.height - 1) as f32)
+        };
+        let ((u0, v0), (u1, v1)) = (brightest(&env), brightest(&half));
+        assert!((u0 - u1).abs() < 1.0 / 128.0 && (v0 - v1).abs() < 1.0 / 64.0);
+        assert_densities_integrate_to_one(&half, 1e-4);
     }
 
     #[test]

@@ -94,6 +94,15 @@ pub fn srgb_to_linear(c: f32) -> f32 {
     }
 }
 
+/// The sRGB transfer curve.
+fn linear_to_srgb(c: f32) -> f32 {
+    if c <= 0.0031308 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}
+
 /// Index `i` of a row or column of `n` texels, wrapped.
 fn wrap_index(i: i64, n: usize, wrap: Wrap) -> usize {
     let n = n as i64;
@@ -229,6 +238,67 @@ impl Texture {
                     .as_vec3()
                     / n as f32
             }
+        }
+    }
+
+    fn filter(&self) -> Filter {
+        match self.pattern {
+            Pattern::Bitmap { filter, .. } => filter,
+            Pattern::Checkerboard { .. } => Filter::Nearest,
+        }
+    }
+
+    fn wrap(&self) -> Wrap {
+        match self.pattern {
+            Pattern::Bitmap { wrap, .. } => wrap,
+            Pattern::Checkerboard { .. } => Wrap::Repeat,
+        }
+    }
+
+    /// A bitmap at half its width and height (rounded up): each texel the
+    /// mean of the linear values of the 2×2 it replaces (clamped at the
+    /// edges), 8-bit texels encoded as they were.
+    fn halved(&self) -> Pattern {
+        let Pattern::Bitmap {
+            width,
+            height,
+            texels,
+            filter,
+            wrap,
+        } = &self.pattern
+        else {
+            return self.pattern.clone();
+        };
+        let (w, h) = (width.div_ceil(2), height.div_ceil(2));
+        let mean = |x: usize, y: usize| {
+            let at = |dx: usize, dy: usize| {
+                let (sx, sy) = ((2 * x + dx).min(width - 1), (2 * y + dy).min(height - 1));
+                texels.get(sy * width + sx)
+            };
+            0.25 * (at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1))
+        };
+        let linear = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| mean(x, y));
+        let texels = match texels {
+            Texels::Floats(_) => Texels::Floats(linear.collect()),
+            Texels::Bytes { srgb, .. } => {
+                let encode = |c: f32| {
+                    let c = if *srgb { linear_to_srgb(c) } else { c };
+                    (c.clamp(0.0, 1.0) * 255.0).round() as u8
+                };
+                Texels::Bytes {
+                    rgb: linear.map(|c| c.to_array().map(encode)).collect(),
+                    srgb: *srgb,
+                }
+            }
+        };
+        Pattern::Bitmap {
+            width: w,
+            height: h,
+            texels,
+            filter: *filter,
+            wrap: *wrap,
         }
     }
 
@@ -369,6 +439,80 @@ pub fn pack(textures: &[Texture], limit: u64) -> Result<Vec<[u32; 4]>, TextureTo
         }
     }
     Ok(out)
+}
+
+/// Bytes of the device's texture buffer [`pack`] would fill.
+fn packed_bytes(textures: &[Texture]) -> u64 {
+    let mut words = shaders::TEXTURE_TABLE_WORDS as usize + TEXTURE_HEADER_WORDS * textures.len();
+    for (k, t) in textures.iter().enumerate() {
+        if !textures[..k].iter().any(|o| o.same_texels(t)) {
+            words += t.words();
+        }
+    }
+    16 * words as u64
+}
+
+/// `textures` made to fit `limit` bytes of the device's buffer: while they
+/// do not, the bitmap whose texels take the most room (every texture that
+/// reads them) is halved in width and height, each texel the mean of the
+/// 2×2 it replaces, with a warning naming it. `None` where they fit as they
+/// are.
+pub fn fit(textures: &[Texture], limit: u64) -> Result<Option<Vec<Texture>>, TextureTooLarge> {
+    if packed_bytes(textures) <= limit {
+        return Ok(None);
+    }
+    let mut out = textures.to_vec();
+    loop {
+        let bytes = packed_bytes(&out);
+        if bytes <= limit {
+            break;
+        }
+        let largest = (0..out.len())
+            .filter(|&i| matches!(out[i].pattern, Pattern::Bitmap { width, height, .. } if width * height > 1))
+            .max_by_key(|&i| out[i].words());
+        let Some(i) = largest else {
+            return Err(TextureTooLarge {
+                name: out.last().map_or(String::new(), |t| t.name.clone()),
+                bytes,
+                limit,
+            });
+        };
+        let shrunk = out[i].halved();
+        let same: Vec<usize> = (0..out.len())
+            .filter(|&j| out[j].same_texels(&out[i]))
+            .collect();
+        for j in same {
+            let (filter, wrap) = (out[j].filter(), out[j].wrap());
+            out[j].pattern = shrunk.clone();
+            if let Pattern::Bitmap {
+                filter: f, wrap: w, ..
+            } = &mut out[j].pattern
+            {
+                (*f, *w) = (filter, wrap);
+            }
+        }
+    }
+    let mut warned = std::collections::HashSet::new();
+    for (before, after) in textures.iter().zip(&out) {
+        if let (
+            Pattern::Bitmap {
+                width: w0,
+                height: h0,
+                ..
+            },
+            Pattern::Bitmap { width, height, .. },
+        ) = (&before.pattern, &after.pattern)
+        {
+            if (w0, h0) != (width, height) && warned.insert(&before.name) {
+                log::warn!(
+                    "texture '{}' ({w0}x{h0}) halved to {width}x{height}: the scene's textures fit the {} MiB one device buffer may hold here no other way",
+                    before.name,
+                    limit >> 20
+                );
+            }
+        }
+    }
+    Ok(Some(out))
 }
 
 /// The scene's textures do not fit the device's buffer.
@@ -545,5 +689,63 @@ mod tests {
             to_uv: Mat3::IDENTITY,
         };
         assert_values("checkerboard", &t, [a, a, a, b, a]);
+    }
+
+    #[test]
+    fn textures_too_large_for_a_buffer_are_halved_to_fit() {
+        let mut rng = crate::fuzz::Rng::new(3);
+        let bytes = |n: usize, rng: &mut crate::fuzz::Rng| -> Vec<[u8; 3]> {
+            (0..n)
+                .map(|_| [0, 1, 2].map(|_| (rng.next_u64() >> 56) as u8))
+                .collect()
+        };
+        let bitmap = |name: &str, w: usize, h: usize, texels: Texels, wrap: Wrap| Texture {
+            name: name.into(),
+            pattern: Pattern::Bitmap {
+                width: w,
+                height: h,
+                texels,
+                filter: Filter::Bilinear,
+                wrap,
+            },
+            to_uv: Mat3::IDENTITY,
+        };
+        let big = Texels::Bytes {
+            rgb: bytes(64 * 48, &mut rng),
+            srgb: true,
+        };
+        let floats = Texels::Floats(
+            (0..33 * 17)
+                .map(|i| Vec3::splat(i as f32 / 561.0))
+                .collect(),
+        );
+        let textures = vec![
+            bitmap("big.png", 64, 48, big.clone(), Wrap::Repeat),
+            bitmap("floats.exr", 33, 17, floats, Wrap::Clamp),
+            // The same file read with another wrap shares its texels.
+            bitmap("big.png", 64, 48, big, Wrap::Mirror),
+        ];
+        let all = packed_bytes(&textures);
+        assert!(fit(&textures, all).unwrap().is_none());
+        // Room for all but a quarter of the largest: it alone is halved,
+        // both its readers, which still share their texels.
+        let fitted = fit(&textures, all - 16 * 64 * 48 / 16).unwrap().unwrap();
+        let size = |t: &Texture| match t.pattern {
+            Pattern::Bitmap { width, height, .. } => (width, height),
+            _ => unreachable!(),
+        };
+        assert_eq!(
+            fitted.iter().map(size).collect::<Vec<_>>(),
+            [(32, 24), (33, 17), (32, 24)]
+        );
+        assert!(fitted[0].same_texels(&fitted[2]));
+        assert_eq!(fitted[2].wrap(), Wrap::Mirror);
+        assert!((fitted[0].mean() - textures[0].mean()).abs().max_element() < 0.01);
+        // Less room still: the floats too, to 17 x 9.
+        let fitted = fit(&textures, packed_bytes(&fitted) - 16 * 300)
+            .unwrap()
+            .unwrap();
+        assert!(fitted.iter().any(|t| size(t) == (17, 9)));
+        assert!(packed_bytes(&fitted) <= packed_bytes(&textures));
     }
 }
