@@ -285,6 +285,15 @@ struct Triangle {
 #define FEATURE_ROUGH_PLASTIC 512
 // ... a textured material (its texture slots in Material.eta.w).
 #define FEATURE_TEXTURES 1024
+// ... a normal-mapped material (Mitsuba's normalmap): its kind's bits from
+// MATERIAL_NORMAL_MAP_SHIFT on hold 1 + the index of its normals' texture.
+#define FEATURE_NORMAL_MAPS 2048
+#define MATERIAL_NORMAL_MAP_SHIFT 8
+// Added to a normal-mapped material's kind: the map lies inside `twosided`,
+// so the unmapped normal tells the sides apart, and the back's normal is the
+// mapped one mirrored (else the mapped normal tells them, as the BSDF under
+// the map sees it).
+#define MATERIAL_MAP_IN_TWOSIDED 128
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

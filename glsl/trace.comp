@@ -373,7 +373,59 @@ struct Shading {
     vec3 t;        // the frame (t, b, ns)
     vec3 b;
     vec3 wo;       // toward where the ray came from, in the frame
+    // Under a normal map (NORMAL_MAPS), ns is the mapped normal; `unmapped`
+    // the normal it turned, and `map_alpha2` the roughness its shadowing
+    // takes (normal_map_weight); -1 where the material has no map.
+    vec3 unmapped;
+    float map_alpha2;
 };
+
+// Whether the scene has normal-mapped materials; a constant, so that the
+// kernels of the others carry no code for them.
+const bool NORMAL_MAPS = (MATERIAL_FEATURES & FEATURE_NORMAL_MAPS) != 0u;
+// Whether a vertex's shading normal may differ from its surface's.
+const bool SHADING_FRAME = SHADING_NORMALS || NORMAL_MAPS;
+
+// Mitsuba's normalmap: the normal n0 (the surface's own shading normal, not
+// turned toward the ray) turned by texel 2 rgb - 1 of texture `map`, read
+// in the frame of n0 and the surface's (u, v) tangent dp/du, at barycentric
+// coordinates b of `triangle`.
+vec3 mapped_normal(uint triangle, Triangle tri, vec3 n0, vec2 b, uint map) {
+    uvec4 p = FETCH(uv_texels, int(2u * triangle));
+    uvec4 q = FETCH(uv_texels, int(2u * triangle + 1u));
+    vec2 uv0 = uintBitsToFloat(p.xy);
+    vec2 d1 = uintBitsToFloat(p.zw) - uv0;
+    vec2 d2 = uintBitsToFloat(q.xy) - uv0;
+    float det = d1.x * d2.y - d1.y * d2.x;
+    vec3 dp_du = (d2.y * tri.e1 - d1.y * tri.e2) / det;
+    vec3 s = dp_du - n0 * dot(n0, dp_du);
+    vec3 t;
+    if (det == 0.0 || !(dot(s, s) > 0.0)) {
+        make_frame(n0, s, t);
+    } else {
+        s = normalize(s);
+        t = cross(n0, s);
+    }
+    vec3 m = normalize(2.0 * texture_eval(map, uv0 + b.x * d1 + b.y * d2) - 1.0);
+    return normalize(m.x * s + m.y * t + m.z * n0);
+}
+
+// What a normal map leaves of light leaving the surface in direction d:
+// nothing on the other side of the unmapped normal than of the mapped one,
+// else the shadowing of Conty Estevez and Kulla (2018) of a surface whose
+// roughness the angle between the two normals sets (as Mitsuba weighs it).
+// 1 without a map.
+float normal_map_weight(Shading s, vec3 d) {
+    if (!NORMAL_MAPS || s.map_alpha2 < 0.0) {
+        return 1.0;
+    }
+    float c = dot(d, s.unmapped);
+    if (c * dot(d, s.ns) <= 0.0) {
+        return 0.0;
+    }
+    float c2 = c * c;
+    return 2.0 / (1.0 + sqrt(1.0 + s.map_alpha2 * (1.0 - c2) / c2));
+}
 
 // NEE at shading point `s`: one light (the guide's choice where it learns
 // one, else by power), one point or direction on it, a shadow ray, and
@@ -433,7 +485,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
         vec3 from = s.position;
         vec3 shadow_dir = wi;
         float reach = dist;
-        if ((SHADING_NORMALS || transmits) && dot(wi, s.ng) < 0.0) {
+        if ((SHADING_FRAME || transmits) && dot(wi, s.ng) < 0.0) {
             from = s.point - s.ng * eps;
             vec3 to = s.position + wi * dist - from;
             reach = dist < 1e30 ? length(to) : dist;
@@ -445,7 +497,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
             // A plastic's coat takes some bounces as a mirror.
             scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
             float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
-            vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * le;
+            vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * normal_map_weight(s, wi) * le;
             vec3 direct = f_le * weight / light_pdf;
             path.radiance += path.throughput * direct;
             direct_lum = luminance(direct);
@@ -530,7 +582,14 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
     path.throughput *= weight;
     path.prev_bsdf_pdf = pdf;
     path.dir = normalize(local.x * s.t + local.y * s.b + local.z * s.ns);
-    path.origin = s.point + ((SHADING_NORMALS ? dot(path.dir, s.ng) > 0.0 : local.z > 0.0) ? eps : -eps) * s.ng;
+    path.origin = s.point + ((SHADING_FRAME ? dot(path.dir, s.ng) > 0.0 : local.z > 0.0) ? eps : -eps) * s.ng;
+    if (NORMAL_MAPS) {
+        float shadowing = normal_map_weight(s, path.dir);
+        if (shadowing <= 0.0) {
+            return false;
+        }
+        path.throughput *= shadowing;
+    }
     return true;
 }
 
@@ -619,11 +678,48 @@ bool scatter(inout Path path, inout Trail trail) {
         vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
         bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
     }
+    s.unmapped = s.ns;
+    s.map_alpha2 = -1.0;
+    if (NORMAL_MAPS) {
+        uint code = uint(mat.color.w);
+        uint map = code >> MATERIAL_NORMAL_MAP_SHIFT;
+        if (map != 0u) {
+            // As Mitsuba maps normals: where the ray comes from below the
+            // mapped normal m, m mirrored about the unmapped one n0 instead
+            // (2 (m.n0) n0 - m: its tangential part turned over).
+            vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
+            vec3 n0 = front ? s.ns : -s.ns;
+            vec3 m = mapped_normal(hit.triangle, tri, n0, b, map - 1u);
+            float c = dot(m, n0);
+            vec3 v = -path.dir;
+            if ((code & MATERIAL_MAP_IN_TWOSIDED) != 0u) {
+                // Sides by n0: twosided turns the back's directions over
+                // (across the surface) before the map sees them.
+                vec3 seen = front ? v : v - 2.0 * dot(v, n0) * n0;
+                m = dot(seen, m) < 0.0 ? 2.0 * c * n0 - m : m;
+                s.ns = front ? m : m - 2.0 * c * n0;
+            } else {
+                // The BSDF under the map tells the sides by the mapped normal.
+                m = dot(v, m) < 0.0 ? 2.0 * c * n0 - m : m;
+                bool mapped_front = dot(v, m) > 0.0;
+                s.ns = mapped_front ? m : -m;
+                s.unmapped = mapped_front ? n0 : -n0;
+                if (mapped_front != front) {
+                    front = mapped_front;
+                    bsdf = bsdf_of(mat, front);
+                    if (scene_textured()) {
+                        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
+                    }
+                }
+            }
+            s.map_alpha2 = clamp(0.125 * (1.0 - c * c) / (c * c), 0.0, 1.0);
+        }
+    }
     bool delta = bsdf_is_delta(bsdf);
     // Rough glass: sampled and reached by NEE on both sides, not guided.
     bool transmits = bsdf_transmits(bsdf);
     make_frame(s.ns, s.t, s.b);
-    s.wo = vec3(-dot(path.dir, s.t), -dot(path.dir, s.b), SHADING_NORMALS ? -dot(path.dir, s.ns) : abs(cos_out));
+    s.wo = vec3(-dot(path.dir, s.t), -dot(path.dir, s.b), SHADING_FRAME ? -dot(path.dir, s.ns) : abs(cos_out));
     // A delta vertex or rough glass is never guided: unless it learns, the
     // guide's lookup there (a network inference, for neural) would only tune
     // the roulette. Its bounces learn as a delta vertex's (chaining).

@@ -1,6 +1,7 @@
-"""Writes the small textures tests/fixtures/mitsuba/coverage-e.xml uses
-(deterministic, from a fixed seed): an 8-bit sRGB PNG of coloured tiles, an
-8-bit greyscale PNG of roughness values, and a float OpenEXR.
+"""Writes the small textures tests/fixtures/mitsuba/coverage-e.xml and
+coverage-j.xml use (deterministic, from a fixed seed): an 8-bit sRGB PNG of
+coloured tiles, an 8-bit greyscale PNG of roughness values, a float OpenEXR,
+and an 8-bit normal map of round bumps.
 
     python3 scripts/make_texture_fixtures.py tests/fixtures/textures
 """
@@ -26,3 +27,13 @@ mi.Bitmap(rough.round().astype(np.uint8)[:, :, None], mi.Bitmap.PixelFormat.Y).w
 # 6x5 linear floats in [0.05, 0.9].
 floats = (0.05 + 0.85 * rng.random((5, 6, 3))).astype(np.float32)
 mi.Bitmap(floats, mi.Bitmap.PixelFormat.RGB).write(f"{out}/floats.exr")
+
+# 32x32 normals of four round bumps a side, (n + 1) / 2 in 8 bits (read raw).
+y, x = (np.mgrid[0:32, 0:32] + 0.5) / 8.0
+fx, fy = x - np.floor(x) - 0.5, y - np.floor(y) - 0.5
+r2 = np.minimum(fx * fx + fy * fy, 0.2)
+slope = 1.6 * (0.2 - r2)
+n = np.stack([slope * fx * 4.0, slope * fy * 4.0, np.ones_like(fx)], axis=-1)
+n /= np.linalg.norm(n, axis=-1, keepdims=True)
+bumps = ((n + 1.0) * 0.5 * 255.0).round().astype(np.uint8)
+mi.Bitmap(bumps, mi.Bitmap.PixelFormat.RGB).write(f"{out}/bumps.png")

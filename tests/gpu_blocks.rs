@@ -262,6 +262,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                     // Mitsuba's BSDFs outside `twosided` are black from behind.
                     one_sided: rng.next() < 0.25,
                     textures: [None; 3],
+                    normal_map: None,
                 },
                 front: rng.next() < 0.5,
                 wo: Vec3::new(r * phi.cos(), r * phi.sin(), z),

@@ -352,6 +352,21 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             5,
             "bsdf",
         ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"normalmap\"><bsdf type=\"diffuse\"/></bsdf></shape>",
+            5,
+            "normalmap needs a texture named 'normalmap'",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"normalmap\"><texture type=\"checkerboard\" name=\"normalmap\"/></bsdf></shape>",
+            5,
+            "normalmap needs one nested <bsdf>",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"normalmap\"><texture type=\"checkerboard\" name=\"normalmap\"/>\n<bsdf type=\"thindielectric\"/></bsdf></shape>",
+            6,
+            "a normalmap around a null or thindielectric BSDF",
+        ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),
         ("<shape type=\"cube\"", 6, "malformed XML"),
@@ -697,4 +712,19 @@ fn a_thin_lens_needs_its_aperture() {
         panic!("loaded")
     };
     assert_eq!(err, "mem/s.xml:2: focus_distance -1 must be positive");
+}
+
+#[test]
+fn normal_maps_agree_with_mitsuba() {
+    // Bumps on diffuse, rough metal, plastic and a mirror, the map outside
+    // twosided and inside it.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-j.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-j",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
 }

@@ -61,6 +61,19 @@ pub struct Material {
     /// colour, its second colour and its alpha (`TEXTURE_SLOT_*`); the
     /// surface holds each texture's mean there.
     pub textures: [Option<u32>; 3],
+    /// Mitsuba's `normalmap`: the normals that turn its shading frame.
+    pub normal_map: Option<NormalMap>,
+}
+
+/// Mitsuba's `normalmap` around a material.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NormalMap {
+    /// Its normals' texture, an index into `Scene::textures`.
+    pub texture: u32,
+    /// Whether a `twosided` lies around the map (the unmapped normal then
+    /// tells the sides apart), else the map lies around the BSDF, which
+    /// tells them by the mapped normal.
+    pub in_twosided: bool,
 }
 
 impl Material {
@@ -71,11 +84,12 @@ impl Material {
             emission: Vec3::ZERO,
             one_sided: false,
             textures: [None; 3],
+            normal_map: None,
         }
     }
 
     pub fn textured(&self) -> bool {
-        self.textures.iter().any(Option::is_some)
+        self.textures.iter().any(Option::is_some) || self.normal_map.is_some()
     }
 
     /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
@@ -116,6 +130,12 @@ impl Material {
         let mut code = self.surface.kind();
         if self.one_sided {
             code |= shaders::MATERIAL_ONE_SIDED;
+        }
+        if let Some(map) = self.normal_map {
+            code |= (map.texture + 1) << shaders::MATERIAL_NORMAL_MAP_SHIFT;
+            if map.in_twosided {
+                code |= shaders::MATERIAL_MAP_IN_TWOSIDED;
+            }
         }
         let (mut eta, mut k) = (Vec3::ZERO, Vec3::ZERO);
         if self.surface.distribution() == Some(Distribution::Beckmann) {
@@ -408,7 +428,12 @@ impl Scene {
             } else {
                 0
             };
-            acc | (code & flags) | feature | textured
+            let mapped = if m.normal_map.is_some() {
+                shaders::FEATURE_NORMAL_MAPS
+            } else {
+                0
+            };
+            acc | (code & flags) | feature | textured | mapped
         })
     }
 
@@ -1234,6 +1259,7 @@ fn load_obj(
             )?,
             one_sided: false,
             textures: [None; 3],
+            normal_map: None,
         };
         if let (Some(file), Surface::Diffuse { .. }) = (&m.diffuse_map, material.surface) {
             let t = diffuse_map(dir, file, loader).map_err(|message| SceneError::Mtl {

@@ -11,7 +11,9 @@ mod xml;
 
 use super::file::RenderDefaults;
 use super::{obj, ply, serialized};
-use super::{Camera, FovAxis, Geometry, Loader, Material, Parts, PixelFilter, SceneError};
+use super::{
+    Camera, FovAxis, Geometry, Loader, Material, NormalMap, Parts, PixelFilter, SceneError,
+};
 use crate::bsdf::{ComplexIor, Distribution, Surface};
 use glam::{Mat4, Vec2, Vec3};
 use std::collections::HashMap;
@@ -117,6 +119,8 @@ struct BsdfDesc {
     null: bool,
     /// Its textures' indices among the scene's (`Material::textures`).
     textures: [Option<u32>; 3],
+    /// A `normalmap` around it.
+    normal_map: Option<NormalMap>,
 }
 
 struct Builder<'a, 'l> {
@@ -540,6 +544,7 @@ impl Builder<'_, '_> {
                 // Paths end at an emitter: its BSDF's textures go unread,
                 // and the colour slot holds a radiance texture.
                 textures: [radiance_texture, None, None],
+                normal_map: None,
             });
             self.add(el, &label, mesh, m);
             return Ok(());
@@ -554,6 +559,7 @@ impl Builder<'_, '_> {
                     emission: Vec3::ZERO,
                     one_sided: desc.one_sided,
                     textures: desc.textures,
+                    normal_map: desc.normal_map,
                 });
                 if let Some((id, None)) = &shared {
                     if let Some(entry) = self.bsdfs.get_mut(id) {
@@ -730,6 +736,7 @@ impl Builder<'_, '_> {
             one_sided: true,
             null: false,
             textures: [None; 3],
+            normal_map: None,
         });
         Ok((desc, shared))
     }
@@ -1273,7 +1280,7 @@ fn bsdf(
 ) -> Result<BsdfDesc, SceneError> {
     let kind = el.plugin()?;
     let p = Props::new(el);
-    let given = tex.given(el, &p, kind, loader)?;
+    let mut given = tex.given(el, &p, kind, loader)?;
     let name = el.attr("id").unwrap_or(kind).to_string();
     let one = |surface: Surface| BsdfDesc {
         name: name.clone(),
@@ -1281,6 +1288,7 @@ fn bsdf(
         one_sided: true,
         null: false,
         textures: [None; 3],
+        normal_map: None,
     };
     let desc = match kind {
         "twosided" => {
@@ -1290,6 +1298,9 @@ fn bsdf(
                     let mut d = bsdf(b, tex, loader)?;
                     d.one_sided = false;
                     d.name = name.clone();
+                    if let Some(map) = &mut d.normal_map {
+                        map.in_twosided = true;
+                    }
                     d
                 }
                 [_, b] => {
@@ -1329,6 +1340,7 @@ fn bsdf(
             one_sided: false,
             null: true,
             textures: [None; 3],
+            normal_map: None,
         },
         "plastic" => {
             let int = ior(el, &p, "int_ior", "polypropylene")?;
@@ -1372,11 +1384,34 @@ fn bsdf(
             d
         }
         "roughplastic" => one(rough_plastic(el, &p)?),
-        "mask" | "bumpmap" | "normalmap" | "blendbsdf" | "pplastic" | "principled"
+        "normalmap" => {
+            // The texture is the normals', not a colour of the BSDF's.
+            let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
+            let Some((map, _)) = given[slot].take() else {
+                return Err(el.error("normalmap needs a texture named 'normalmap'"));
+            };
+            let inner = p.nested("bsdf");
+            let [b] = inner[..] else {
+                return Err(el.error("normalmap needs one nested <bsdf>"));
+            };
+            let mut d = bsdf(b, tex, loader)?;
+            if d.normal_map.is_some() {
+                return Err(b.error("a normalmap inside a normalmap is not supported"));
+            }
+            if d.null || matches!(d.surface, Surface::Thin { .. }) {
+                return Err(b.error("a normalmap around a null or thindielectric BSDF is not supported"));
+            }
+            d.normal_map = Some(NormalMap {
+                texture: map,
+                in_twosided: false,
+            });
+            d
+        }
+        "mask" | "bumpmap" | "blendbsdf" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),

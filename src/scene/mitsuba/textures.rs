@@ -47,6 +47,8 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("diffuse_reflectance", COLOR),
             ("specular_reflectance", SECOND),
         ],
+        // A normal map's texture, which it keeps apart from the slots.
+        "normalmap" => &[("normalmap", COLOR)],
         // An emitter's material: paths end there, so its colour slot holds
         // the radiance.
         "area" => &[("radiance", COLOR)],
