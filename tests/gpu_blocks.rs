@@ -428,6 +428,7 @@ fn gpu_textures_match_their_cpu_twin() {
                 emission: Vec3::ZERO,
                 one_sided: rng.next() < 0.3,
                 textures: slots,
+                normal_map: None,
             },
             front: rng.next() < 0.7,
             uv: Vec2::new(4.0 * rng.next() - 1.5, 4.0 * rng.next() - 1.5),
