@@ -331,6 +331,11 @@ struct Triangle {
 // every bounce so far went straight through a null surface or a thin sheet,
 // Mitsuba's null lobe).
 #define CONSTANT_HIDE_EMITTERS 11
+// Specialization constants of the trace kernels: the camera is a thin lens
+// (PassParams.cam_right.w above 0); some material has a normal map
+// (FEATURE_NORMAL_MAPS). Constants, so that other scenes run no code for them.
+#define CONSTANT_THIN_LENS 12
+#define CONSTANT_NORMAL_MAPS 13
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

@@ -40,6 +40,8 @@ layout(constant_id = CONSTANT_PIXEL_FILTER) const uint PIXEL_FILTER = FILTER_BOX
 // Whether the scene has lights only NEE reaches (B_DELTA_LIGHTS).
 layout(constant_id = CONSTANT_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
 layout(constant_id = CONSTANT_HIDE_EMITTERS) const bool HIDE_EMITTERS = false;
+layout(constant_id = CONSTANT_THIN_LENS) const bool THIN_LENS = false;
+layout(constant_id = CONSTANT_NORMAL_MAPS) const bool NORMAL_MAPS = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -207,7 +209,7 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
         1.0 - 2.0 * point.y / float(params.height));
     vec3 through = params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz;
     path.origin = params.cam_pos.xyz;
-    if (params.cam_right.w > 0.0) {
+    if (THIN_LENS) {
         // A thin lens of radius cam_right.w, in focus on the plane
         // cam_up.w ahead: a point of the lens, aimed where the pinhole's
         // ray meets that plane.
@@ -380,9 +382,6 @@ struct Shading {
     float map_alpha2;
 };
 
-// Whether the scene has normal-mapped materials; a constant, so that the
-// kernels of the others carry no code for them.
-const bool NORMAL_MAPS = (MATERIAL_FEATURES & FEATURE_NORMAL_MAPS) != 0u;
 // Whether a vertex's shading normal may differ from its surface's.
 const bool SHADING_FRAME = SHADING_NORMALS || NORMAL_MAPS;
 

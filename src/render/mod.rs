@@ -470,6 +470,8 @@ impl Renderer {
         constants.push(!scene.delta_lights.is_empty() as u32);
         constants.push(gpu_scene.sky);
         constants.push(scene.defaults.hide_emitters as u32);
+        constants.push((scene.camera.aperture_radius > 0.0) as u32);
+        constants.push((scene.material_features() & shaders::FEATURE_NORMAL_MAPS != 0) as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",
