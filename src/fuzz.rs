@@ -81,6 +81,9 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-e.xml",
         "tests/fixtures/mitsuba/coverage-f.xml",
         "tests/fixtures/mitsuba/coverage-g.xml",
+        "tests/fixtures/mitsuba/coverage-h.xml",
+        "tests/fixtures/mitsuba/coverage-i.xml",
+        "tests/fixtures/mitsuba/coverage-j.xml",
     ]
     .iter()
     .map(PathBuf::from)
