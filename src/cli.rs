@@ -421,10 +421,20 @@ fn texture_summary(scene: &Scene) -> String {
     let count = names.len();
     names.sort_unstable();
     names.dedup();
+    let maps = scene
+        .materials
+        .iter()
+        .filter(|m| m.normal_map.is_some())
+        .count();
     format!(
-        "{count} ({}), {:.2} MiB on the device",
+        "{count} ({}), {:.2} MiB on the device{}",
         names.join(", "),
-        bytes as f64 / (1 << 20) as f64
+        bytes as f64 / (1 << 20) as f64,
+        if maps > 0 {
+            format!("; {maps} normal-mapped materials")
+        } else {
+            String::new()
+        }
     )
 }
 
@@ -494,12 +504,20 @@ pub fn inspect_summary(scene: &Scene) -> String {
             scene.bvh_depth,
         ),
         format!(
-            "camera       at {:?} looking {:?}, fov {}° ({:?} axis), filter {:?}",
+            "camera       at {:?} looking {:?}, fov {}° ({:?} axis), filter {:?}{}",
             c.position.to_array(),
             c.forward.to_array(),
             c.fov_degrees,
             c.fov_axis,
-            scene.filter
+            scene.filter,
+            if c.aperture_radius > 0.0 {
+                format!(
+                    ", thin lens of radius {} in focus at {}",
+                    c.aperture_radius, c.focus_distance
+                )
+            } else {
+                String::new()
+            }
         ),
         format!("scene extent {:.3} (bounding-box diagonal)", scene.extent),
         format!("defaults     {}", defaults_summary(&scene.defaults)),
@@ -517,11 +535,16 @@ fn defaults_summary(d: &crate::scene::file::RenderDefaults) -> String {
     let or =
         |v: Option<u32>, default: u32| v.map_or(format!("{default} (qtrace's)"), |v| v.to_string());
     format!(
-        "{} x {} pixels, {} spp, max depth {} bounces",
+        "{} x {} pixels, {} spp, max depth {} bounces{}",
         or(d.width, 256),
         or(d.height, 256),
         or(d.spp, 64),
-        or(d.max_depth, 64)
+        or(d.max_depth, 64),
+        if d.hide_emitters {
+            ", emitters hidden from the camera"
+        } else {
+            ""
+        }
     )
 }
 

@@ -522,6 +522,20 @@ fn devices_and_inspect() {
         stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
         "{stdout}"
     );
+    // A thin lens, hidden emitters and normal maps show.
+    for (scene, want) in [
+        ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
+        ("coverage-h.xml", "emitters hidden from the camera"),
+        ("coverage-j.xml", "4 normal-mapped materials"),
+    ] {
+        let output = qtrace()
+            .arg("inspect")
+            .arg(common::repo("tests/fixtures/mitsuba").join(scene))
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        assert!(stdout.contains(want), "{scene}: {stdout}");
+    }
 }
 
 #[test]
