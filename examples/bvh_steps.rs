@@ -197,13 +197,10 @@ fn main() {
     let (mut checked, mut mismatches) = (0, 0);
     for y in 0..width {
         for x in 0..width {
-            let o = scene.camera.position;
-            let d = scene.camera.ray_direction(
-                x as f32 + rng.next(),
-                y as f32 + rng.next(),
-                width,
-                width,
-            );
+            let (o, d) =
+                scene
+                    .camera
+                    .ray(x as f32 + rng.next(), y as f32 + rng.next(), width, width);
             let (t, tri, steps) = walk(&scene.nodes, o, d, FAR, false);
             camera.steps.push(steps);
             camera.rays.push((o, d, FAR, false));

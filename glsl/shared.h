@@ -336,6 +336,9 @@ struct Triangle {
 // (FEATURE_NORMAL_MAPS). Constants, so that other scenes run no code for them.
 #define CONSTANT_THIN_LENS 12
 #define CONSTANT_NORMAL_MAPS 13
+// ... the camera is orthographic: rays along cam_forward from cam_pos plus
+// the image point times cam_right and cam_up (half extents).
+#define CONSTANT_ORTHOGRAPHIC 14
 
 struct Material {
     vec4 color;        // rgb: Kd (diffuse), Ks (conductor) or Tf (dielectric); w: kind (+ MATERIAL_* flags)

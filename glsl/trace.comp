@@ -42,6 +42,7 @@ layout(constant_id = CONSTANT_DELTA_LIGHTS) const bool DELTA_LIGHTS = false;
 layout(constant_id = CONSTANT_HIDE_EMITTERS) const bool HIDE_EMITTERS = false;
 layout(constant_id = CONSTANT_THIN_LENS) const bool THIN_LENS = false;
 layout(constant_id = CONSTANT_NORMAL_MAPS) const bool NORMAL_MAPS = false;
+layout(constant_id = CONSTANT_ORTHOGRAPHIC) const bool ORTHOGRAPHIC = false;
 layout(std430, set = 0, binding = B_SAMPLES) writeonly buffer Samples { PathSample samples[]; };
 layout(std430, set = 0, binding = B_WORK) buffer Work { uint work_counters[]; };
 
@@ -207,8 +208,13 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
     vec2 ndc = vec2(
         2.0 * point.x / float(params.width) - 1.0,
         1.0 - 2.0 * point.y / float(params.height));
-    vec3 through = params.cam_forward.xyz + ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz;
+    vec3 across = ndc.x * params.cam_right.xyz + ndc.y * params.cam_up.xyz;
+    vec3 through = params.cam_forward.xyz + across;
     path.origin = params.cam_pos.xyz;
+    if (ORTHOGRAPHIC) {
+        path.origin += across;
+        through = params.cam_forward.xyz;
+    }
     if (THIN_LENS) {
         // A thin lens of radius cam_right.w, in focus on the plane
         // cam_up.w ahead: a point of the lens, aimed where the pinhole's

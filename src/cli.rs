@@ -510,7 +510,9 @@ pub fn inspect_summary(scene: &Scene) -> String {
             c.fov_degrees,
             c.fov_axis,
             scene.filter,
-            if c.aperture_radius > 0.0 {
+            if let Some(o) = c.orthographic {
+                format!(", orthographic, {} across half the width", o.half_width)
+            } else if c.aperture_radius > 0.0 {
                 format!(
                     ", thin lens of radius {} in focus at {}",
                     c.aperture_radius, c.focus_distance

@@ -84,6 +84,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-h.xml",
         "tests/fixtures/mitsuba/coverage-i.xml",
         "tests/fixtures/mitsuba/coverage-j.xml",
+        "tests/fixtures/mitsuba/coverage-k.xml",
     ]
     .iter()
     .map(PathBuf::from)

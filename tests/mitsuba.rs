@@ -698,6 +698,20 @@ fn thin_lens_agrees_with_mitsuba() {
 }
 
 #[test]
+fn orthographic_camera_agrees_with_mitsuba() {
+    // Scaled by its to_world, on a wide image.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-k.xml");
+    for m in [Method::PT, Method::SARSA] {
+        check(
+            "coverage-k",
+            &scene,
+            &[("res", "96"), ("resy", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn a_thin_lens_needs_its_aperture() {
     let text = with_body("").replace("type=\"perspective\"", "type=\"thinlens\"");
     let Err(err) = load_text(&text) else {

@@ -45,12 +45,7 @@ fn camera_hits(
     let cam = &scene.camera;
     let rays: Vec<(Vec3, Vec3)> = (0..height)
         .flat_map(|y| (0..width).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            (
-                cam.position,
-                cam.ray_direction(x as f32 + 0.5, y as f32 + 0.5, width, height),
-            )
-        })
+        .map(|(x, y)| cam.ray(x as f32 + 0.5, y as f32 + 0.5, width, height))
         .collect();
     let hits = probe::trace_rays(ctx, scene, &rays)?;
     Ok(rays

@@ -197,7 +197,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         flags |= shaders::FLAG_UNIFORM;
     }
     PassParams {
-        cam_pos: c.position.extend(scene.ray_offset()).into(),
+        cam_pos: c.origin().extend(scene.ray_offset()).into(),
         cam_right: (c.right * tx).extend(c.aperture_radius).into(),
         cam_up: (c.up * ty).extend(c.focus_distance).into(),
         cam_forward: c.forward.extend(filter_size).into(),
@@ -472,6 +472,7 @@ impl Renderer {
         constants.push(scene.defaults.hide_emitters as u32);
         constants.push((scene.camera.aperture_radius > 0.0) as u32);
         constants.push((scene.material_features() & shaders::FEATURE_NORMAL_MAPS != 0) as u32);
+        constants.push(scene.camera.orthographic.is_some() as u32);
         let trace = ComputePipeline::specialized(
             ctx,
             "trace",

@@ -251,6 +251,18 @@ pub struct Camera {
     /// of the plane it brings into focus.
     pub aperture_radius: f32,
     pub focus_distance: f32,
+    /// Mitsuba's `orthographic`: parallel rays along `forward` from the
+    /// plane `near` ahead of `position`, `half_width` to either side and
+    /// `half_width / aspect` up and down (its to_world's x and y scales).
+    pub orthographic: Option<Orthographic>,
+}
+
+/// An orthographic camera's extent (see [`Camera::orthographic`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Orthographic {
+    pub half_width: f32,
+    pub half_height: f32,
+    pub near: f32,
 }
 
 impl Camera {
@@ -295,13 +307,18 @@ impl Camera {
             aperture_radius: d.aperture_radius,
             // In focus where the camera looks, unless told.
             focus_distance: d.focus_distance.unwrap_or(to.length()),
+            orthographic: None,
         })
     }
 
     /// Tangents of half the horizontal and vertical fields of view of a
     /// `width` × `height` image.
+    /// (An orthographic camera's half extents instead.)
     pub fn tan_half_fov(&self, width: u32, height: u32) -> (f32, f32) {
         let aspect = width as f32 / height as f32;
+        if let Some(o) = self.orthographic {
+            return (o.half_width, o.half_height / aspect);
+        }
         let t = (self.fov_degrees.to_radians() * 0.5).tan();
         let axis = match self.fov_axis {
             FovAxis::Smaller if width < height => FovAxis::X,
@@ -319,13 +336,23 @@ impl Camera {
         }
     }
 
-    /// Direction through image point (x, y) in pixels (fractional); row 0
-    /// is the top of the image.
-    pub fn ray_direction(&self, x: f32, y: f32, width: u32, height: u32) -> Vec3 {
+    /// The ray (origin, unit direction) through image point (x, y) in
+    /// pixels (fractional), a thin lens's centre's; row 0 is the top of the
+    /// image.
+    pub fn ray(&self, x: f32, y: f32, width: u32, height: u32) -> (Vec3, Vec3) {
         let (tx, ty) = self.tan_half_fov(width, height);
         let sx = 2.0 * x / width as f32 - 1.0;
         let sy = 1.0 - 2.0 * y / height as f32;
-        (self.forward + sx * tx * self.right + sy * ty * self.up).normalize()
+        let across = sx * tx * self.right + sy * ty * self.up;
+        match self.orthographic {
+            Some(o) => (self.position + o.near * self.forward + across, self.forward),
+            None => (self.position, (self.forward + across).normalize()),
+        }
+    }
+
+    /// Where the kernels start camera rays: an orthographic camera's plane.
+    pub fn origin(&self) -> Vec3 {
+        self.position + self.orthographic.map_or(0.0, |o| o.near) * self.forward
     }
 }
 

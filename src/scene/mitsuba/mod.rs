@@ -328,12 +328,14 @@ impl Builder<'_, '_> {
         if self.camera.is_some() {
             return Err(el.error("a second <sensor>: qtrace renders one camera"));
         }
-        let thin_lens = match el.plugin()? {
-            "perspective" => false,
-            "thinlens" => true,
+        let kind = el.plugin()?;
+        let (thin_lens, orthographic) = match kind {
+            "perspective" => (false, false),
+            "thinlens" => (true, false),
+            "orthographic" => (false, true),
             _ => {
                 return Err(el.error(format!(
-                    "{} is not supported; qtrace has the 'perspective' and 'thinlens' sensors",
+                    "{} is not supported; qtrace has the 'perspective', 'thinlens' and 'orthographic' sensors",
                     plugin_name(el)
                 )))
             }
@@ -352,6 +354,9 @@ impl Builder<'_, '_> {
             }
         };
         let (fov, axis) = match (p.float("fov")?, p.string("focal_length")?) {
+            // (An orthographic camera has none: its to_world's scale says
+            // how wide it sees.)
+            (None, None) if orthographic => (90.0, axis),
             (Some(_), Some(_)) => return Err(el.error("give fov or focal_length, not both")),
             (Some(f), None) => (f, axis),
             (None, focal) => {
@@ -376,8 +381,14 @@ impl Builder<'_, '_> {
             return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
         }
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
-        // Clipping planes keep the scene in front of the camera whole.
-        p.ignore("near_clip");
+        // Clipping planes keep the scene in front of a pinhole whole; an
+        // orthographic camera's rays start on its near plane.
+        let near_clip = p.float_or("near_clip", 0.01)?;
+        let orthographic = orthographic.then(|| crate::scene::Orthographic {
+            half_width: to_world.x_axis.truncate().length(),
+            half_height: to_world.y_axis.truncate().length(),
+            near: near_clip * to_world.z_axis.truncate().length(),
+        });
         let far_clip = p.float_or("far_clip", 10_000.0)?;
         let (aperture_radius, focus_distance) = if thin_lens {
             let radius = p
@@ -422,6 +433,7 @@ impl Builder<'_, '_> {
             fov_axis: axis,
             aperture_radius,
             focus_distance,
+            orthographic,
         });
         Ok(())
     }
