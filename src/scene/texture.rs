@@ -241,33 +241,18 @@ impl Texture {
         }
     }
 
-    fn filter(&self) -> Filter {
-        match self.pattern {
-            Pattern::Bitmap { filter, .. } => filter,
-            Pattern::Checkerboard { .. } => Filter::Nearest,
-        }
-    }
-
-    fn wrap(&self) -> Wrap {
-        match self.pattern {
-            Pattern::Bitmap { wrap, .. } => wrap,
-            Pattern::Checkerboard { .. } => Wrap::Repeat,
-        }
-    }
-
-    /// A bitmap at half its width and height (rounded up): each texel the
-    /// mean of the linear values of the 2×2 it replaces (clamped at the
-    /// edges), 8-bit texels encoded as they were.
-    fn halved(&self) -> Pattern {
+    /// A bitmap's size and texels at half its width and height (rounded
+    /// up): each texel the mean of the linear values of the 2×2 it replaces
+    /// (clamped at the edges), 8-bit texels encoded as they were.
+    fn halved(&self) -> Option<(usize, usize, Texels)> {
         let Pattern::Bitmap {
             width,
             height,
             texels,
-            filter,
-            wrap,
+            ..
         } = &self.pattern
         else {
-            return self.pattern.clone();
+            return None;
         };
         let (w, h) = (width.div_ceil(2), height.div_ceil(2));
         let mean = |x: usize, y: usize| {
@@ -293,13 +278,7 @@ impl Texture {
                 }
             }
         };
-        Pattern::Bitmap {
-            width: w,
-            height: h,
-            texels,
-            filter: *filter,
-            wrap: *wrap,
-        }
+        Some((w, h, texels))
     }
 
     /// Whether `other` holds the same texels (one file read twice).
@@ -477,18 +456,22 @@ pub fn fit(textures: &[Texture], limit: u64) -> Result<Option<Vec<Texture>>, Tex
                 limit,
             });
         };
-        let shrunk = out[i].halved();
+        let Some(shrunk) = out[i].halved() else {
+            unreachable!("only bitmaps are halved")
+        };
         let same: Vec<usize> = (0..out.len())
             .filter(|&j| out[j].same_texels(&out[i]))
             .collect();
         for j in same {
-            let (filter, wrap) = (out[j].filter(), out[j].wrap());
-            out[j].pattern = shrunk.clone();
+            // Each reader keeps its own filter and wrap.
             if let Pattern::Bitmap {
-                filter: f, wrap: w, ..
+                width,
+                height,
+                texels,
+                ..
             } = &mut out[j].pattern
             {
-                (*f, *w) = (filter, wrap);
+                (*width, *height, *texels) = shrunk.clone();
             }
         }
     }
@@ -739,7 +722,13 @@ mod tests {
             [(32, 24), (33, 17), (32, 24)]
         );
         assert!(fitted[0].same_texels(&fitted[2]));
-        assert_eq!(fitted[2].wrap(), Wrap::Mirror);
+        assert!(matches!(
+            fitted[2].pattern,
+            Pattern::Bitmap {
+                wrap: Wrap::Mirror,
+                ..
+            }
+        ));
         assert!((fitted[0].mean() - textures[0].mean()).abs().max_element() < 0.01);
         // Less room still: the floats too, to 17 x 9.
         let fitted = fit(&textures, packed_bytes(&fitted) - 16 * 300)

@@ -1103,26 +1103,10 @@ fn placed_by_instance((triangles, normals, uvs): Mesh, m: Mat4) -> Mesh {
     if m == Mat4::IDENTITY {
         return (triangles, normals, uvs);
     }
-    let mirrors = glam::Mat3::from_mat4(m).determinant() < 0.0;
-    fn wound<T>([a, b, c]: [T; 3], mirrors: bool) -> [T; 3] {
-        if mirrors {
-            [a, c, b]
-        } else {
-            [a, b, c]
-        }
-    }
-    let normal_matrix = glam::Mat3::from_mat4(m).inverse().transpose();
     (
-        triangles
-            .into_iter()
-            .map(|t| wound(t.map(|v| m.transform_point3(v)), mirrors))
-            .collect(),
-        normals.map(|n| {
-            n.into_iter()
-                .map(|t| wound(t.map(|v| (normal_matrix * v).normalize()), mirrors))
-                .collect()
-        }),
-        uvs.map(|uv| uv.into_iter().map(|t| wound(t, mirrors)).collect()),
+        shapes::placed(m, triangles),
+        normals.map(|n| shapes::placed_normals(m, &n)),
+        uvs.map(|uv| shapes::placed_uvs(m, uv)),
     )
 }
 

@@ -10,10 +10,11 @@ const SEGMENTS: u32 = 128;
 /// Rings from a sphere's pole to pole.
 const RINGS: u32 = 64;
 
-/// Triangles of an analytic shape, wound so that their normal is Mitsuba's:
+/// Triangles of an analytic shape (or a shapegroup's, placed by an
+/// instance), wound so that their normal is Mitsuba's:
 /// the shape's normal transformed as a normal, which keeps its side even
 /// where `to_world` mirrors.
-fn placed(to_world: Mat4, triangles: Vec<[Vec3; 3]>) -> Vec<[Vec3; 3]> {
+pub(super) fn placed(to_world: Mat4, triangles: Vec<[Vec3; 3]>) -> Vec<[Vec3; 3]> {
     let mirrors = Mat3::from_mat4(to_world).determinant() < 0.0;
     triangles
         .into_iter()
@@ -29,7 +30,7 @@ fn placed(to_world: Mat4, triangles: Vec<[Vec3; 3]>) -> Vec<[Vec3; 3]> {
 }
 
 /// Texture coordinates wound as [`placed`] winds.
-fn placed_uvs(to_world: Mat4, uvs: Vec<[Vec2; 3]>) -> Vec<[Vec2; 3]> {
+pub(super) fn placed_uvs(to_world: Mat4, uvs: Vec<[Vec2; 3]>) -> Vec<[Vec2; 3]> {
     let mirrors = Mat3::from_mat4(to_world).determinant() < 0.0;
     uvs.into_iter()
         .map(|[a, b, c]| if mirrors { [a, c, b] } else { [a, b, c] })
@@ -38,7 +39,7 @@ fn placed_uvs(to_world: Mat4, uvs: Vec<[Vec2; 3]>) -> Vec<[Vec2; 3]> {
 
 /// Normals at `local`'s corners (a unit sphere's points are their own
 /// normals), transformed as normals and wound as [`placed`] winds.
-fn placed_normals(to_world: Mat4, local: &[[Vec3; 3]]) -> Vec<[Vec3; 3]> {
+pub(super) fn placed_normals(to_world: Mat4, local: &[[Vec3; 3]]) -> Vec<[Vec3; 3]> {
     let m = Mat3::from_mat4(to_world);
     let normal_matrix = m.inverse().transpose();
     let mirrors = m.determinant() < 0.0;
