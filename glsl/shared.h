@@ -268,6 +268,17 @@ struct Triangle {
 // reflects (eta.rgb tints) or lets light straight through (color tints),
 // its inner reflections summed.
 #define MATERIAL_THIN 4
+// Mitsuba's mask, blendbsdf and twosided with two BSDFs: a material that
+// stands for one of two others (emission.x and emission.y, as floats),
+// chosen at each hit before any shading: by the side the path arrives on
+// (color.z CHOICE_BY_SIDE: the first on the front), or at random, the
+// second with probability color.x, or where color.y is above 0 the
+// luminance of texture color.y - 1 there. Either may be a choice itself, to
+// MAX_CHOICE_DEPTH levels. Where FEATURE_CHOICES says so.
+#define MATERIAL_CHOICE 5
+#define CHOICE_AT_RANDOM 0
+#define CHOICE_BY_SIDE 1
+#define MAX_CHOICE_DEPTH 4
 // Added to the kind: the material is black on the side its triangle's
 // normal does not face (Mitsuba's BSDFs outside `twosided`).
 #define MATERIAL_ONE_SIDED 8
@@ -294,6 +305,8 @@ struct Triangle {
 // mapped one mirrored (else the mapped normal tells them, as the BSDF under
 // the map sees it).
 #define MATERIAL_MAP_IN_TWOSIDED 128
+// ... a choice (MATERIAL_CHOICE).
+#define FEATURE_CHOICES 4096
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

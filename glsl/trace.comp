@@ -642,6 +642,29 @@ Hit pass_emitters(inout Path path, Hit hit) {
     return hit;
 }
 
+// The material choice `mat` stands for at point p of triangle i (Mitsuba's
+// mask, blendbsdf, twosided with two BSDFs; MATERIAL_CHOICE). Taking one
+// of the two at random by the weight, rather than Mitsuba's mixture of
+// their values, converges to the same image.
+Material chosen_material(Material mat, bool front, uint i, Triangle tri, vec3 p, inout uint rng) {
+    for (uint level = 0u; level < MAX_CHOICE_DEPTH && uint(mat.color.w) == MATERIAL_CHOICE; ++level) {
+        bool second;
+        if (uint(mat.color.z) == CHOICE_BY_SIDE) {
+            second = !front;
+        } else {
+            float w = mat.color.x;
+            uint t = uint(mat.color.y);
+            if (scene_textured() && t != 0u) {
+                vec2 b = clamp(barycentric(tri, p), vec2(0.0), vec2(1.0));
+                w = clamp(luminance(texture_eval(t - 1u, surface_uv(i, b))), 0.0, 1.0);
+            }
+            second = rng_next(rng) < w;
+        }
+        mat = load_material(uint(second ? mat.emission.y : mat.emission.x));
+    }
+    return mat;
+}
+
 // Traces the path's current ray and scatters once; false when the path ended.
 bool scatter(inout Path path, inout Trail trail) {
     Hit hit = trace_ray(path.origin, path.dir, FAR);
@@ -677,6 +700,9 @@ bool scatter(inout Path path, inout Trail trail) {
         vec3 sn = shading_normal(hit.triangle, tri, s.point);
         front = dot(sn, path.dir) < 0.0;
         s.ns = front ? sn : -sn;
+    }
+    if ((MATERIAL_FEATURES & FEATURE_CHOICES) != 0u) {
+        mat = chosen_material(mat, front, hit.triangle, tri, s.point, path.rng);
     }
     Bsdf bsdf = bsdf_of(mat, front);
     if (scene_textured()) {

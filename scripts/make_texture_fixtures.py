@@ -1,7 +1,8 @@
-"""Writes the small textures tests/fixtures/mitsuba/coverage-e.xml and
-coverage-j.xml use (deterministic, from a fixed seed): an 8-bit sRGB PNG of
-coloured tiles, an 8-bit greyscale PNG of roughness values, a float OpenEXR,
-and an 8-bit normal map of round bumps.
+"""Writes the small textures tests/fixtures/mitsuba/coverage-e.xml,
+coverage-j.xml and coverage-l.xml use (deterministic, from a fixed seed): an
+8-bit sRGB PNG of coloured tiles, an 8-bit greyscale PNG of roughness values, a float OpenEXR,
+an 8-bit normal map of round bumps, and an 8-bit greyscale opacity of two
+leaves.
 
     python3 scripts/make_texture_fixtures.py tests/fixtures/textures
 """
@@ -37,3 +38,14 @@ n = np.stack([slope * fx * 4.0, slope * fy * 4.0, np.ones_like(fx)], axis=-1)
 n /= np.linalg.norm(n, axis=-1, keepdims=True)
 bumps = ((n + 1.0) * 0.5 * 255.0).round().astype(np.uint8)
 mi.Bitmap(bumps, mi.Bitmap.PixelFormat.RGB).write(f"{out}/bumps.png")
+
+# 32x32 opacity of two leaves (ellipses turned 30 degrees, soft at the edge),
+# 8-bit greyscale (read raw, as a mask's opacity).
+y, x = (np.mgrid[0:32, 0:32] + 0.5) / 32.0
+leaf = np.zeros((32, 32))
+for cx, cy in [(0.3, 0.35), (0.68, 0.66)]:
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    u, v = (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c
+    r = np.sqrt((u / 0.26) ** 2 + (v / 0.12) ** 2)
+    leaf = np.maximum(leaf, np.clip((1.0 - r) * 6.0, 0.0, 1.0))
+mi.Bitmap((leaf * 255.0).round().astype(np.uint8)[:, :, None], mi.Bitmap.PixelFormat.Y).write(f"{out}/leaves.png")

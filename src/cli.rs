@@ -771,7 +771,7 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
 fn material_summary(scene: &Scene) -> String {
     let mut kinds: Vec<(&str, usize)> = Vec::new();
     for m in &scene.materials {
-        let name = m.surface.name();
+        let name = m.kind_name();
         match kinds.iter_mut().find(|(k, _)| *k == name) {
             Some((_, n)) => *n += 1,
             None => kinds.push((name, 1)),

@@ -249,6 +249,7 @@ fn guided_sampler_matches_its_pdf() {
             one_sided: false,
             textures: [None; 3],
             normal_map: None,
+            choice: None,
         };
         let samples =
             probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms)

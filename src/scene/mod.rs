@@ -63,6 +63,83 @@ pub struct Material {
     pub textures: [Option<u32>; 3],
     /// Mitsuba's `normalmap`: the normals that turn its shading frame.
     pub normal_map: Option<NormalMap>,
+    /// Mitsuba's `mask`, `blendbsdf` or two-sided `twosided`: the material
+    /// stands for one of two others, taken at each hit, and its own
+    /// surface goes unused.
+    pub choice: Option<Choice>,
+}
+
+/// A material that stands for one of two others (`Material::choice`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Choice {
+    pub kind: ChoiceKind,
+    /// The two materials (indices into `Scene::materials`).
+    pub first: u32,
+    pub second: u32,
+}
+
+/// How a choice takes its material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ChoiceKind {
+    /// Mitsuba's `mask`: the first passes paths straight through (`null`),
+    /// the second, the masked material, is taken with probability
+    /// `opacity`: a number in [0, 1], or the luminance of a texture
+    /// (an index into `Scene::textures`) at the hit.
+    Mask { opacity: Weight },
+    /// Mitsuba's `blendbsdf`: the second taken with probability `weight`.
+    Blend { weight: Weight },
+    /// Mitsuba's `twosided` with two BSDFs: the first on the front of the
+    /// shading normal, the second on the back.
+    Sides,
+}
+
+/// A choice's probability of its second material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Weight {
+    Constant(f32),
+    Texture(u32),
+}
+
+impl Choice {
+    /// Which material it stands for where a path arrives on the `front` or
+    /// back at texture coordinates `uv`, with `u` uniform in [0, 1) (the
+    /// CPU twin of `chosen_material`'s step in glsl/trace.comp).
+    pub fn pick(&self, front: bool, uv: Vec2, u: f32, textures: &[texture::Texture]) -> u32 {
+        let w = match self.kind {
+            ChoiceKind::Sides => return if front { self.first } else { self.second },
+            ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => w,
+        };
+        let w = match w {
+            Weight::Constant(w) => w,
+            Weight::Texture(t) => luminance(textures[t as usize].eval(uv)).clamp(0.0, 1.0),
+        };
+        if u < w {
+            self.second
+        } else {
+            self.first
+        }
+    }
+
+    fn texture(&self) -> Option<u32> {
+        match self.kind {
+            ChoiceKind::Mask {
+                opacity: Weight::Texture(t),
+            }
+            | ChoiceKind::Blend {
+                weight: Weight::Texture(t),
+            } => Some(t),
+            _ => None,
+        }
+    }
+
+    /// What users call it.
+    pub fn name(&self) -> &'static str {
+        match self.kind {
+            ChoiceKind::Mask { .. } => "mask",
+            ChoiceKind::Blend { .. } => "blend",
+            ChoiceKind::Sides => "two-faced",
+        }
+    }
 }
 
 /// Mitsuba's `normalmap` around a material.
@@ -85,11 +162,19 @@ impl Material {
             one_sided: false,
             textures: [None; 3],
             normal_map: None,
+            choice: None,
         }
     }
 
     pub fn textured(&self) -> bool {
-        self.textures.iter().any(Option::is_some) || self.normal_map.is_some()
+        self.textures.iter().any(Option::is_some)
+            || self.normal_map.is_some()
+            || self.choice.is_some_and(|c| c.texture().is_some())
+    }
+
+    /// What users call its kind: its surface's, or its choice's.
+    pub fn kind_name(&self) -> &'static str {
+        self.choice.map_or(self.surface.name(), |c| c.name())
     }
 
     /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
@@ -126,6 +211,26 @@ impl Material {
 
     /// The material as the kernels read it (`Material` of shared.h).
     pub fn gpu(&self) -> shaders::Material {
+        if let Some(c) = self.choice {
+            let (by, weight, texture) = match c.kind {
+                ChoiceKind::Sides => (shaders::CHOICE_BY_SIDE, 0.0, 0),
+                ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => match w {
+                    Weight::Constant(w) => (shaders::CHOICE_AT_RANDOM, w, 0),
+                    Weight::Texture(t) => (shaders::CHOICE_AT_RANDOM, 0.0, t + 1),
+                },
+            };
+            return shaders::Material {
+                color: [
+                    weight,
+                    texture as f32,
+                    by as f32,
+                    shaders::MATERIAL_CHOICE as f32,
+                ],
+                emission: [c.first as f32, c.second as f32, 0.0, 0.0],
+                eta: [0.0; 4],
+                k: [0.0; 4],
+            };
+        }
         let (color, parameter) = self.surface.color_and_parameter();
         let mut code = self.surface.kind();
         if self.one_sided {
@@ -460,7 +565,12 @@ impl Scene {
             } else {
                 0
             };
-            acc | (code & flags) | feature | textured | mapped
+            let chooses = if m.choice.is_some() {
+                shaders::FEATURE_CHOICES
+            } else {
+                0
+            };
+            acc | (code & flags) | feature | textured | mapped | chooses
         })
     }
 
@@ -1287,6 +1397,7 @@ fn load_obj(
             one_sided: false,
             textures: [None; 3],
             normal_map: None,
+            choice: None,
         };
         if let (Some(file), Surface::Diffuse { .. }) = (&m.diffuse_map, material.surface) {
             let t = diffuse_map(dir, file, loader).map_err(|message| SceneError::Mtl {

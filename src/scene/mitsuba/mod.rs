@@ -12,7 +12,8 @@ mod xml;
 use super::file::RenderDefaults;
 use super::{obj, ply, serialized};
 use super::{
-    Camera, FovAxis, Geometry, Loader, Material, NormalMap, Parts, PixelFilter, SceneError,
+    Camera, Choice, ChoiceKind, FovAxis, Geometry, Loader, Material, NormalMap, Parts, PixelFilter,
+    SceneError, Weight,
 };
 use crate::bsdf::{ComplexIor, Distribution, Surface};
 use glam::{Mat4, Vec2, Vec3};
@@ -121,6 +122,89 @@ struct BsdfDesc {
     textures: [Option<u32>; 3],
     /// A `normalmap` around it.
     normal_map: Option<NormalMap>,
+    /// A `mask`, `blendbsdf` or `twosided` with two BSDFs: the BSDFs it
+    /// chooses between (its own surface is then unused).
+    choice: Option<Box<ChoiceDesc>>,
+}
+
+/// What a choice (`BsdfDesc::choice`) chooses between, and how.
+#[derive(Clone, Debug)]
+struct ChoiceDesc {
+    /// How; its materials' indices are given as they are added.
+    kind: ChoiceKind,
+    first: BsdfDesc,
+    second: BsdfDesc,
+}
+
+impl BsdfDesc {
+    /// As `twosided` leaves it: both sides scatter, and a normal map inside
+    /// sees the sides by the unmapped normal.
+    fn two_sided(&mut self) {
+        self.one_sided = false;
+        if let Some(map) = &mut self.normal_map {
+            map.in_twosided = true;
+        }
+        if let Some(c) = &mut self.choice {
+            c.first.two_sided();
+            c.second.two_sided();
+        }
+    }
+
+    /// Whether it lets light through (Mitsuba's transmission lobes, its
+    /// `null` and a mask's clear part), which `twosided` refuses.
+    fn transmits(&self) -> bool {
+        self.null
+            || matches!(
+                self.surface,
+                Surface::Dielectric { .. } | Surface::Thin { .. } | Surface::RoughDielectric { .. }
+            )
+            || self
+                .choice
+                .as_ref()
+                .is_some_and(|c| c.first.transmits() || c.second.transmits())
+    }
+
+    /// Whether it has a smooth (delta) lobe: a mirror, smooth glass, a
+    /// plastic's smooth coat, `null` or a mask's clear part.
+    fn has_delta_lobe(&self) -> bool {
+        self.null
+            || match self.surface {
+                Surface::Conductor { alpha, .. } => alpha == 0.0,
+                Surface::Dielectric { .. } | Surface::Thin { .. } | Surface::Plastic { .. } => true,
+                _ => false,
+            }
+            || self
+                .choice
+                .as_ref()
+                .is_some_and(|c| c.first.has_delta_lobe() || c.second.has_delta_lobe())
+    }
+
+    /// How many choices deep it is.
+    fn choice_depth(&self) -> u32 {
+        self.choice.as_ref().map_or(0, |c| {
+            1 + c.first.choice_depth().max(c.second.choice_depth())
+        })
+    }
+
+    /// With a `normalmap` around it: the map turns each BSDF it stands for
+    /// (a `null` one passes paths straight on either way).
+    fn map_normals(&mut self, el: &Element, map: NormalMap) -> Result<(), SceneError> {
+        if let Some(c) = &mut self.choice {
+            c.first.map_normals(el, map)?;
+            return c.second.map_normals(el, map);
+        }
+        if self.null {
+            return Ok(());
+        }
+        if self.normal_map.is_some() {
+            return Err(el.error("a normalmap inside a normalmap is not supported"));
+        }
+        if matches!(self.surface, Surface::Thin { .. }) {
+            return Err(el.error("a normalmap around a thindielectric BSDF is not supported"));
+        }
+        self.normal_map = Some(map);
+        Ok(())
+    }
 }
 
 struct Builder<'a, 'l> {
@@ -534,7 +618,7 @@ impl Builder<'_, '_> {
         if let Some((le, radiance_texture)) = emission {
             // qtrace's paths end at an emitter: exact for a black BSDF.
             let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
-            if desc.null || !black {
+            if desc.null || desc.choice.is_some() || !black {
                 log::warn!(
                     "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's {}",
                     el.file.display(),
@@ -557,6 +641,7 @@ impl Builder<'_, '_> {
                 // and the colour slot holds a radiance texture.
                 textures: [radiance_texture, None, None],
                 normal_map: None,
+                choice: None,
             });
             self.add(el, &label, mesh, m);
             return Ok(());
@@ -564,15 +649,7 @@ impl Builder<'_, '_> {
         let m = match shared {
             Some((_, Some(m))) => m,
             _ => {
-                let m = self.materials.len() as u32;
-                self.materials.push(Material {
-                    name: desc.name.clone(),
-                    surface: desc.surface,
-                    emission: Vec3::ZERO,
-                    one_sided: desc.one_sided,
-                    textures: desc.textures,
-                    normal_map: desc.normal_map,
-                });
+                let m = self.add_material(&desc);
                 if let Some((id, None)) = &shared {
                     if let Some(entry) = self.bsdfs.get_mut(id) {
                         entry.1 = Some(m);
@@ -749,8 +826,29 @@ impl Builder<'_, '_> {
             null: false,
             textures: [None; 3],
             normal_map: None,
+            choice: None,
         });
         Ok((desc, shared))
+    }
+
+    /// Adds the material `desc` describes, and those it chooses between;
+    /// returns its index.
+    fn add_material(&mut self, desc: &BsdfDesc) -> u32 {
+        let choice = desc.choice.as_ref().map(|c| Choice {
+            kind: c.kind,
+            first: self.add_material(&c.first),
+            second: self.add_material(&c.second),
+        });
+        self.materials.push(Material {
+            name: desc.name.clone(),
+            surface: desc.surface,
+            emission: Vec3::ZERO,
+            one_sided: desc.one_sided,
+            textures: desc.textures,
+            normal_map: desc.normal_map,
+            choice,
+        });
+        self.materials.len() as u32 - 1
     }
 
     fn add(&mut self, el: &Element, label: &str, (triangles, normals, uvs): Mesh, material: u32) {
@@ -1268,6 +1366,25 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     })
 }
 
+/// Mitsuba's `null` as its path tracer treats it: paths pass straight
+/// through (a bounce of a delta lobe, counted in the depth), shadow rays
+/// stop at it.
+fn null_bsdf() -> BsdfDesc {
+    BsdfDesc {
+        name: "null".into(),
+        surface: Surface::Thin {
+            eta: 1.0,
+            reflectance: Vec3::ZERO,
+            transmittance: Vec3::ONE,
+        },
+        one_sided: false,
+        null: true,
+        textures: [None; 3],
+        normal_map: None,
+        choice: None,
+    }
+}
+
 /// A `<bsdf>` element as qtrace renders it.
 fn bsdf(
     el: &Element,
@@ -1285,26 +1402,80 @@ fn bsdf(
         null: false,
         textures: [None; 3],
         normal_map: None,
+        choice: None,
+    };
+    // A choice between BSDFs a and b, its own surface black (unused).
+    let choose = |kind: ChoiceKind, first: BsdfDesc, second: BsdfDesc| BsdfDesc {
+        choice: Some(Box::new(ChoiceDesc {
+            kind,
+            first,
+            second,
+        })),
+        ..one(Surface::Diffuse { albedo: Vec3::ZERO })
     };
     let desc = match kind {
         "twosided" => {
             let inner = p.nested("bsdf");
-            match inner[..] {
-                [b] => {
-                    let mut d = bsdf(b, tex, loader)?;
-                    d.one_sided = false;
-                    d.name = name.clone();
-                    if let Some(map) = &mut d.normal_map {
-                        map.in_twosided = true;
-                    }
-                    d
-                }
-                [_, b] => {
+            if !(1..=2).contains(&inner.len()) {
+                return Err(el.error("twosided needs one or two nested <bsdf>"));
+            }
+            let mut sides = Vec::new();
+            for b in inner {
+                let mut d = bsdf(b, tex, loader)?;
+                if d.transmits() {
                     return Err(b.error(
-                        "twosided with two different BSDFs is not supported; give one",
-                    ))
+                        "twosided takes only BSDFs that let no light through (as in Mitsuba)",
+                    ));
                 }
-                _ => return Err(el.error("twosided needs one nested <bsdf>")),
+                d.two_sided();
+                sides.push(d);
+            }
+            let front = sides.remove(0);
+            match sides.pop() {
+                // Each BSDF sees its side as its front, as in Mitsuba.
+                Some(back) => choose(ChoiceKind::Sides, front, back),
+                None => BsdfDesc {
+                    name: name.clone(),
+                    ..front
+                },
+            }
+        }
+        "mask" | "blendbsdf" => {
+            let (param, default) = if kind == "mask" {
+                ("opacity", 0.5)
+            } else {
+                ("weight", 0.5)
+            };
+            // Mitsuba clamps the weight to [0, 1] where it reads it.
+            let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
+            let weight = match given[slot].take() {
+                Some((t, _)) => Weight::Texture(t),
+                None => Weight::Constant(p.float(param)?.unwrap_or(default).clamp(0.0, 1.0)),
+            };
+            let inner = p.nested("bsdf");
+            match (kind, &inner[..]) {
+                ("mask", [b]) => {
+                    let null = BsdfDesc {
+                        name: format!("{name} (clear)"),
+                        ..null_bsdf()
+                    };
+                    choose(ChoiceKind::Mask { opacity: weight }, null, bsdf(b, tex, loader)?)
+                }
+                ("blendbsdf", [a, b]) => {
+                    let (a, b) = (bsdf(a, tex, loader)?, bsdf(b, tex, loader)?);
+                    if a.has_delta_lobe() || b.has_delta_lobe() {
+                        // Measured: a smooth plastic's coat 1.7x as bright
+                        // in a 0.6 blend with diffuse.
+                        log::warn!(
+                            "{}:{}: a blendbsdf of a smooth (delta) lobe: Mitsuba 3.9.1 samples that lobe as if mixed with the other BSDF's density and overstates it; qtrace blends the two exactly, so the surface renders darker than in Mitsuba",
+                            el.file.display(),
+                            el.line
+                        );
+                    }
+                    choose(ChoiceKind::Blend { weight }, a, b)
+                }
+                ("mask", _) => return Err(el.error("mask needs one nested <bsdf>")),
+                _ => return Err(el.error("blendbsdf needs two nested <bsdf>")),
             }
         }
         "diffuse" => one(Surface::Diffuse {
@@ -1323,20 +1494,9 @@ fn bsdf(
             d.one_sided = false;
             d
         }
-        // As Mitsuba's path integrator treats it: paths pass straight
-        // through (a bounce of a delta lobe, counted in the depth), shadow
-        // rays stop at it.
         "null" => BsdfDesc {
             name: name.clone(),
-            surface: Surface::Thin {
-                eta: 1.0,
-                reflectance: Vec3::ZERO,
-                transmittance: Vec3::ONE,
-            },
-            one_sided: false,
-            null: true,
-            textures: [None; 3],
-            normal_map: None,
+            ..null_bsdf()
         },
         "plastic" => {
             let int = ior(el, &p, "int_ior", "polypropylene")?;
@@ -1391,28 +1551,34 @@ fn bsdf(
                 return Err(el.error("normalmap needs one nested <bsdf>"));
             };
             let mut d = bsdf(b, tex, loader)?;
-            if d.normal_map.is_some() {
-                return Err(b.error("a normalmap inside a normalmap is not supported"));
+            if d.null {
+                return Err(b.error("a normalmap around a null BSDF is not supported"));
             }
-            if d.null || matches!(d.surface, Surface::Thin { .. }) {
-                return Err(b.error("a normalmap around a null or thindielectric BSDF is not supported"));
-            }
-            d.normal_map = Some(NormalMap {
-                texture: map,
-                in_twosided: false,
-            });
+            d.map_normals(
+                b,
+                NormalMap {
+                    texture: map,
+                    in_twosided: false,
+                },
+            )?;
             d
         }
-        "mask" | "bumpmap" | "blendbsdf" | "pplastic" | "principled"
+        "bumpmap" | "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap, mask, blendbsdf and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
     };
     p.finish()?;
+    if desc.choice_depth() > crate::shaders::MAX_CHOICE_DEPTH {
+        return Err(el.error(format!(
+            "masks, blends and two-faced twosided nest at most {} deep in qtrace",
+            crate::shaders::MAX_CHOICE_DEPTH
+        )));
+    }
     let mut desc = desc;
     if given.iter().any(Option::is_some) {
         let mean = |s: u32| given[s as usize].map(|(_, m)| m);

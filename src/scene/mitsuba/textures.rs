@@ -47,8 +47,11 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("diffuse_reflectance", COLOR),
             ("specular_reflectance", SECOND),
         ],
-        // A normal map's texture, which it keeps apart from the slots.
+        // A normal map's texture, and a mask's or blend's weight, which
+        // they keep apart from the slots.
         "normalmap" => &[("normalmap", COLOR)],
+        "mask" => &[("opacity", COLOR)],
+        "blendbsdf" => &[("weight", COLOR)],
         // An emitter's material: paths end there, so its colour slot holds
         // the radiance.
         "area" => &[("radiance", COLOR)],
@@ -103,6 +106,12 @@ impl Textures {
             } else {
                 read(c, loader)?
             };
+            let number = slot == TEXTURE_SLOT_ALPHA || matches!(kind, "mask" | "blendbsdf");
+            let texture = if number {
+                read_as_number(texture)
+            } else {
+                texture
+            };
             out[slot as usize] = Some(self.add(el, texture)?);
         }
         Ok(out)
@@ -126,6 +135,21 @@ impl Textures {
         self.index.insert(key, i);
         Ok((i, mean))
     }
+}
+
+/// A texture as Mitsuba 3 reads one number from it (`eval_1`, for an alpha,
+/// an opacity or a weight): a bitmap's luminance, as the kernels read it,
+/// but a checkerboard's colours swapped, each read as its channels' mean
+/// (measured in Mitsuba 3.9.1, unlike its colour lookup).
+fn read_as_number(mut t: Texture) -> Texture {
+    if let Pattern::Checkerboard { color0, color1 } = t.pattern {
+        let mean = |c: Vec3| Vec3::splat(c.element_sum() / 3.0);
+        t.pattern = Pattern::Checkerboard {
+            color0: mean(color1),
+            color1: mean(color0),
+        };
+    }
+    t
 }
 
 /// What tells two textures of one file apart (their texels are the same).
