@@ -85,6 +85,8 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-i.xml",
         "tests/fixtures/mitsuba/coverage-j.xml",
         "tests/fixtures/mitsuba/coverage-k.xml",
+        "tests/fixtures/mitsuba/coverage-l.xml",
+        "tests/fixtures/mitsuba/choices.xml",
     ]
     .iter()
     .map(PathBuf::from)

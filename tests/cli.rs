@@ -522,11 +522,15 @@ fn devices_and_inspect() {
         stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
         "{stdout}"
     );
-    // A thin lens, hidden emitters and normal maps show.
+    // A thin lens, hidden emitters, normal maps, masks and blends show.
     for (scene, want) in [
         ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
         ("coverage-h.xml", "emitters hidden from the camera"),
         ("coverage-j.xml", "4 normal-mapped materials"),
+        (
+            "choices.xml",
+            "6 diffuse, 2 null, 2 mask, 1 blend, 1 two-faced",
+        ),
     ] {
         let output = qtrace()
             .arg("inspect")

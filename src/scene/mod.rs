@@ -172,9 +172,19 @@ impl Material {
             || self.choice.is_some_and(|c| c.texture().is_some())
     }
 
-    /// What users call its kind: its surface's, or its choice's.
+    /// What users call its kind: its surface's, or its choice's; a sheet
+    /// that lets all light straight through is Mitsuba's `null`.
     pub fn kind_name(&self) -> &'static str {
-        self.choice.map_or(self.surface.name(), |c| c.name())
+        match (self.choice, self.surface) {
+            (Some(c), _) => c.name(),
+            (
+                None,
+                Surface::Thin {
+                    eta, reflectance, ..
+                },
+            ) if eta == 1.0 && reflectance == Vec3::ZERO => "null",
+            _ => self.surface.name(),
+        }
     }
 
     /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
