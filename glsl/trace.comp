@@ -730,8 +730,9 @@ bool scatter(inout Path path, inout Trail trail) {
                 m = dot(seen, m) < 0.0 ? 2.0 * c * n0 - m : m;
                 s.ns = front ? m : m - 2.0 * c * n0;
             } else {
-                // The BSDF under the map tells the sides by the mapped normal.
-                m = dot(v, m) < 0.0 ? 2.0 * c * n0 - m : m;
+                // The BSDF under the map tells the sides by the mapped normal,
+                // turned to the side of the unmapped one the ray comes from.
+                m = dot(v, n0) * dot(v, m) <= 0.0 ? 2.0 * c * n0 - m : m;
                 bool mapped_front = dot(v, m) > 0.0;
                 s.ns = mapped_front ? m : -m;
                 s.unmapped = mapped_front ? n0 : -n0;
