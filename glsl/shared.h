@@ -305,6 +305,10 @@ struct Triangle {
 // mapped one mirrored (else the mapped normal tells them, as the BSDF under
 // the map sees it).
 #define MATERIAL_MAP_IN_TWOSIDED 128
+// Added to a normal-mapped material's kind: the texture is Mitsuba's
+// bumpmap's height field, its gradient times emission.x (the material
+// emits nothing) tilting the normal.
+#define MATERIAL_MAP_BUMP 131072
 // ... a choice (MATERIAL_CHOICE).
 #define FEATURE_CHOICES 4096
 // Specialization constant of the kernels that shade: whether the scene has a

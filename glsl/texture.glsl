@@ -88,6 +88,35 @@ vec3 texture_eval(uint t, vec2 uv) {
     return mix(top, bottom, f.y);
 }
 
+// The derivatives along a surface's u and v of texture t's luminance at
+// (u, v), as its bilinear lookup varies (Mitsuba's eval_1_grad, scaled by
+// the resolution after to_uv's transpose, as Mitsuba scales it); 0 for a
+// nearest lookup or a checkerboard. The CPU twin is Texture::gradient.
+vec2 texture_gradient(uint t, vec2 uv) {
+    int at = int(TEXTURE_TABLE_WORDS + TEXTURE_HEADER_WORDS * t);
+    uvec4 h = FETCH(texture_texels, at);
+    if ((h.x & 3u) == TEXTURE_CHECKERBOARD || (h.x & TEXTURE_NEAREST) != 0u) {
+        return vec2(0.0);
+    }
+    vec3 row0 = uintBitsToFloat(FETCH(texture_texels, at + 1).xyz);
+    vec3 row1 = uintBitsToFloat(FETCH(texture_texels, at + 2).xyz);
+    vec2 p = vec2(dot(row0, vec3(uv, 1.0)), dot(row1, vec3(uv, 1.0))) * vec2(h.zw) - 0.5;
+    vec2 base = floor(p);
+    vec2 f = p - base;
+    int w = int(h.z);
+    int rows = int(h.w);
+    int x0 = texture_wrap(int(base.x), w, h.x);
+    int x1 = texture_wrap(int(base.x) + 1, w, h.x);
+    int y0 = texture_wrap(int(base.y), rows, h.x) * w;
+    int y1 = texture_wrap(int(base.y) + 1, rows, h.x) * w;
+    float l00 = luminance(texture_texel(h, uint(y0 + x0)));
+    float l10 = luminance(texture_texel(h, uint(y0 + x1)));
+    float l01 = luminance(texture_texel(h, uint(y1 + x0)));
+    float l11 = luminance(texture_texel(h, uint(y1 + x1)));
+    vec2 g = vec2(mix(l10 - l00, l11 - l01, f.y), mix(l01 - l00, l11 - l10, f.x));
+    return vec2(g.x * row0.x + g.y * row1.x, g.x * row0.y + g.y * row1.y) * vec2(h.zw);
+}
+
 // Material m's texture in slot s (TEXTURE_SLOT_*): 1 + its index, or 0.
 uint texture_slot(Material m, uint s) {
     return (floatBitsToUint(m.eta.w) >> (TEXTURE_SLOT_BITS * s)) & ((1u << TEXTURE_SLOT_BITS) - 1u);

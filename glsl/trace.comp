@@ -415,6 +415,25 @@ vec3 mapped_normal(uint triangle, Triangle tri, vec3 n0, vec2 b, uint map) {
     return normalize(m.x * s + m.y * t + m.z * n0);
 }
 
+// The normal Mitsuba's bumpmap gives triangle `triangle` at barycentric
+// coordinates b: that of the surface whose (u, v) tangents dp/du and dp/dv
+// are tilted along the unmapped normal n0 by the gradient of height field
+// `map` times `scale`, turned to the side of the geometric normal ng.
+vec3 bumped_normal(uint triangle, Triangle tri, vec3 n0, vec3 ng, vec2 b, uint map, float scale) {
+    uvec4 p = FETCH(uv_texels, int(2u * triangle));
+    uvec4 q = FETCH(uv_texels, int(2u * triangle + 1u));
+    vec2 uv0 = uintBitsToFloat(p.xy);
+    vec2 d1 = uintBitsToFloat(p.zw) - uv0;
+    vec2 d2 = uintBitsToFloat(q.xy) - uv0;
+    float det = d1.x * d2.y - d1.y * d2.x;
+    vec3 dp_du = (d2.y * tri.e1 - d1.y * tri.e2) / det;
+    vec3 dp_dv = (d1.x * tri.e2 - d2.x * tri.e1) / det;
+    vec2 g = scale * texture_gradient(map, uv0 + b.x * d1 + b.y * d2);
+    vec3 m = cross(dp_du + n0 * (g.x - dot(n0, dp_du)), dp_dv + n0 * (g.y - dot(n0, dp_dv)));
+    m = dot(m, ng) < 0.0 ? -m : m;
+    return det == 0.0 || !(dot(m, m) > 0.0) ? n0 : normalize(m);
+}
+
 // What a normal map leaves of light leaving the surface in direction d:
 // nothing on the other side of the unmapped normal than of the mapped one,
 // else the shadowing of Conty Estevez and Kulla (2018) of a surface whose
@@ -713,14 +732,16 @@ bool scatter(inout Path path, inout Trail trail) {
     s.map_alpha2 = -1.0;
     if (NORMAL_MAPS) {
         uint code = uint(mat.color.w);
-        uint map = code >> MATERIAL_NORMAL_MAP_SHIFT;
+        uint map = (code >> MATERIAL_NORMAL_MAP_SHIFT) & ((1u << TEXTURE_SLOT_BITS) - 1u);
         if (map != 0u) {
             // As Mitsuba maps normals: where the ray comes from below the
             // mapped normal m, m mirrored about the unmapped one n0 instead
             // (2 (m.n0) n0 - m: its tangential part turned over).
             vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
             vec3 n0 = front ? s.ns : -s.ns;
-            vec3 m = mapped_normal(hit.triangle, tri, n0, b, map - 1u);
+            vec3 m = (code & MATERIAL_MAP_BUMP) != 0u
+                         ? bumped_normal(hit.triangle, tri, n0, n, b, map - 1u, mat.emission.x)
+                         : mapped_normal(hit.triangle, tri, n0, b, map - 1u);
             float c = dot(m, n0);
             vec3 v = -path.dir;
             if ((code & MATERIAL_MAP_IN_TWOSIDED) != 0u) {

@@ -1,8 +1,8 @@
-"""Writes the small textures tests/fixtures/mitsuba/coverage-e.xml,
-coverage-j.xml and coverage-l.xml use (deterministic, from a fixed seed): an
-8-bit sRGB PNG of coloured tiles, an 8-bit greyscale PNG of roughness values, a float OpenEXR,
-an 8-bit normal map of round bumps, and an 8-bit greyscale opacity of two
-leaves.
+"""Writes the small textures that tests/fixtures/mitsuba/coverage-e.xml,
+coverage-j.xml, coverage-l.xml and coverage-m.xml use (deterministic, from a
+fixed seed): an 8-bit sRGB PNG of coloured tiles, an 8-bit greyscale PNG of
+roughness values, a float OpenEXR, an 8-bit normal map of round bumps, an
+8-bit greyscale opacity of two leaves and 8-bit greyscale heights.
 
     python3 scripts/make_texture_fixtures.py tests/fixtures/textures
 """
@@ -49,3 +49,11 @@ for cx, cy in [(0.3, 0.35), (0.68, 0.66)]:
     r = np.sqrt((u / 0.26) ** 2 + (v / 0.12) ** 2)
     leaf = np.maximum(leaf, np.clip((1.0 - r) * 6.0, 0.0, 1.0))
 mi.Bitmap((leaf * 255.0).round().astype(np.uint8)[:, :, None], mi.Bitmap.PixelFormat.Y).write(f"{out}/leaves.png")
+
+# 32x32 heights of ridges crossed by round dimples, 8-bit greyscale (read
+# raw, as a bump map's height field).
+y, x = (np.mgrid[0:32, 0:32] + 0.5) / 32.0
+heights = 0.5 + 0.25 * np.sin(2 * np.pi * 3 * x) * np.cos(2 * np.pi * 2 * y)
+fx, fy = x * 4 - np.floor(x * 4) - 0.5, y * 4 - np.floor(y * 4) - 0.5
+heights -= 0.2 * np.exp(-(fx * fx + fy * fy) / 0.02)
+mi.Bitmap((np.clip(heights, 0, 1) * 255.0).round().astype(np.uint8)[:, :, None], mi.Bitmap.PixelFormat.Y).write(f"{out}/heights.png")

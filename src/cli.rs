@@ -421,20 +421,24 @@ fn texture_summary(scene: &Scene) -> String {
     let count = names.len();
     names.sort_unstable();
     names.dedup();
-    let maps = scene
-        .materials
-        .iter()
-        .filter(|m| m.normal_map.is_some())
-        .count();
+    let mapped = |bump: bool| {
+        let maps = scene
+            .materials
+            .iter()
+            .filter(|m| m.normal_map.is_some_and(|n| n.bump.is_some() == bump))
+            .count();
+        match (maps, bump) {
+            (0, _) => String::new(),
+            (_, false) => format!("; {maps} normal-mapped materials"),
+            (_, true) => format!("; {maps} bump-mapped materials"),
+        }
+    };
     format!(
-        "{count} ({}), {:.2} MiB on the device{}",
+        "{count} ({}), {:.2} MiB on the device{}{}",
         names.join(", "),
         bytes as f64 / (1 << 20) as f64,
-        if maps > 0 {
-            format!("; {maps} normal-mapped materials")
-        } else {
-            String::new()
-        }
+        mapped(false),
+        mapped(true)
     )
 }
 

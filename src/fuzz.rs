@@ -86,6 +86,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-j.xml",
         "tests/fixtures/mitsuba/coverage-k.xml",
         "tests/fixtures/mitsuba/coverage-l.xml",
+        "tests/fixtures/mitsuba/coverage-m.xml",
         "tests/fixtures/mitsuba/choices.xml",
     ]
     .iter()

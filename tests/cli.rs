@@ -522,7 +522,7 @@ fn devices_and_inspect() {
         stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
         "{stdout}"
     );
-    // A thin lens, hidden emitters, normal maps, masks and blends show.
+    // A thin lens, hidden emitters, normal and bump maps, masks and blends show.
     for (scene, want) in [
         ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
         ("coverage-h.xml", "emitters hidden from the camera"),
@@ -531,6 +531,7 @@ fn devices_and_inspect() {
             "choices.xml",
             "6 diffuse, 2 null, 2 mask, 1 blend, 1 two-faced",
         ),
+        ("coverage-m.xml", "5 bump-mapped materials"),
     ] {
         let output = qtrace()
             .arg("inspect")

@@ -304,9 +304,19 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "nest at most 4 deep",
         ),
         (
-            "<shape type=\"cube\"><bsdf type=\"bumpmap\"/></shape>",
+            "<shape type=\"cube\"><bsdf type=\"bumpmap\"><bsdf type=\"diffuse\"/></bsdf></shape>",
             5,
-            "bsdf 'bumpmap' is not supported",
+            "bumpmap needs a nested <texture>, its height field",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"bumpmap\">\n<texture type=\"checkerboard\" name=\"h\"/><bsdf type=\"diffuse\"/></bsdf></shape>",
+            6,
+            "a bumpmap's height field must be a bitmap",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principled\"/></shape>",
+            5,
+            "bsdf 'principled' is not supported",
         ),
         (
             "<shape type=\"obj\"><string name=\"filename\" value=\"gone.obj\"/></shape>",
@@ -395,7 +405,7 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         (
             "<shape type=\"cube\"><bsdf type=\"normalmap\"><texture type=\"checkerboard\" name=\"normalmap\"/>\n<bsdf type=\"thindielectric\"/></bsdf></shape>",
             6,
-            "a normalmap around a thindielectric BSDF",
+            "a normalmap or bumpmap around a thindielectric BSDF",
         ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),
@@ -842,5 +852,20 @@ fn masks_and_blends_agree_with_mitsuba() {
         (Method::NEURAL, true),
     ] {
         check("coverage-l", &scene, &[("res", "64")], method(m, nee, 1024));
+    }
+}
+
+#[test]
+fn bump_maps_agree_with_mitsuba() {
+    // Height fields on diffuse, rough gold, a low torus and a blend, inside
+    // and outside twosided.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-m.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-m",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
     }
 }

@@ -143,7 +143,7 @@ impl Choice {
 }
 
 /// Mitsuba's `normalmap` around a material.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NormalMap {
     /// Its normals' texture, an index into `Scene::textures`.
     pub texture: u32,
@@ -151,6 +151,9 @@ pub struct NormalMap {
     /// tells the sides apart), else the map lies around the BSDF, which
     /// tells them by the mapped normal.
     pub in_twosided: bool,
+    /// Mitsuba's `bumpmap`: the texture is a height field, whose gradient
+    /// times this scale tilts the normal (else it holds the normals).
+    pub bump: Option<f32>,
 }
 
 impl Material {
@@ -251,6 +254,9 @@ impl Material {
             if map.in_twosided {
                 code |= shaders::MATERIAL_MAP_IN_TWOSIDED;
             }
+            if map.bump.is_some() {
+                code |= shaders::MATERIAL_MAP_BUMP;
+            }
         }
         let (mut eta, mut k) = (Vec3::ZERO, Vec3::ZERO);
         if self.surface.distribution() == Some(Distribution::Beckmann) {
@@ -293,9 +299,15 @@ impl Material {
         } else {
             f32::from_bits(slots | shaders::TEXTURE_SLOT_MARK)
         };
+        // A bump map's scale where the material emits nothing (an
+        // emitter's BSDF goes unread).
+        let emission = match self.normal_map.and_then(|m| m.bump) {
+            Some(scale) if self.emission == Vec3::ZERO => Vec3::new(scale, 0.0, 0.0),
+            _ => self.emission,
+        };
         shaders::Material {
             color: color.extend(code as f32).into(),
-            emission: self.emission.extend(parameter).into(),
+            emission: emission.extend(parameter).into(),
             eta: eta.extend(slots).into(),
             k: k.extend(0.0).into(),
         }

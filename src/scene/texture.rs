@@ -222,6 +222,47 @@ impl Texture {
             }
         }
     }
+
+    /// The derivatives of its luminance along a surface's u and v, as its
+    /// lookup varies (Mitsuba's `eval_1_grad`, which `bumpmap` reads): a
+    /// bilinear bitmap's within the cell of four texels, 0 for a nearest
+    /// one and a checkerboard (the CPU twin of `texture_gradient`).
+    pub fn gradient(&self, uv: Vec2) -> Vec2 {
+        let Pattern::Bitmap {
+            width,
+            height,
+            texels,
+            filter: Filter::Bilinear,
+            wrap,
+        } = &self.pattern
+        else {
+            return Vec2::ZERO;
+        };
+        let q = self.to_uv.transform_point2(uv);
+        let size = Vec2::new(*width as f32, *height as f32);
+        let l = |x: i64, y: i64| {
+            let c =
+                texels.get(wrap_index(y, *height, *wrap) * width + wrap_index(x, *width, *wrap));
+            crate::bsdf::luminance(c)
+        };
+        let p = q * size - 0.5;
+        let base = p.floor();
+        let (x, y) = (base.x as i64, base.y as i64);
+        let w = p - base;
+        let (l00, l10, l01, l11) = (l(x, y), l(x + 1, y), l(x, y + 1), l(x + 1, y + 1));
+        // Per texel, back through to_uv's linear part, then per unit of u
+        // and v: Mitsuba scales by the resolution last, which differs from
+        // the true derivative where a to_uv that turns meets a texture that
+        // is not square.
+        let g = Vec2::new(
+            (l10 - l00) + (l11 - l01 - (l10 - l00)) * w.y,
+            (l01 - l00) + (l11 - l10 - (l01 - l00)) * w.x,
+        );
+        Vec2::new(
+            g.x * self.to_uv.x_axis.x + g.y * self.to_uv.x_axis.y,
+            g.x * self.to_uv.y_axis.x + g.y * self.to_uv.y_axis.y,
+        ) * size
+    }
 }
 
 impl Texture {
@@ -658,6 +699,64 @@ mod tests {
                 [0.322803, 0.068356, 0.440105],
             ],
         );
+    }
+
+    /// Mitsuba 3.9.1's `eval_1_grad` of the same PNG under an affine to_uv
+    /// (rows (2, 0.5, 0.1) and (-0.3, 3, -0.2)), at nearly the same points.
+    #[test]
+    fn gradients_are_mitsubas() {
+        let cases = [
+            (
+                Wrap::Repeat,
+                [
+                    [-0.0147631, -2.18753],
+                    [-2.27836, 1.26182],
+                    [-1.25324, -3.07159],
+                    [-0.0696642, 1.10431],
+                    [-0.485398, 0.517311],
+                ],
+            ),
+            (
+                Wrap::Mirror,
+                [
+                    [-0.0147631, -2.18753],
+                    [1.67038, 0.313196],
+                    [-1.25324, -3.07159],
+                    [-0.0696642, 1.10431],
+                    [-0.725926, -0.136111],
+                ],
+            ),
+            (
+                Wrap::Clamp,
+                [
+                    [-0.0147631, -2.18753],
+                    [0.0, 0.0],
+                    [0.0, 0.0],
+                    [0.0, 0.0],
+                    [0.0833374, 0.0156258],
+                ],
+            ),
+        ];
+        for (wrap, want) in cases {
+            let mut t = small(Filter::Bilinear, wrap, false);
+            t.to_uv = Mat3::from_cols(
+                glam::Vec3::new(2.0, -0.3, 0.0),
+                glam::Vec3::new(0.5, 3.0, 0.0),
+                glam::Vec3::new(0.1, -0.2, 1.0),
+            );
+            // UVS but (0.83, 0.95) for (0.9, 0.95), where the lookup sits on
+            // a texel's edge and the derivative is one-sided.
+            let uvs = UVS.map(|p| if p == (0.9, 0.95) { (0.83, 0.95) } else { p });
+            for ((u, v), w) in uvs.into_iter().zip(want) {
+                let got = t.gradient(Vec2::new(u, v));
+                assert!(
+                    (got - Vec2::from(w)).abs().max_element() < 1e-3 * (1.0 + got.length()),
+                    "{wrap:?} at ({u}, {v}): {got} vs Mitsuba's {w:?}"
+                );
+            }
+        }
+        let nearest = small(Filter::Nearest, Wrap::Repeat, false);
+        assert_eq!(nearest.gradient(Vec2::new(0.3, 0.4)), Vec2::ZERO);
     }
 
     #[test]

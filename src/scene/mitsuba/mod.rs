@@ -197,10 +197,12 @@ impl BsdfDesc {
             return Ok(());
         }
         if self.normal_map.is_some() {
-            return Err(el.error("a normalmap inside a normalmap is not supported"));
+            return Err(el.error("a normalmap or bumpmap inside another is not supported"));
         }
         if matches!(self.surface, Surface::Thin { .. }) {
-            return Err(el.error("a normalmap around a thindielectric BSDF is not supported"));
+            return Err(
+                el.error("a normalmap or bumpmap around a thindielectric BSDF is not supported")
+            );
         }
         self.normal_map = Some(map);
         Ok(())
@@ -1559,15 +1561,40 @@ fn bsdf(
                 NormalMap {
                     texture: map,
                     in_twosided: false,
+                    bump: None,
                 },
             )?;
             d
         }
-        "bumpmap" | "pplastic" | "principled"
+        "bumpmap" => {
+            let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
+            let Some((height, _)) = given[slot].take() else {
+                return Err(el.error("bumpmap needs a nested <texture>, its height field"));
+            };
+            let scale = p.float("scale")?.unwrap_or(1.0);
+            let inner = p.nested("bsdf");
+            let [b] = inner[..] else {
+                return Err(el.error("bumpmap needs one nested <bsdf>"));
+            };
+            let mut d = bsdf(b, tex, loader)?;
+            if d.null {
+                return Err(b.error("a bumpmap around a null BSDF is not supported"));
+            }
+            d.map_normals(
+                b,
+                NormalMap {
+                    texture: height,
+                    in_twosided: false,
+                    bump: Some(scale),
+                },
+            )?;
+            d
+        }
+        "pplastic" | "principled"
         | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap, mask, blendbsdf and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap, bumpmap, mask, blendbsdf and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),

@@ -50,6 +50,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
         "normalmap" => &[("normalmap", COLOR)],
+        "bumpmap" => &[("height field", COLOR)],
         "mask" => &[("opacity", COLOR)],
         "blendbsdf" => &[("weight", COLOR)],
         // An emitter's material: paths end there, so its colour slot holds
@@ -85,7 +86,9 @@ impl Textures {
         let mut out: Given = [None; 3];
         for c in p.textures() {
             let name = c.required("name")?;
-            let Some(&(_, slot)) = slots(kind).iter().find(|(n, _)| *n == name) else {
+            // A bump map's height field may have any name.
+            let bump = kind == "bumpmap";
+            let Some(&(_, slot)) = slots(kind).iter().find(|(n, _)| *n == name || bump) else {
                 let takes: Vec<&str> = slots(kind).iter().map(|(n, _)| *n).collect();
                 return Err(c.error(format!(
                     "{kind}'s '{name}' cannot be a texture in qtrace ({})",
@@ -106,6 +109,14 @@ impl Textures {
             } else {
                 read(c, loader)?
             };
+            if bump && matches!(texture.pattern, Pattern::Checkerboard { .. }) {
+                return Err(c.error(
+                    "a bumpmap's height field must be a bitmap (Mitsuba takes no checkerboard's gradient)",
+                ));
+            }
+            if bump && out[slot as usize].is_some() {
+                return Err(c.error("a bumpmap takes one texture"));
+            }
             let number = slot == TEXTURE_SLOT_ALPHA || matches!(kind, "mask" | "blendbsdf");
             let texture = if number {
                 read_as_number(texture)
