@@ -130,7 +130,8 @@ impl Texture {
     }
 
     /// A bitmap from the bytes of image file `path` (its extension says
-    /// whether it is OpenEXR; other formats tell by their contents).
+    /// whether it is OpenEXR or Targa; other formats, PNG, JPEG, Radiance
+    /// HDR, BMP and PPM/PGM, tell by their contents).
     pub fn bitmap_from_bytes(
         path: &Path,
         bytes: &[u8],
@@ -148,7 +149,13 @@ impl Texture {
             let texels = img.pixels.iter().map(|p| Vec3::from(*p)).collect();
             (img.width, img.height, Texels::Floats(texels))
         } else {
-            let img = image::load_from_memory(bytes).map_err(|e| e.to_string())?;
+            // A Targa file has no magic number to tell it by.
+            let img = if ext == "tga" {
+                image::load_from_memory_with_format(bytes, image::ImageFormat::Tga)
+            } else {
+                image::load_from_memory(bytes)
+            }
+            .map_err(|e| e.to_string())?;
             let (width, height) = (img.width() as usize, img.height() as usize);
             let texels = match img {
                 image::DynamicImage::ImageLuma8(_)
@@ -699,6 +706,46 @@ mod tests {
                 [0.322803, 0.068356, 0.440105],
             ],
         );
+    }
+
+    /// BMP, Targa and PPM files (Mitsuba reads them too) read as PNG does:
+    /// 8 bits a channel, sRGB unless raw.
+    #[test]
+    fn bmp_targa_and_ppm_read_as_png_does() {
+        let mut img = image::RgbImage::new(3, 2);
+        for (i, p) in img.pixels_mut().enumerate() {
+            *p = image::Rgb([40 * i as u8, 255 - 30 * i as u8, 7 * i as u8]);
+        }
+        let encode = |format| {
+            let mut out = std::io::Cursor::new(Vec::new());
+            img.write_to(&mut out, format).unwrap();
+            out.into_inner()
+        };
+        let want: Vec<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+        for (name, format) in [
+            ("a.bmp", image::ImageFormat::Bmp),
+            ("a.tga", image::ImageFormat::Tga),
+            ("a.ppm", image::ImageFormat::Pnm),
+        ] {
+            let pattern = Texture::bitmap_from_bytes(
+                Path::new(name),
+                &encode(format),
+                Filter::Nearest,
+                Wrap::Repeat,
+                false,
+            )
+            .unwrap();
+            let Pattern::Bitmap {
+                width: 3,
+                height: 2,
+                texels: Texels::Bytes { rgb, srgb: true },
+                ..
+            } = pattern
+            else {
+                panic!("{name}: {pattern:?}");
+            };
+            assert_eq!(rgb, want, "{name}");
+        }
     }
 
     /// Mitsuba 3.9.1's `eval_1_grad` of the same PNG under an affine to_uv
