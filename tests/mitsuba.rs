@@ -808,7 +808,7 @@ fn orthographic_camera_agrees_with_mitsuba() {
 }
 
 #[test]
-fn a_thin_lens_needs_its_aperture() {
+fn a_thin_lens_needs_its_aperture_and_no_camera_scales() {
     let text = with_body("").replace("type=\"perspective\"", "type=\"thinlens\"");
     let Err(err) = load_text(&text) else {
         panic!("loaded")
@@ -822,6 +822,18 @@ fn a_thin_lens_needs_its_aperture() {
         panic!("loaded")
     };
     assert_eq!(err, "mem/s.xml:2: focus_distance -1 must be positive");
+    // Mitsuba refuses a pinhole or lens that its to_world scales.
+    let text = with_body("").replace(
+        "<sensor type=\"perspective\"/>",
+        "<sensor type=\"perspective\"><transform name=\"to_world\"><scale x=\"1.01\"/></transform></sensor>",
+    );
+    let Err(err) = load_text(&text) else {
+        panic!("loaded")
+    };
+    assert!(
+        err.starts_with("mem/s.xml:2: perspective: its to_world must not scale"),
+        "{err}"
+    );
 }
 
 #[test]

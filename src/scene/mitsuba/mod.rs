@@ -467,6 +467,14 @@ impl Builder<'_, '_> {
             return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
         }
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
+        let scaled = [to_world.x_axis, to_world.y_axis, to_world.z_axis]
+            .iter()
+            .any(|c| (c.truncate().length_squared() - 1.0).abs() > 1e-3);
+        if scaled && !orthographic {
+            return Err(el.error(format!(
+                "{kind}: its to_world must not scale (as in Mitsuba); a lookat or rotations place a camera"
+            )));
+        }
         // Clipping planes keep the scene in front of a pinhole whole; an
         // orthographic camera's rays start on its near plane.
         let near_clip = p.float_or("near_clip", 0.01)?;
