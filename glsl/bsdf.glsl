@@ -120,11 +120,12 @@ float beckmann_d(float alpha, vec3 h) {
     return exp(-dot(h.xy, h.xy) / (a2 * z2)) / (PI * a2 * z2 * z2);
 }
 
-// Smith's masking of Beckmann, in the rational fit Mitsuba uses.
+// Smith's masking of Beckmann, in Walter et al.'s rational fit (2007), as
+// Mitsuba 3.9.1 has it.
 float beckmann_g1(float alpha, vec3 w) {
     float tan2 = dot(w.xy, w.xy) * alpha * alpha / (w.z * w.z);
     float a = inversesqrt(max(tan2, 1e-30));
-    float g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.577 * a + 2.346 * a * a);
+    float g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a);
     return a >= 1.6 ? 1.0 : g;
 }
 
