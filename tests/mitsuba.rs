@@ -77,6 +77,10 @@ fn load_text(text: &str) -> Result<Scene, String> {
             // Quads with texture coordinates.
             Some("qt.obj") => Ok(b"v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n".to_vec()),
             Some("q.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0 0 0\n1 -1 0 1 0\n1 1 0 1 1\n-1 1 0 0 1\n3 0 1 2\n3 0 2 3\n".to_vec()),
+            Some("small.png") => std::fs::read(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/tests/fixtures/textures/small.png"
+            )),
             Some("inc.xml") => {
                 Ok(br#"<scene version="3.0.0"><bsdf type="diffuse" id="inc"/></scene>"#.to_vec())
             }
@@ -132,6 +136,9 @@ fn an_exporters_sensor_and_film_load() {
 </sensor>
 <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/><float name="sampling_weight" value="2"/></emitter></shape>
 <emitter type="point"><float name="sampling_weight" value="0.5"/></emitter>
+<shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
+  <string name="filename" value="small.png"/><string name="format" value="fp16"/><boolean name="accel" value="false"/>
+</texture></bsdf></shape>
 </scene>"#,
     )
     .unwrap();
