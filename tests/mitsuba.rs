@@ -145,6 +145,32 @@ fn an_exporters_sensor_and_film_load() {
     assert_eq!(scene.camera.fov_degrees, 39.3077);
 }
 
+/// Mitsuba 3.9.1's `sample_ray` through a perspective sensor with a
+/// principal point offset (0.25, -0.1) on a 64x128 film, fov 90 along x:
+/// at the image's centre the ray's tangents are (-0.5, 0.4) in the camera's
+/// frame (x to the image's left), at the middle of its right edge (-1.5,
+/// 0.4), at the middle of its bottom edge (-0.5, -1.6).
+#[test]
+fn a_principal_point_offset_shifts_the_view_as_mitsubas() {
+    let text = with_body("").replace(
+        "<sensor type=\"perspective\"/>",
+        "<sensor type=\"perspective\"><float name=\"fov\" value=\"90\"/><float name=\"principal_point_offset_x\" value=\"0.25\"/><float name=\"principal_point_offset_y\" value=\"-0.1\"/></sensor>",
+    );
+    let scene = load_text(&text).unwrap();
+    for ((x, y), want) in [
+        ((32.0, 64.0), Vec2::new(-0.5, 0.4)),
+        ((64.0, 64.0), Vec2::new(-1.5, 0.4)),
+        ((32.0, 128.0), Vec2::new(-0.5, -1.6)),
+    ] {
+        let (_, d) = scene.camera.ray(x, y, 64, 128);
+        let got = Vec2::new(d.x, d.y) / d.z;
+        assert!(
+            (got - want).abs().max_element() < 1e-4,
+            "({x}, {y}): {got} vs {want}"
+        );
+    }
+}
+
 #[test]
 fn a_scene_with_every_supported_shape_and_bsdf_loads() {
     let scene = load_text(&with_body(

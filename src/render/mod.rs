@@ -200,7 +200,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         cam_pos: c.origin().extend(scene.ray_offset()).into(),
         cam_right: (c.right * tx).extend(c.aperture_radius).into(),
         cam_up: (c.up * ty).extend(c.focus_distance).into(),
-        cam_forward: c.forward.extend(filter_size).into(),
+        cam_forward: c.centre_ray(tx, ty).extend(filter_size).into(),
         environment: [scene.environment_pick(), 0.0, 0.0, 0.0],
         width: s.width,
         height: s.height,

@@ -382,6 +382,10 @@ pub struct Camera {
     /// plane `near` ahead of `position`, `half_width` to either side and
     /// `half_width / aspect` up and down (its to_world's x and y scales).
     pub orthographic: Option<Orthographic>,
+    /// Mitsuba's `principal_point_offset_x` and `_y`: the point the image is
+    /// centred on moved right and down by these fractions of its width and
+    /// height (a pinhole's view shifted, not turned).
+    pub shift: Vec2,
 }
 
 /// An orthographic camera's extent (see [`Camera::orthographic`]).
@@ -435,6 +439,7 @@ impl Camera {
             // In focus where the camera looks, unless told.
             focus_distance: d.focus_distance.unwrap_or(to.length()),
             orthographic: None,
+            shift: Vec2::ZERO,
         })
     }
 
@@ -473,8 +478,17 @@ impl Camera {
         let across = sx * tx * self.right + sy * ty * self.up;
         match self.orthographic {
             Some(o) => (self.position + o.near * self.forward + across, self.forward),
-            None => (self.position, (self.forward + across).normalize()),
+            None => (
+                self.position,
+                (self.centre_ray(tx, ty) + across).normalize(),
+            ),
         }
+    }
+
+    /// The direction (not unit) of the ray through the image's centre, at
+    /// the half-field tangents (tx, ty): `forward`, moved by the shift.
+    pub fn centre_ray(&self, tx: f32, ty: f32) -> Vec3 {
+        self.forward + 2.0 * self.shift.x * tx * self.right - 2.0 * self.shift.y * ty * self.up
     }
 
     /// Where the kernels start camera rays: an orthographic camera's plane.

@@ -484,6 +484,15 @@ impl Builder<'_, '_> {
             near: near_clip * to_world.z_axis.truncate().length(),
         });
         let far_clip = p.float_or("far_clip", 10_000.0)?;
+        // A pinhole's off-centre image, in fractions of its width and height.
+        let shift = if kind == "perspective" {
+            Vec2::new(
+                p.float_or("principal_point_offset_x", 0.0)?,
+                p.float_or("principal_point_offset_y", 0.0)?,
+            )
+        } else {
+            Vec2::ZERO
+        };
         let (aperture_radius, focus_distance) = if thin_lens {
             let radius = p
                 .float("aperture_radius")?
@@ -528,6 +537,7 @@ impl Builder<'_, '_> {
             aperture_radius,
             focus_distance,
             orthographic,
+            shift,
         });
         Ok(())
     }
