@@ -145,6 +145,21 @@ fn an_exporters_sensor_and_film_load() {
     assert_eq!(scene.camera.fov_degrees, 39.3077);
 }
 
+/// Without media, volpath and volpathmis are path; direct is path with one
+/// bounce; other integrators leave qtrace's default depth.
+#[test]
+fn integrators_that_path_tracing_equals_keep_their_depth() {
+    for (integrator, want) in [
+        ("<integrator type=\"volpath\"><integer name=\"max_depth\" value=\"5\"/></integrator>", Some(4)),
+        ("<integrator type=\"volpathmis\"><integer name=\"max_depth\" value=\"3\"/><integer name=\"rr_depth\" value=\"9\"/></integrator>", Some(2)),
+        ("<integrator type=\"direct\"><integer name=\"emitter_samples\" value=\"4\"/></integrator>", Some(1)),
+        ("<integrator type=\"aov\"/>", None),
+    ] {
+        let scene = load_text(&with_body(integrator)).unwrap();
+        assert_eq!(scene.defaults.max_depth, want, "{integrator}");
+    }
+}
+
 /// Mitsuba 3.9.1's `sample_ray` through a perspective sensor with a
 /// principal point offset (0.25, -0.1) on a 64x128 film, fov 90 along x:
 /// at the image's centre the ray's tangents are (-0.5, 0.4) in the camera's

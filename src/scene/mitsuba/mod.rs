@@ -383,7 +383,10 @@ impl Builder<'_, '_> {
 
     fn integrator(&mut self, el: &Element) -> Result<(), SceneError> {
         let kind = el.plugin()?;
-        if kind != "path" {
+        // Without media (qtrace has none) volpath and volpathmis converge to
+        // path's image; direct is path with one bounce (its sample counts
+        // change noise only).
+        if !matches!(kind, "path" | "volpath" | "volpathmis" | "direct") {
             log::warn!(
                 "{}:{}: integrator '{kind}': qtrace renders the scene with its own method (--method) instead",
                 el.file.display(),
@@ -392,7 +395,18 @@ impl Builder<'_, '_> {
             return Ok(());
         }
         let p = Props::new(el);
-        if let Some(d) = p.integer("max_depth")? {
+        if kind == "direct" {
+            self.max_depth = Some(1);
+            for n in ["emitter_samples", "bsdf_samples", "shading_samples"] {
+                p.ignore(n);
+            }
+        }
+        let max_depth = if kind == "direct" {
+            None
+        } else {
+            p.integer("max_depth")?
+        };
+        if let Some(d) = max_depth {
             self.max_depth = Some(match d {
                 -1 => super::MITSUBA_UNLIMITED_DEPTH,
                 d if d >= 1 && d <= 1 + crate::render::settings::MAX_DEPTH as i64 => (d - 1) as u32,
