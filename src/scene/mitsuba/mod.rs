@@ -1574,52 +1574,36 @@ fn bsdf(
             d
         }
         "roughplastic" => one(rough_plastic(el, &p)?),
-        "normalmap" => {
-            // The texture is the normals', not a colour of the BSDF's.
+        "normalmap" | "bumpmap" => {
+            // The texture is the normals' (or the heights'), not a colour
+            // of the BSDF's.
             let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
-            let Some((map, _)) = given[slot].take() else {
-                return Err(el.error("normalmap needs a texture named 'normalmap'"));
+            let Some((texture, _)) = given[slot].take() else {
+                return Err(el.error(if kind == "normalmap" {
+                    "normalmap needs a texture named 'normalmap'"
+                } else {
+                    "bumpmap needs a nested <texture>, its height field"
+                }));
+            };
+            let bump = if kind == "bumpmap" {
+                Some(p.float("scale")?.unwrap_or(1.0))
+            } else {
+                None
             };
             let inner = p.nested("bsdf");
             let [b] = inner[..] else {
-                return Err(el.error("normalmap needs one nested <bsdf>"));
+                return Err(el.error(format!("{kind} needs one nested <bsdf>")));
             };
             let mut d = bsdf(b, tex, loader)?;
             if d.null {
-                return Err(b.error("a normalmap around a null BSDF is not supported"));
+                return Err(b.error(format!("a {kind} around a null BSDF is not supported")));
             }
-            d.map_normals(
-                b,
-                NormalMap {
-                    texture: map,
-                    in_twosided: false,
-                    bump: None,
-                },
-            )?;
-            d
-        }
-        "bumpmap" => {
-            let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
-            let Some((height, _)) = given[slot].take() else {
-                return Err(el.error("bumpmap needs a nested <texture>, its height field"));
+            let map = NormalMap {
+                texture,
+                in_twosided: false,
+                bump,
             };
-            let scale = p.float("scale")?.unwrap_or(1.0);
-            let inner = p.nested("bsdf");
-            let [b] = inner[..] else {
-                return Err(el.error("bumpmap needs one nested <bsdf>"));
-            };
-            let mut d = bsdf(b, tex, loader)?;
-            if d.null {
-                return Err(b.error("a bumpmap around a null BSDF is not supported"));
-            }
-            d.map_normals(
-                b,
-                NormalMap {
-                    texture: height,
-                    in_twosided: false,
-                    bump: Some(scale),
-                },
-            )?;
+            d.map_normals(b, map)?;
             d
         }
         "pplastic" | "principled"
