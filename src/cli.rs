@@ -469,12 +469,12 @@ fn light_summary(scene: &Scene) -> String {
 
 /// The `qtrace inspect` summary of a scene.
 pub fn inspect_summary(scene: &Scene) -> String {
-    let area: f32 = scene.triangles.iter().map(|t| t.area).sum();
-    let light_area: f32 = scene
+    // Folded from +0 (a float sum of nothing is -0, which prints "-0.0000").
+    let area = scene.triangles.iter().fold(0.0, |a, t| a + t.area);
+    let light_area = scene
         .lights
         .iter()
-        .map(|l| scene.triangles[l.triangle as usize].area)
-        .sum();
+        .fold(0.0, |a, l| a + scene.triangles[l.triangle as usize].area);
     let c = &scene.camera;
     let mut lines = vec![
         format!("scene        {}", scene.path.display()),
