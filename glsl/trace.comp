@@ -391,47 +391,52 @@ struct Shading {
 // Whether a vertex's shading normal may differ from its surface's.
 const bool SHADING_FRAME = SHADING_NORMALS || NORMAL_MAPS;
 
-// Mitsuba's normalmap: the normal n0 (the surface's own shading normal, not
-// turned toward the ray) turned by texel 2 rgb - 1 of texture `map`, read
-// in the frame of n0 and the surface's (u, v) tangent dp/du, at barycentric
-// coordinates b of `triangle`.
-vec3 mapped_normal(uint triangle, Triangle tri, vec3 n0, vec2 b, uint map) {
+// A triangle's texture coordinates at barycentric coordinates b and its
+// (u, v) tangents dp/du and dp/dv (as Mitsuba's meshes have them); `valid`
+// false where its texture coordinates span no area.
+struct UvFrame {
+    vec2 uv;
+    vec3 dp_du;
+    vec3 dp_dv;
+    bool valid;
+};
+
+UvFrame uv_frame(uint triangle, Triangle tri, vec2 b) {
     uvec4 p = FETCH(uv_texels, int(2u * triangle));
     uvec4 q = FETCH(uv_texels, int(2u * triangle + 1u));
     vec2 uv0 = uintBitsToFloat(p.xy);
     vec2 d1 = uintBitsToFloat(p.zw) - uv0;
     vec2 d2 = uintBitsToFloat(q.xy) - uv0;
     float det = d1.x * d2.y - d1.y * d2.x;
-    vec3 dp_du = (d2.y * tri.e1 - d1.y * tri.e2) / det;
-    vec3 s = dp_du - n0 * dot(n0, dp_du);
+    return UvFrame(uv0 + b.x * d1 + b.y * d2, (d2.y * tri.e1 - d1.y * tri.e2) / det,
+                   (d1.x * tri.e2 - d2.x * tri.e1) / det, det != 0.0);
+}
+
+// Mitsuba's normalmap: the normal n0 (the surface's own shading normal, not
+// turned toward the ray) turned by texel 2 rgb - 1 of texture `map`, read
+// in the frame of n0 and the surface's tangent dp/du, at `at`.
+vec3 mapped_normal(UvFrame at, vec3 n0, uint map) {
+    vec3 s = at.dp_du - n0 * dot(n0, at.dp_du);
     vec3 t;
-    if (det == 0.0 || !(dot(s, s) > 0.0)) {
+    if (!at.valid || !(dot(s, s) > 0.0)) {
         make_frame(n0, s, t);
     } else {
         s = normalize(s);
         t = cross(n0, s);
     }
-    vec3 m = normalize(2.0 * texture_eval(map, uv0 + b.x * d1 + b.y * d2) - 1.0);
+    vec3 m = normalize(2.0 * texture_eval(map, at.uv) - 1.0);
     return normalize(m.x * s + m.y * t + m.z * n0);
 }
 
-// The normal Mitsuba's bumpmap gives triangle `triangle` at barycentric
-// coordinates b: that of the surface whose (u, v) tangents dp/du and dp/dv
-// are tilted along the unmapped normal n0 by the gradient of height field
-// `map` times `scale`, turned to the side of the geometric normal ng.
-vec3 bumped_normal(uint triangle, Triangle tri, vec3 n0, vec3 ng, vec2 b, uint map, float scale) {
-    uvec4 p = FETCH(uv_texels, int(2u * triangle));
-    uvec4 q = FETCH(uv_texels, int(2u * triangle + 1u));
-    vec2 uv0 = uintBitsToFloat(p.xy);
-    vec2 d1 = uintBitsToFloat(p.zw) - uv0;
-    vec2 d2 = uintBitsToFloat(q.xy) - uv0;
-    float det = d1.x * d2.y - d1.y * d2.x;
-    vec3 dp_du = (d2.y * tri.e1 - d1.y * tri.e2) / det;
-    vec3 dp_dv = (d1.x * tri.e2 - d2.x * tri.e1) / det;
-    vec2 g = scale * texture_gradient(map, uv0 + b.x * d1 + b.y * d2);
-    vec3 m = cross(dp_du + n0 * (g.x - dot(n0, dp_du)), dp_dv + n0 * (g.y - dot(n0, dp_dv)));
+// Mitsuba's bumpmap: the normal of the surface whose tangents dp/du and
+// dp/dv at `at` are tilted along the unmapped normal n0 by the gradient of
+// height field `map` times `scale`, turned to the side of the geometric
+// normal ng.
+vec3 bumped_normal(UvFrame at, vec3 n0, vec3 ng, uint map, float scale) {
+    vec2 g = scale * texture_gradient(map, at.uv);
+    vec3 m = cross(at.dp_du + n0 * (g.x - dot(n0, at.dp_du)), at.dp_dv + n0 * (g.y - dot(n0, at.dp_dv)));
     m = dot(m, ng) < 0.0 ? -m : m;
-    return det == 0.0 || !(dot(m, m) > 0.0) ? n0 : normalize(m);
+    return !at.valid || !(dot(m, m) > 0.0) ? n0 : normalize(m);
 }
 
 // What a normal map leaves of light leaving the surface in direction d:
@@ -734,14 +739,15 @@ bool scatter(inout Path path, inout Trail trail) {
         uint code = uint(mat.color.w);
         uint map = (code >> MATERIAL_NORMAL_MAP_SHIFT) & ((1u << TEXTURE_SLOT_BITS) - 1u);
         if (map != 0u) {
-            // As Mitsuba maps normals: where the ray comes from below the
-            // mapped normal m, m mirrored about the unmapped one n0 instead
-            // (2 (m.n0) n0 - m: its tangential part turned over).
+            // As Mitsuba maps normals: where the ray lies on one side of
+            // the unmapped normal n0 and the other of the mapped one m, m
+            // mirrored about n0 instead (2 (m.n0) n0 - m: its tangential
+            // part turned over).
             vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
             vec3 n0 = front ? s.ns : -s.ns;
-            vec3 m = (code & MATERIAL_MAP_BUMP) != 0u
-                         ? bumped_normal(hit.triangle, tri, n0, n, b, map - 1u, mat.emission.x)
-                         : mapped_normal(hit.triangle, tri, n0, b, map - 1u);
+            UvFrame at = uv_frame(hit.triangle, tri, b);
+            vec3 m = (code & MATERIAL_MAP_BUMP) != 0u ? bumped_normal(at, n0, n, map - 1u, mat.emission.x)
+                                                      : mapped_normal(at, n0, map - 1u);
             float c = dot(m, n0);
             vec3 v = -path.dir;
             if ((code & MATERIAL_MAP_IN_TWOSIDED) != 0u) {
@@ -761,7 +767,7 @@ bool scatter(inout Path path, inout Trail trail) {
                     front = mapped_front;
                     bsdf = bsdf_of(mat, front);
                     if (scene_textured()) {
-                        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
+                        bsdf = bsdf_textured(bsdf, mat, front, at.uv);
                     }
                 }
             }

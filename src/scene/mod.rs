@@ -101,33 +101,17 @@ pub enum Weight {
 }
 
 impl Choice {
-    /// Which material it stands for where a path arrives on the `front` or
-    /// back at texture coordinates `uv`, with `u` uniform in [0, 1) (the
-    /// CPU twin of `chosen_material`'s step in glsl/trace.comp).
-    pub fn pick(&self, front: bool, uv: Vec2, u: f32, textures: &[texture::Texture]) -> u32 {
-        let w = match self.kind {
-            ChoiceKind::Sides => return if front { self.first } else { self.second },
-            ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => w,
-        };
-        let w = match w {
-            Weight::Constant(w) => w,
-            Weight::Texture(t) => luminance(textures[t as usize].eval(uv)).clamp(0.0, 1.0),
-        };
-        if u < w {
-            self.second
-        } else {
-            self.first
+    /// The probability of its second material, where a weight chooses.
+    fn weight(&self) -> Option<Weight> {
+        match self.kind {
+            ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => Some(w),
+            ChoiceKind::Sides => None,
         }
     }
 
     fn texture(&self) -> Option<u32> {
-        match self.kind {
-            ChoiceKind::Mask {
-                opacity: Weight::Texture(t),
-            }
-            | ChoiceKind::Blend {
-                weight: Weight::Texture(t),
-            } => Some(t),
+        match self.weight() {
+            Some(Weight::Texture(t)) => Some(t),
             _ => None,
         }
     }
@@ -225,12 +209,10 @@ impl Material {
     /// The material as the kernels read it (`Material` of shared.h).
     pub fn gpu(&self) -> shaders::Material {
         if let Some(c) = self.choice {
-            let (by, weight, texture) = match c.kind {
-                ChoiceKind::Sides => (shaders::CHOICE_BY_SIDE, 0.0, 0),
-                ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => match w {
-                    Weight::Constant(w) => (shaders::CHOICE_AT_RANDOM, w, 0),
-                    Weight::Texture(t) => (shaders::CHOICE_AT_RANDOM, 0.0, t + 1),
-                },
+            let (by, weight, texture) = match c.weight() {
+                None => (shaders::CHOICE_BY_SIDE, 0.0, 0),
+                Some(Weight::Constant(w)) => (shaders::CHOICE_AT_RANDOM, w, 0),
+                Some(Weight::Texture(t)) => (shaders::CHOICE_AT_RANDOM, 0.0, t + 1),
             };
             return shaders::Material {
                 color: [
