@@ -54,6 +54,21 @@ vec3 texture_texel(uvec4 h, uint i) {
     return uintBitsToFloat(FETCH(texture_texels, int(h.y + i)).rgb);
 }
 
+// The four texels of the bitmap with header h around point p (in texels,
+// their centres at half integers), wrapped: those at (x, y), (x + 1, y),
+// (x, y + 1) and (x + 1, y + 1); f is p's place between them.
+uvec4 texture_cell(uvec4 h, vec2 p, out vec2 f) {
+    p -= 0.5;
+    vec2 base = floor(p);
+    f = p - base;
+    int w = int(h.z);
+    int x0 = texture_wrap(int(base.x), w, h.x);
+    int x1 = texture_wrap(int(base.x) + 1, w, h.x);
+    int y0 = texture_wrap(int(base.y), int(h.w), h.x) * w;
+    int y1 = texture_wrap(int(base.y) + 1, int(h.w), h.x) * w;
+    return uvec4(y0 + x0, y0 + x1, y1 + x0, y1 + x1);
+}
+
 // Texture t's value at a surface's (u, v).
 vec3 texture_eval(uint t, vec2 uv) {
     int at = int(TEXTURE_TABLE_WORDS + TEXTURE_HEADER_WORDS * t);
@@ -74,17 +89,10 @@ vec3 texture_eval(uint t, vec2 uv) {
         int y = texture_wrap(int(floor(p.y)), rows, h.x);
         return texture_texel(h, uint(y * w + x));
     }
-    p -= 0.5;
-    vec2 base = floor(p);
-    vec2 f = p - base;
-    int x = int(base.x);
-    int y = int(base.y);
-    int x0 = texture_wrap(x, w, h.x);
-    int x1 = texture_wrap(x + 1, w, h.x);
-    int y0 = texture_wrap(y, rows, h.x) * w;
-    int y1 = texture_wrap(y + 1, rows, h.x) * w;
-    vec3 top = mix(texture_texel(h, uint(y0 + x0)), texture_texel(h, uint(y0 + x1)), f.x);
-    vec3 bottom = mix(texture_texel(h, uint(y1 + x0)), texture_texel(h, uint(y1 + x1)), f.x);
+    vec2 f;
+    uvec4 i = texture_cell(h, p, f);
+    vec3 top = mix(texture_texel(h, i.x), texture_texel(h, i.y), f.x);
+    vec3 bottom = mix(texture_texel(h, i.z), texture_texel(h, i.w), f.x);
     return mix(top, bottom, f.y);
 }
 
@@ -100,19 +108,12 @@ vec2 texture_gradient(uint t, vec2 uv) {
     }
     vec3 row0 = uintBitsToFloat(FETCH(texture_texels, at + 1).xyz);
     vec3 row1 = uintBitsToFloat(FETCH(texture_texels, at + 2).xyz);
-    vec2 p = vec2(dot(row0, vec3(uv, 1.0)), dot(row1, vec3(uv, 1.0))) * vec2(h.zw) - 0.5;
-    vec2 base = floor(p);
-    vec2 f = p - base;
-    int w = int(h.z);
-    int rows = int(h.w);
-    int x0 = texture_wrap(int(base.x), w, h.x);
-    int x1 = texture_wrap(int(base.x) + 1, w, h.x);
-    int y0 = texture_wrap(int(base.y), rows, h.x) * w;
-    int y1 = texture_wrap(int(base.y) + 1, rows, h.x) * w;
-    float l00 = luminance(texture_texel(h, uint(y0 + x0)));
-    float l10 = luminance(texture_texel(h, uint(y0 + x1)));
-    float l01 = luminance(texture_texel(h, uint(y1 + x0)));
-    float l11 = luminance(texture_texel(h, uint(y1 + x1)));
+    vec2 f;
+    uvec4 i = texture_cell(h, vec2(dot(row0, vec3(uv, 1.0)), dot(row1, vec3(uv, 1.0))) * vec2(h.zw), f);
+    float l00 = luminance(texture_texel(h, i.x));
+    float l10 = luminance(texture_texel(h, i.y));
+    float l01 = luminance(texture_texel(h, i.z));
+    float l11 = luminance(texture_texel(h, i.w));
     vec2 g = vec2(mix(l10 - l00, l11 - l01, f.y), mix(l01 - l00, l11 - l10, f.x));
     return vec2(g.x * row0.x + g.y * row1.x, g.x * row0.y + g.y * row1.y) * vec2(h.zw);
 }

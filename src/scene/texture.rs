@@ -104,6 +104,31 @@ fn linear_to_srgb(c: f32) -> f32 {
 }
 
 /// Index `i` of a row or column of `n` texels, wrapped.
+/// The four texels of a bitmap around point `p` (in texels, their centres
+/// at half integers), wrapped: those at (x, y), (x + 1, y), (x, y + 1) and
+/// (x + 1, y + 1), and p's place between them (the CPU twin of
+/// `texture_cell`).
+fn bilinear_cell(
+    texels: &Texels,
+    (width, height): (usize, usize),
+    wrap: Wrap,
+    p: Vec2,
+) -> ([Vec3; 4], Vec2) {
+    let texel = |x: i64, y: i64| {
+        texels.get(wrap_index(y, height, wrap) * width + wrap_index(x, width, wrap))
+    };
+    let p = p - 0.5;
+    let base = p.floor();
+    let (x, y) = (base.x as i64, base.y as i64);
+    let cell = [
+        texel(x, y),
+        texel(x + 1, y),
+        texel(x, y + 1),
+        texel(x + 1, y + 1),
+    ];
+    (cell, p - base)
+}
+
 fn wrap_index(i: i64, n: usize, wrap: Wrap) -> usize {
     let n = n as i64;
     match wrap {
@@ -210,20 +235,16 @@ impl Texture {
                 filter,
                 wrap,
             } => {
-                let texel = |x: i64, y: i64| {
-                    texels.get(wrap_index(y, *height, *wrap) * width + wrap_index(x, *width, *wrap))
-                };
                 let p = uv * Vec2::new(*width as f32, *height as f32);
                 match filter {
-                    Filter::Nearest => texel(p.x.floor() as i64, p.y.floor() as i64),
+                    Filter::Nearest => texels.get(
+                        wrap_index(p.y.floor() as i64, *height, *wrap) * width
+                            + wrap_index(p.x.floor() as i64, *width, *wrap),
+                    ),
                     Filter::Bilinear => {
-                        let p = p - 0.5;
-                        let base = p.floor();
-                        let (x, y) = (base.x as i64, base.y as i64);
-                        let w = p - base;
-                        let top = texel(x, y).lerp(texel(x + 1, y), w.x);
-                        let bottom = texel(x, y + 1).lerp(texel(x + 1, y + 1), w.x);
-                        top.lerp(bottom, w.y)
+                        let ([t00, t10, t01, t11], w) =
+                            bilinear_cell(texels, (*width, *height), *wrap, p);
+                        t00.lerp(t10, w.x).lerp(t01.lerp(t11, w.x), w.y)
                     }
                 }
             }
@@ -245,18 +266,10 @@ impl Texture {
         else {
             return Vec2::ZERO;
         };
-        let q = self.to_uv.transform_point2(uv);
         let size = Vec2::new(*width as f32, *height as f32);
-        let l = |x: i64, y: i64| {
-            let c =
-                texels.get(wrap_index(y, *height, *wrap) * width + wrap_index(x, *width, *wrap));
-            crate::bsdf::luminance(c)
-        };
-        let p = q * size - 0.5;
-        let base = p.floor();
-        let (x, y) = (base.x as i64, base.y as i64);
-        let w = p - base;
-        let (l00, l10, l01, l11) = (l(x, y), l(x + 1, y), l(x, y + 1), l(x + 1, y + 1));
+        let p = self.to_uv.transform_point2(uv) * size;
+        let (cell, w) = bilinear_cell(texels, (*width, *height), *wrap, p);
+        let [l00, l10, l01, l11] = cell.map(crate::bsdf::luminance);
         // Per texel, back through to_uv's linear part, then per unit of u
         // and v: Mitsuba scales by the resolution last, which differs from
         // the true derivative where a to_uv that turns meets a texture that
