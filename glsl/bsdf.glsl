@@ -21,22 +21,41 @@ layout(constant_id = CONSTANT_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
 layout(constant_id = CONSTANT_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
-    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES;
+    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES | FEATURE_PRINCIPLED;
 
 // A material's scattering at a surface point, seen from one side
 // (docs/scenes.md).
 struct Bsdf {
     uint kind;   // MATERIAL_*
-    vec3 color;  // Kd, Ks or Tf
-    float alpha; // conductor, dielectric, plastic: alpha, 0 when smooth
+    vec3 color;  // Kd, Ks, Tf, or a principled BSDF's base colour
+    float alpha; // conductor, dielectric, plastic: alpha, 0 when smooth; principled: roughness
     float eta;   // dielectric: index beyond the surface / index on the path's side;
-                 // plastic: its coat's relative index
+                 // plastic: its coat's relative index; principled: its dielectric's
     uint flags;  // MATERIAL_BECKMANN; conductor: MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
     vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
     vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, alpha);
-                  // glass, rough glass: its reflection's tint (ior_eta)
-    uint table;  // rough plastic: the word its transmittance table begins at
+                  // glass, rough glass: its reflection's tint (ior_eta);
+                  // principled: (metallic, specular tint, sheen), (sheen tint, flatness, clearcoat)
+    uint table;  // rough plastic: the word its transmittance table begins at;
+                 // principled: the word of (eta, clearcoat gloss)
 };
+
+// A float of the words after the materials (a rough plastic's table, a
+// principled material's record). Kernels without the scene's buffers meet
+// no material.
+#ifdef QTRACE_SCENE_GLSL
+float rough_table(uint word, uint i) {
+    return uintBitsToFloat(FETCH(material_texels, int(word + i / 4u))[i % 4u]);
+}
+#else
+float rough_table(uint word, uint i) {
+    return 1.0;
+}
+#endif
+
+Bsdf bsdf_diffuse(vec3 albedo) {
+    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
+}
 
 // The BSDF of material m for a path arriving on the side the triangle's
 // normal faces (front) or on the other.
@@ -51,12 +70,15 @@ Bsdf bsdf_of(Material m, bool front) {
     // A plastic's coat, and a thin sheet, look the same from either side.
     float eta = front || kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? p : 1.0 / p;
     vec3 specular = black ? vec3(0.0) : m.eta.rgb;
+    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && kind == MATERIAL_PRINCIPLED) {
+        // Its specular lobe does not scale with the base colour: its back
+        // is a black diffuse lobe.
+        uint word = uint(m.k.w);
+        return black ? bsdf_diffuse(vec3(0.0))
+                     : Bsdf(kind, color, p, rough_table(word, 0u), 0u, m.eta.rgb, m.k.rgb, word);
+    }
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
                 kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w));
-}
-
-Bsdf bsdf_diffuse(vec3 albedo) {
-    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
 }
 
 // Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
@@ -67,6 +89,11 @@ bool bsdf_is(Bsdf bsdf, uint kind) {
 // Whether the BSDF is a plastic; a constant false where the scene has none.
 bool bsdf_plastic(Bsdf bsdf) {
     return (MATERIAL_FEATURES & FEATURE_PLASTIC) != 0u && bsdf_is(bsdf, MATERIAL_PLASTIC);
+}
+
+// Whether the BSDF is a principled one; a constant false where the scene has none.
+bool bsdf_principled(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && bsdf_is(bsdf, MATERIAL_PRINCIPLED);
 }
 
 // Whether the BSDF is a rough glass; a constant false where the scene has none.
@@ -182,18 +209,7 @@ vec3 microfacet_reflect(vec3 wo, vec3 m) {
 }
 
 // A rough plastic's coat transmittance at cos, from its table (linear, as
-// Mitsuba's lerp_gather). Kernels without the scene's buffers meet no
-// material.
-#ifdef QTRACE_SCENE_GLSL
-float rough_table(uint word, uint i) {
-    return uintBitsToFloat(FETCH(material_texels, int(word + i / 4u))[i % 4u]);
-}
-#else
-float rough_table(uint word, uint i) {
-    return 1.0;
-}
-#endif
-
+// Mitsuba's lerp_gather).
 float rough_transmittance(Bsdf bsdf, float cos) {
     float x = clamp(cos, 0.0, 1.0) * float(ROUGH_TABLE_SIZE - 1);
     uint i = min(uint(x), uint(ROUGH_TABLE_SIZE - 2));
@@ -290,6 +306,121 @@ vec3 plastic_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     return bsdf.color / inside * (INV_PI * wi.z / (bsdf.eta * bsdf.eta) * (1.0 - fi) * (1.0 - fo));
 }
 
+// Mitsuba's principled without transmission (src/bsdf/principled.rs, the
+// CPU twin, says more). Schlick's weight (1 - c)^5.
+float schlick_weight(float c) {
+    float m = clamp(1.0 - c, 0.0, 1.0);
+    return m * m * m * m * m;
+}
+
+// Schlick's Fresnel term of normal reflectance r0 at cos c across relative
+// index eta; below 1, at the transmitted angle (1 past the critical one).
+vec3 schlick(vec3 r0, float c, float eta) {
+    float w = eta > 1.0 ? schlick_weight(c) : schlick_weight(sqrt(max(1.0 - (1.0 - c * c) / (eta * eta), 0.0)));
+    return r0 + (1.0 - r0) * w;
+}
+
+// Smith's masking of GGX as the clearcoat takes it (alpha 0.25).
+float clearcoat_g1(vec3 w) {
+    float c2 = w.z * w.z;
+    return 2.0 / (1.0 + sqrt(1.0 + 0.0625 * (1.0 - c2) / c2));
+}
+
+// Burley's GTR1 distribution of the clearcoat's normals.
+float gtr1_d(float alpha, vec3 h) {
+    float a2 = alpha * alpha;
+    return (a2 - 1.0) / (PI * log(a2) * (1.0 + (a2 - 1.0) * h.z * h.z));
+}
+
+// The specular lobe as a GGX conductor of alpha roughness^2 (at least
+// 0.001), for the microfacet helpers.
+Bsdf principled_specular(Bsdf bsdf) {
+    float alpha = max(bsdf.alpha * bsdf.alpha, 1e-3);
+    return Bsdf(MATERIAL_CONDUCTOR, vec3(1.0), alpha, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
+}
+
+// The clearcoat's GTR1 alpha: 0.1 at gloss 0 to 0.001 at gloss 1.
+float principled_clearcoat_alpha(Bsdf bsdf) {
+    return mix(0.1, 1e-3, rough_table(bsdf.table, 1u));
+}
+
+// The probabilities of sampling the diffuse lobe and the clearcoat (the
+// specular lobe takes the rest): Mitsuba's weights, 1 - metallic,
+// clearcoat / 4 and 1.
+vec2 principled_shares(Bsdf bsdf) {
+    vec2 w = vec2(1.0 - bsdf.ior_eta.x, 0.25 * bsdf.ior_k.z);
+    return w / (w.x + w.y + 1.0);
+}
+
+vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    vec3 h = normalize(wo + wi);
+    float oh = dot(wo, h);
+    float ih = dot(wi, h);
+    float m = bsdf.ior_eta.x;
+    vec3 base = bsdf.color;
+    float lum = luminance(base);
+    vec3 tint = lum > 0.0 ? base / lum : vec3(1.0);
+    vec3 value = vec3(0.0);
+    // Mitsuba leaves the whole specular lobe out where the dielectric
+    // reflects nothing (eta 1), its metallic part too.
+    float fd = fresnel_dielectric(oh, bsdf.eta);
+    if (fd > 0.0) {
+        float r0 = (bsdf.eta - 1.0) / (bsdf.eta + 1.0);
+        float st = bsdf.ior_eta.y;
+        vec3 f = (1.0 - m) * (1.0 - st) * fd + m * schlick(base, oh, bsdf.eta) +
+                 (1.0 - m) * st * schlick(tint * (r0 * r0), oh, bsdf.eta);
+        value += f * (microfacet_dg(principled_specular(bsdf), wo, wi, h) / (4.0 * wo.z));
+    }
+    float clearcoat = bsdf.ior_k.z;
+    if (clearcoat > 0.0) {
+        float f = schlick(vec3(0.04), oh, bsdf.eta).x;
+        float g = clearcoat_g1(wo) * clearcoat_g1(wi);
+        value += 0.25 * clearcoat * f * gtr1_d(principled_clearcoat_alpha(bsdf), h) * g * wi.z;
+    }
+    if (m < 1.0) {
+        float fo = schlick_weight(wi.z);
+        float fi = schlick_weight(wo.z);
+        float diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
+        float rr = 2.0 * bsdf.alpha * ih * ih;
+        float retro = rr * (fo + fi + fo * fi * (rr - 1.0));
+        float ss90 = 0.5 * rr;
+        float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
+        float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
+        float lobe = mix(diffuse + retro, subsurface, bsdf.ior_k.y);
+        value += base * ((1.0 - m) * wi.z * INV_PI * lobe);
+        float sheen = bsdf.ior_eta.z;
+        if (sheen > 0.0) {
+            value += mix(vec3(1.0), tint, bsdf.ior_k.x) * (sheen * (1.0 - m) * schlick_weight(abs(ih)) * wi.z);
+        }
+    }
+    return value;
+}
+
+float principled_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
+    vec2 share = principled_shares(bsdf);
+    vec3 h = normalize(wo + wi);
+    float jacobian = 4.0 * dot(wo, h);
+    float specular = microfacet_sample_pdf(principled_specular(bsdf), wo, h) / jacobian;
+    float clearcoat = gtr1_d(principled_clearcoat_alpha(bsdf), h) * h.z / jacobian;
+    return (1.0 - share.x - share.y) * specular + share.x * wi.z * INV_PI + share.y * clearcoat;
+}
+
+// The microfacet normal a principled BSDF reflects about, by u.z's lobe:
+// the clearcoat's GTR1 or the specular lobe's visible GGX normals (not for
+// u.z in its diffuse share).
+vec3 principled_normal(Bsdf bsdf, vec3 wo, vec3 u) {
+    vec2 share = principled_shares(bsdf);
+    if (u.z < share.x + share.y) {
+        float a2 = principled_clearcoat_alpha(bsdf);
+        a2 *= a2;
+        float c2 = (1.0 - pow(a2, 1.0 - u.y)) / (1.0 - a2);
+        float s = sqrt(max(1.0 - c2, 0.0));
+        float phi = 2.0 * PI * u.x;
+        return vec3(s * cos(phi), s * sin(phi), sqrt(max(c2, 0.0)));
+    }
+    return microfacet_sample(principled_specular(bsdf), wo, u.xy);
+}
+
 // The probability that a bounce from wo takes the BSDF's delta lobe: 1 for
 // a mirror or glass, a plastic's Fresnel-weighted share of its coat's
 // reflection, 0 for the rest. bsdf_sample_delta draws that lobe;
@@ -342,6 +473,9 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (bsdf_plastic(bsdf)) {
         return plastic_eval(bsdf, wo, wi);
     }
+    if (bsdf_principled(bsdf)) {
+        return principled_eval(bsdf, wo, wi);
+    }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
         return conductor_reflectance(bsdf, dot(wo, h)) * (microfacet_dg(bsdf, wo, wi, h) / (4.0 * wo.z));
@@ -384,6 +518,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (bsdf_plastic(bsdf)) {
         return wi.z * INV_PI;
     }
+    if (bsdf_principled(bsdf)) {
+        return principled_pdf(bsdf, wo, wi);
+    }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         // microfacet_sample_pdf over the reflection's Jacobian 4 wo.h,
         // simplified.
@@ -403,8 +540,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     bool coat = bsdf_rough_plastic(bsdf) && u.z < rough_coat_share(bsdf, wo);
-    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || bsdf_rough_glass(bsdf)) {
-        vec3 m = microfacet_sample(bsdf, wo, u.xy);
+    bool facet = bsdf_principled(bsdf) && u.z >= principled_shares(bsdf).x;
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || facet || bsdf_rough_glass(bsdf)) {
+        vec3 m = facet ? principled_normal(bsdf, wo, u) : microfacet_sample(bsdf, wo, u.xy);
         vec3 wi = microfacet_reflect(wo, m);
         if (bsdf_rough_glass(bsdf)) {
             // Reflect with the Fresnel probability, else refract; no
@@ -419,7 +557,7 @@ vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
         square = hemisphere_to_square(wi.z == 0.0 ? vec3(0.0, 0.0, 1.0) : vec3(wi.xy, abs(wi.z)));
         return wi;
     }
-    if ((params.flags & FLAG_UNIFORM) != 0u && !bsdf_plastic(bsdf)) {
+    if ((params.flags & FLAG_UNIFORM) != 0u && bsdf_is(bsdf, MATERIAL_DIFFUSE)) {
         square = u.xy;
         return square_to_hemisphere(u.xy);
     }

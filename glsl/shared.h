@@ -276,6 +276,12 @@ struct Triangle {
 // luminance of texture color.y - 1 there. Either may be a choice itself, to
 // MAX_CHOICE_DEPTH levels. Where FEATURE_CHOICES says so.
 #define MATERIAL_CHOICE 5
+// Mitsuba's principled without transmission (src/bsdf/principled.rs):
+// color.rgb its base colour, emission.w its roughness, eta.rgb its metallic,
+// specular tint and sheen, k.rgb its sheen tint, flatness and clearcoat, k.w
+// the word of the materials' buffer where (eta, clearcoat gloss) follow the
+// materials. Where FEATURE_PRINCIPLED says so.
+#define MATERIAL_PRINCIPLED 6
 #define CHOICE_AT_RANDOM 0
 #define CHOICE_BY_SIDE 1
 #define MAX_CHOICE_DEPTH 4
@@ -311,6 +317,8 @@ struct Triangle {
 #define MATERIAL_MAP_BUMP 131072
 // ... a choice (MATERIAL_CHOICE).
 #define FEATURE_CHOICES 4096
+// ... a principled material (MATERIAL_PRINCIPLED).
+#define FEATURE_PRINCIPLED 8192
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

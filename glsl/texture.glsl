@@ -136,6 +136,17 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     if (color != 0u) {
         bsdf.color = texture_eval(color - 1u, uv);
     }
+    if (bsdf_principled(bsdf)) {
+        // A number from each, as Mitsuba reads one: metallic, and the
+        // roughness (not clamped as an alpha is).
+        if (second != 0u) {
+            bsdf.ior_eta.x = luminance(texture_eval(second - 1u, uv));
+        }
+        if (alpha != 0u) {
+            bsdf.alpha = luminance(texture_eval(alpha - 1u, uv));
+        }
+        return bsdf;
+    }
     if (second != 0u) {
         bsdf.ior_eta = texture_eval(second - 1u, uv);
     }

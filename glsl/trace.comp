@@ -578,8 +578,9 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             trail.guided_roulette = guide_covers(here);
         } else {
             vec2 square;
-            // The third number picks a rough lobe; drawn only where there is one.
-            bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC)) != 0u;
+            // The third number picks a lobe (of rough glass, a rough plastic, a
+            // principled BSDF); drawn only where there is one.
+            bool rough = (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_ROUGH_PLASTIC | FEATURE_PRINCIPLED)) != 0u;
             local = bsdf_sample(bsdf, s.wo, vec3(rng_next2(path.rng), rough ? rng_next(path.rng) : 0.0), square);
             pdf = bsdf_pdf(bsdf, s.wo, local);
         }

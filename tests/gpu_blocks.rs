@@ -6,7 +6,7 @@ mod common;
 use common::Lcg;
 
 use glam::{Vec2, Vec3};
-use qtrace::bsdf::{ComplexIor, Distribution, RoughTable, Surface};
+use qtrace::bsdf::{ComplexIor, Distribution, Principled, RoughTable, Surface};
 use qtrace::render::{probe, Sampling};
 use qtrace::sampling;
 use qtrace::scene::Material;
@@ -244,6 +244,48 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             alpha: 0.4,
             distribution: Distribution::Ggx,
             table: RoughTable::new(1.6, 0.4, Distribution::Ggx),
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.8, 0.4, 0.2),
+            params: Principled {
+                roughness: 0.5,
+                metallic: 0.0,
+                specular_tint: 0.0,
+                sheen: 0.0,
+                sheen_tint: 0.0,
+                flatness: 0.0,
+                clearcoat: 0.0,
+                clearcoat_gloss: 0.0,
+                eta: 1.5,
+            },
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.9, 0.6, 0.3),
+            params: Principled {
+                roughness: 0.2,
+                metallic: 0.7,
+                specular_tint: 0.4,
+                sheen: 0.3,
+                sheen_tint: 0.8,
+                flatness: 0.0,
+                clearcoat: 0.8,
+                clearcoat_gloss: 0.6,
+                eta: 1.7,
+            },
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.2, 0.5, 0.7),
+            params: Principled {
+                roughness: 0.9,
+                metallic: 1.0,
+                specular_tint: 1.0,
+                sheen: 0.6,
+                sheen_tint: 0.5,
+                flatness: 0.6,
+                clearcoat: 0.0,
+                clearcoat_gloss: 0.0,
+                eta: 0.8,
+            },
         },
     ];
     let mut queries = Vec::new();

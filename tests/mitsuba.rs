@@ -362,9 +362,24 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "a bumpmap's height field must be a bitmap",
         ),
         (
-            "<shape type=\"cube\"><bsdf type=\"principled\"/></shape>",
+            "<shape type=\"cube\"><bsdf type=\"principledthin\"/></shape>",
             5,
-            "bsdf 'principled' is not supported",
+            "bsdf 'principledthin' is not supported",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principled\">\n<float name=\"eta\" value=\"1.4\"/><float name=\"specular\" value=\"0.5\"/></bsdf></shape>",
+            5,
+            "give eta or specular, not both",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principled\"><float name=\"metallic\" value=\"1.5\"/></bsdf></shape>",
+            5,
+            "principled metallic 1.5 must lie in [0, 1]",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principled\">\n<texture type=\"checkerboard\" name=\"sheen\"/></bsdf></shape>",
+            6,
+            "principled's 'sheen' cannot be a texture in qtrace",
         ),
         (
             "<shape type=\"obj\"><string name=\"filename\" value=\"gone.obj\"/></shape>",
@@ -923,6 +938,21 @@ fn bump_maps_agree_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-m",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn principled_materials_agree_with_mitsuba() {
+    // Textured base colour and roughness, metallic with tint and clearcoat,
+    // sheen with flatness, a bitmap's metallic weight, a one-sided sphere.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-n.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-n",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

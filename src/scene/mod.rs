@@ -200,7 +200,7 @@ impl Material {
     pub fn bsdf(&self, front: bool, sampling: crate::bsdf::Sampling) -> crate::bsdf::Bsdf {
         let bsdf = crate::bsdf::Bsdf::new(self.surface, front, sampling);
         if self.one_sided && !front {
-            bsdf.black()
+            bsdf.black(sampling)
         } else {
             bsdf
         }
@@ -272,6 +272,10 @@ impl Material {
         {
             (eta, k) = (reflectance, Vec3::new(0.0, 0.0, alpha));
         }
+        if let Surface::Principled { params: p, .. } = self.surface {
+            eta = Vec3::new(p.metallic, p.specular_tint, p.sheen);
+            k = Vec3::new(p.sheen_tint, p.flatness, p.clearcoat);
+        }
         let slots = self.textures.iter().enumerate().fold(0, |acc, (s, t)| {
             let t = t.map_or(0, |t| t + 1);
             acc | t << (shaders::TEXTURE_SLOT_BITS * s as u32)
@@ -297,8 +301,9 @@ impl Material {
 }
 
 /// The materials as the kernels read them: each one's `Material`, then the
-/// rough plastics' transmittance tables, 4 records each, which their
-/// `k.w` points to (as a word of the buffer).
+/// rough plastics' transmittance tables, 4 records each, and the principled
+/// materials' (eta, clearcoat gloss), a record each, which their `k.w`
+/// points to (as a word of the buffer).
 pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
     let mut out: Vec<shaders::Material> = materials.iter().map(Material::gpu).collect();
     for i in 0..materials.len() {
@@ -312,6 +317,13 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
                     k: c[12..16].try_into().unwrap(),
                 });
             }
+        }
+        if let Surface::Principled { params, .. } = materials[i].surface {
+            out[i].k[3] = (4 * out.len()) as f32;
+            out.push(shaders::Material {
+                color: [params.eta, params.clearcoat_gloss, 0.0, 0.0],
+                ..Default::default()
+            });
         }
     }
     out
@@ -571,6 +583,7 @@ impl Scene {
                     shaders::FEATURE_PLASTIC | shaders::FEATURE_ROUGH_PLASTIC
                 }
                 Surface::RoughDielectric { .. } => shaders::FEATURE_ROUGH_GLASS,
+                Surface::Principled { .. } => shaders::FEATURE_PRINCIPLED,
                 _ => 0,
             };
             let textured = if m.textured() {

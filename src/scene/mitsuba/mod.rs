@@ -1400,6 +1400,71 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     })
 }
 
+/// A `principled` as Mitsuba reads it (each weight in [0, 1]), without its
+/// transmission: `spec_trans` above 0 is not supported yet.
+fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
+    let weight = |name: &str, default: f32| -> Result<f32, SceneError> {
+        let v = p.float(name)?.unwrap_or(default);
+        if !(0.0..=1.0).contains(&v) {
+            return Err(el.error(format!("principled {name} {v} must lie in [0, 1]")));
+        }
+        Ok(v)
+    };
+    let spec_trans = weight("spec_trans", 0.0)?;
+    if spec_trans > 0.0 {
+        return Err(el.error(format!(
+            "principled spec_trans {spec_trans}: its transmission is not supported yet (qtrace renders principled with spec_trans 0)"
+        )));
+    }
+    let anisotropic = weight("anisotropic", 0.0)?;
+    let roughness = weight("roughness", 0.5)?;
+    if anisotropic > 0.0 {
+        log::warn!(
+            "{}:{}: qtrace's principled is isotropic: anisotropic {anisotropic} renders as 0 (alpha {}, the mean of Mitsuba's two)",
+            el.file.display(),
+            el.line,
+            (roughness * roughness).max(1e-3)
+        );
+    }
+    let eta = match (p.float("eta")?, p.float("specular")?) {
+        (Some(_), Some(_)) => {
+            return Err(el.error("principled: give eta or specular, not both (as in Mitsuba)"))
+        }
+        (Some(eta), None) => positive(el, "eta", eta)?,
+        (None, specular) => {
+            let s = specular.unwrap_or(0.5);
+            if !(0.0..12.5).contains(&s) {
+                return Err(el.error(format!(
+                    "principled specular {s} must lie in [0, 12.5) (an index of refraction)"
+                )));
+            }
+            2.0 / (1.0 - (0.08 * s).sqrt()) - 1.0
+        }
+    };
+    // How often Mitsuba samples each lobe: no part of the image.
+    for rate in [
+        "diffuse_reflectance_sampling_rate",
+        "main_specular_sampling_rate",
+        "clearcoat_sampling_rate",
+    ] {
+        p.float(rate)?;
+    }
+    Ok(Surface::Principled {
+        base_color: reflectance(el, p, "base_color", 0.5)?,
+        params: crate::bsdf::Principled {
+            roughness,
+            metallic: weight("metallic", 0.0)?,
+            specular_tint: weight("spec_tint", 0.0)?,
+            sheen: weight("sheen", 0.0)?,
+            sheen_tint: weight("sheen_tint", 0.0)?,
+            flatness: weight("flatness", 0.0)?,
+            clearcoat: weight("clearcoat", 0.0)?,
+            clearcoat_gloss: weight("clearcoat_gloss", 0.0)?,
+            eta,
+        },
+    })
+}
+
 /// Mitsuba's `null` as its path tracer treats it: paths pass straight
 /// through (a bounce of a delta lobe, counted in the depth), shadow rays
 /// stop at it.
@@ -1574,6 +1639,7 @@ fn bsdf(
             d
         }
         "roughplastic" => one(rough_plastic(el, &p)?),
+        "principled" => one(principled(el, &p)?),
         "normalmap" | "bumpmap" => {
             // The texture is the normals' (or the heights'), not a colour
             // of the BSDF's.
@@ -1606,11 +1672,10 @@ fn bsdf(
             d.map_normals(b, map)?;
             d
         }
-        "pplastic" | "principled"
-        | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
+        "pplastic" | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, twosided, normalmap, bumpmap, mask, blendbsdf and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, principled (without spec_trans), twosided, normalmap, bumpmap, mask, blendbsdf and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),

@@ -47,6 +47,12 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("diffuse_reflectance", COLOR),
             ("specular_reflectance", SECOND),
         ],
+        // Read as numbers: metallic and roughness.
+        "principled" => &[
+            ("base_color", COLOR),
+            ("metallic", SECOND),
+            ("roughness", ALPHA),
+        ],
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
         "normalmap" => &[("normalmap", COLOR)],
@@ -117,7 +123,9 @@ impl Textures {
             if bump && out[slot as usize].is_some() {
                 return Err(c.error("a bumpmap takes one texture"));
             }
-            let number = slot == TEXTURE_SLOT_ALPHA || matches!(kind, "mask" | "blendbsdf");
+            let number = slot == TEXTURE_SLOT_ALPHA
+                || matches!(kind, "mask" | "blendbsdf")
+                || (kind == "principled" && slot == TEXTURE_SLOT_SECOND);
             let texture = if number {
                 read_as_number(texture)
             } else {
