@@ -57,6 +57,25 @@ Bsdf bsdf_diffuse(vec3 albedo) {
     return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
 }
 
+// Principled material m's BSDF of base colour `base`, roughness r and
+// metallic weight `metallic` (its own, or its textures' values): on the
+// front its own lobes; on the back, as Mitsuba's, its dielectric alone,
+// weighted by the refracting part's weight: rough glass of the specular
+// lobe's alpha, its transmission tinted by the base colour's square root
+// (black where metallic is 1). Without spec_trans its back is its front's
+// lobes (inside twosided; a one-sided material's is black before this).
+Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic) {
+    uint word = uint(m.k.w);
+    float eta = rough_table(word, 0u);
+    float spec_trans = rough_table(word, 2u);
+    float w = (1.0 - metallic) * spec_trans;
+    if (front || spec_trans <= 0.0) {
+        return Bsdf(MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb), m.k.rgb, word);
+    }
+    return Bsdf(MATERIAL_DIELECTRIC, sqrt(base) * w, max(r * r, 1e-3), 1.0 / eta, 0u, vec3(w),
+                vec3(0.0), 0u);
+}
+
 // The BSDF of material m for a path arriving on the side the triangle's
 // normal faces (front) or on the other.
 Bsdf bsdf_of(Material m, bool front) {
@@ -71,11 +90,9 @@ Bsdf bsdf_of(Material m, bool front) {
     float eta = front || kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? p : 1.0 / p;
     vec3 specular = black ? vec3(0.0) : m.eta.rgb;
     if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && kind == MATERIAL_PRINCIPLED) {
-        // Its specular lobe does not scale with the base colour: its back
-        // is a black diffuse lobe.
-        uint word = uint(m.k.w);
-        return black ? bsdf_diffuse(vec3(0.0))
-                     : Bsdf(kind, color, p, rough_table(word, 0u), 0u, m.eta.rgb, m.k.rgb, word);
+        // Its specular lobe does not scale with the base colour: a one-sided
+        // one's back is a black diffuse lobe.
+        return black ? bsdf_diffuse(vec3(0.0)) : principled_bsdf(m, front, color, p, m.eta.x);
     }
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
                 kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w));
@@ -118,12 +135,14 @@ bool bsdf_is_delta(Bsdf bsdf) {
            (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha == 0.0);
 }
 
+bool principled_transmits(Bsdf bsdf);
+
 // Whether the BSDF sends light through the surface without a delta lobe
-// (rough glass): its directions below the surface are sampled, evaluated
-// and reached by NEE; the guides, whose sectors cover the side the path
-// arrives on, do not sample there.
+// (rough glass, a principled BSDF's refraction): its directions below the
+// surface are sampled, evaluated and reached by NEE; the guides, whose
+// sectors cover the side the path arrives on, do not sample there.
 bool bsdf_transmits(Bsdf bsdf) {
-    return bsdf_rough_glass(bsdf);
+    return bsdf_rough_glass(bsdf) || principled_transmits(bsdf);
 }
 
 // GGX normal distribution, written without the cancellation of
@@ -306,8 +325,8 @@ vec3 plastic_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     return bsdf.color / inside * (INV_PI * wi.z / (bsdf.eta * bsdf.eta) * (1.0 - fi) * (1.0 - fo));
 }
 
-// Mitsuba's principled without transmission (src/bsdf/principled.rs, the
-// CPU twin, says more). Schlick's weight (1 - c)^5.
+// Mitsuba's principled (src/bsdf/principled.rs, the CPU twin, says more).
+// Schlick's weight (1 - c)^5.
 float schlick_weight(float c) {
     float m = clamp(1.0 - c, 0.0, 1.0);
     return m * m * m * m * m;
@@ -344,20 +363,44 @@ float principled_clearcoat_alpha(Bsdf bsdf) {
     return mix(0.1, 1e-3, rough_table(bsdf.table, 1u));
 }
 
+// The weights of its diffuse part and of its refracting one.
+vec2 principled_weights(Bsdf bsdf) {
+    float spec_trans = rough_table(bsdf.table, 2u);
+    return (1.0 - bsdf.ior_eta.x) * vec2(1.0 - spec_trans, spec_trans);
+}
+
 // The probabilities of sampling the diffuse lobe and the clearcoat (the
-// specular lobe takes the rest): Mitsuba's weights, 1 - metallic,
+// specular lobe takes the rest): Mitsuba's weights, the diffuse part's,
 // clearcoat / 4 and 1.
 vec2 principled_shares(Bsdf bsdf) {
-    vec2 w = vec2(1.0 - bsdf.ior_eta.x, 0.25 * bsdf.ior_k.z);
+    vec2 w = vec2(principled_weights(bsdf).x, 0.25 * bsdf.ior_k.z);
     return w / (w.x + w.y + 1.0);
 }
 
+// Whether its front lets light through.
+bool principled_transmits(Bsdf bsdf) {
+    return bsdf_principled(bsdf) && principled_weights(bsdf).y > 0.0;
+}
+
 vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    vec2 weights = principled_weights(bsdf);
+    vec3 base = bsdf.color;
+    if (wi.z < 0.0) {
+        vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
+        if (hr.w != 0.0 || weights.y <= 0.0) {
+            return vec3(0.0);
+        }
+        float oh = dot(wo, hr.xyz);
+        float ih = dot(wi, hr.xyz);
+        float f = fresnel_dielectric(oh, bsdf.eta);
+        float denom = oh + bsdf.eta * ih;
+        float dg = microfacet_dg(principled_specular(bsdf), wo, wi, hr.xyz);
+        return sqrt(base) * (weights.y * (1.0 - f) * dg * abs(oh * ih) / (wo.z * denom * denom));
+    }
     vec3 h = normalize(wo + wi);
     float oh = dot(wo, h);
     float ih = dot(wi, h);
     float m = bsdf.ior_eta.x;
-    vec3 base = bsdf.color;
     float lum = luminance(base);
     vec3 tint = lum > 0.0 ? base / lum : vec3(1.0);
     vec3 value = vec3(0.0);
@@ -377,7 +420,7 @@ vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         float g = clearcoat_g1(wo) * clearcoat_g1(wi);
         value += 0.25 * clearcoat * f * gtr1_d(principled_clearcoat_alpha(bsdf), h) * g * wi.z;
     }
-    if (m < 1.0) {
+    if (weights.x > 0.0) {
         float fo = schlick_weight(wi.z);
         float fi = schlick_weight(wo.z);
         float diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
@@ -387,7 +430,7 @@ vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
         float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
         float lobe = mix(diffuse + retro, subsurface, bsdf.ior_k.y);
-        value += base * ((1.0 - m) * wi.z * INV_PI * lobe);
+        value += base * (weights.x * wi.z * INV_PI * lobe);
         float sheen = bsdf.ior_eta.z;
         if (sheen > 0.0) {
             value += mix(vec3(1.0), tint, bsdf.ior_k.x) * (sheen * (1.0 - m) * schlick_weight(abs(ih)) * wi.z);
@@ -398,27 +441,57 @@ vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
 
 float principled_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     vec2 share = principled_shares(bsdf);
-    vec3 h = normalize(wo + wi);
-    float jacobian = 4.0 * dot(wo, h);
-    float specular = microfacet_sample_pdf(principled_specular(bsdf), wo, h) / jacobian;
-    float clearcoat = gtr1_d(principled_clearcoat_alpha(bsdf), h) * h.z / jacobian;
-    return (1.0 - share.x - share.y) * specular + share.x * wi.z * INV_PI + share.y * clearcoat;
+    float ps = 1.0 - share.x - share.y;
+    vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
+    if (hr.w < 0.0 || (hr.w == 0.0 && !principled_transmits(bsdf))) {
+        return 0.0;
+    }
+    vec3 h = hr.xyz;
+    float oh = dot(wo, h);
+    float ih = dot(wi, h);
+    float refracts = principled_weights(bsdf).y * (1.0 - fresnel_dielectric(oh, bsdf.eta));
+    float normal = microfacet_sample_pdf(principled_specular(bsdf), wo, h);
+    if (hr.w == 0.0) {
+        float denom = oh + bsdf.eta * ih;
+        return ps * refracts * normal * bsdf.eta * bsdf.eta * abs(ih) / (denom * denom);
+    }
+    float clearcoat = gtr1_d(principled_clearcoat_alpha(bsdf), h) * h.z;
+    return (ps * (1.0 - refracts) * normal + share.y * clearcoat) / (4.0 * oh) + share.x * wi.z * INV_PI;
 }
 
-// The microfacet normal a principled BSDF reflects about, by u.z's lobe:
-// the clearcoat's GTR1 or the specular lobe's visible GGX normals (not for
-// u.z in its diffuse share).
-vec3 principled_normal(Bsdf bsdf, vec3 wo, vec3 u) {
+// A direction by u.z's lobe: the cosine for its diffuse part, else a
+// reflection about a clearcoat's GTR1 normal or a visible GGX one, which
+// refracts with Mitsuba's probability; the zero vector where it leaves on
+// the wrong side.
+vec3 principled_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     vec2 share = principled_shares(bsdf);
+    if (u.z < share.x) {
+        vec3 wi = sample_cosine(u.xy);
+        square = 0.5 + (u.xy - 0.5) / sqrt(1.0 + wi.z);
+        return wi;
+    }
+    vec3 m;
+    vec3 wi;
     if (u.z < share.x + share.y) {
         float a2 = principled_clearcoat_alpha(bsdf);
         a2 *= a2;
         float c2 = (1.0 - pow(a2, 1.0 - u.y)) / (1.0 - a2);
         float s = sqrt(max(1.0 - c2, 0.0));
         float phi = 2.0 * PI * u.x;
-        return vec3(s * cos(phi), s * sin(phi), sqrt(max(c2, 0.0)));
+        m = vec3(s * cos(phi), s * sin(phi), sqrt(max(c2, 0.0)));
+        wi = microfacet_reflect(wo, m);
+    } else {
+        m = microfacet_sample(principled_specular(bsdf), wo, u.xy);
+        float c = dot(wo, m);
+        float cos_t;
+        float f = fresnel_dielectric(max(c, 0.0), bsdf.eta, cos_t);
+        float ps = 1.0 - share.x - share.y;
+        bool refract = c > 0.0 && u.z - share.x - share.y < ps * principled_weights(bsdf).y * (1.0 - f);
+        wi = refract ? -wo / bsdf.eta + (c / bsdf.eta - cos_t) * m : microfacet_reflect(wo, m);
+        wi = (wi.z < 0.0) == refract ? wi : vec3(0.0);
     }
-    return microfacet_sample(principled_specular(bsdf), wo, u.xy);
+    square = hemisphere_to_square(wi.z == 0.0 ? vec3(0.0, 0.0, 1.0) : vec3(wi.xy, abs(wi.z)));
+    return wi;
 }
 
 // The probability that a bounce from wo takes the BSDF's delta lobe: 1 for
@@ -455,6 +528,9 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         float denom = oh + bsdf.eta * ih;
         return bsdf.color * ((1.0 - f) * dg * abs(oh * ih) / (wo.z * denom * denom));
     }
+    if (bsdf_principled(bsdf)) {
+        return wo.z > 0.0 && wi.z != 0.0 ? principled_eval(bsdf, wo, wi) : vec3(0.0);
+    }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return vec3(0.0);
     }
@@ -472,9 +548,6 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_plastic(bsdf)) {
         return plastic_eval(bsdf, wo, wi);
-    }
-    if (bsdf_principled(bsdf)) {
-        return principled_eval(bsdf, wo, wi);
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         vec3 h = normalize(wo + wi);
@@ -504,6 +577,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
         float denom = oh + bsdf.eta * ih;
         return (1.0 - f) * m * bsdf.eta * bsdf.eta * abs(ih) / (denom * denom);
     }
+    if (bsdf_principled(bsdf)) {
+        return principled_pdf(bsdf, wo, wi);
+    }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
     }
@@ -517,9 +593,6 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_plastic(bsdf)) {
         return wi.z * INV_PI;
-    }
-    if (bsdf_principled(bsdf)) {
-        return principled_pdf(bsdf, wo, wi);
     }
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) && bsdf.alpha > 0.0) {
         // microfacet_sample_pdf over the reflection's Jacobian 4 wo.h,
@@ -539,10 +612,12 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
 // built on the concentric map know without inverting it
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
+    if (bsdf_principled(bsdf)) {
+        return principled_sample(bsdf, wo, u, square);
+    }
     bool coat = bsdf_rough_plastic(bsdf) && u.z < rough_coat_share(bsdf, wo);
-    bool facet = bsdf_principled(bsdf) && u.z >= principled_shares(bsdf).x;
-    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || facet || bsdf_rough_glass(bsdf)) {
-        vec3 m = facet ? principled_normal(bsdf, wo, u) : microfacet_sample(bsdf, wo, u.xy);
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || bsdf_rough_glass(bsdf)) {
+        vec3 m = microfacet_sample(bsdf, wo, u.xy);
         vec3 wi = microfacet_reflect(wo, m);
         if (bsdf_rough_glass(bsdf)) {
             // Reflect with the Fresnel probability, else refract; no

@@ -136,16 +136,14 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     if (color != 0u) {
         bsdf.color = texture_eval(color - 1u, uv);
     }
-    if (bsdf_principled(bsdf)) {
-        // A number from each, as Mitsuba reads one: metallic, and the
-        // roughness (not clamped as an alpha is).
-        if (second != 0u) {
-            bsdf.ior_eta.x = luminance(texture_eval(second - 1u, uv));
-        }
-        if (alpha != 0u) {
-            bsdf.alpha = luminance(texture_eval(alpha - 1u, uv));
-        }
-        return bsdf;
+    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && (uint(m.color.w) & 7u) == MATERIAL_PRINCIPLED) {
+        // Numbers from the second and alpha slots, as Mitsuba reads them:
+        // metallic, and the roughness (not clamped as an alpha is); all
+        // enter both sides' lobes.
+        vec3 base = color != 0u ? bsdf.color : m.color.rgb;
+        float r = alpha != 0u ? luminance(texture_eval(alpha - 1u, uv)) : m.emission.w;
+        float metallic = second != 0u ? luminance(texture_eval(second - 1u, uv)) : m.eta.x;
+        return principled_bsdf(m, front, base, r, metallic);
     }
     if (second != 0u) {
         bsdf.ior_eta = texture_eval(second - 1u, uv);

@@ -428,6 +428,16 @@ impl Surface {
         }
     }
 
+    /// Whether light passes through it by a lobe that is not a delta one
+    /// (rough glass, a principled BSDF's refraction).
+    pub fn rough_transmission(&self) -> bool {
+        match self {
+            Surface::RoughDielectric { .. } => true,
+            Surface::Principled { params, .. } => params.transmits(),
+            _ => false,
+        }
+    }
+
     /// The microfacet distribution of a rough lobe's options
     /// (MATERIAL_BECKMANN), if the surface has one.
     pub fn distribution(&self) -> Option<Distribution> {
@@ -765,20 +775,23 @@ impl Bsdf {
                 },
                 color: diffuse,
             },
-            Surface::Principled { base_color, params } => Self {
-                lobe: Lobe::Principled(params),
-                color: base_color,
-            },
+            // Without spec_trans, its back is its front's lobes (inside
+            // `twosided`) or black (one-sided, `Material::bsdf`).
+            Surface::Principled { base_color, params } if front || params.spec_trans <= 0.0 => {
+                Self {
+                    lobe: Lobe::Principled(params),
+                    color: base_color,
+                }
+            }
+            Surface::Principled { base_color, params } => {
+                Self::new(params.back(base_color), false, sampling)
+            }
         }
     }
 
     /// The same lobe reflecting nothing: a one-sided material seen from
     /// behind.
-    pub fn black(mut self, sampling: Sampling) -> Self {
-        if let Lobe::Principled(_) = self.lobe {
-            // Its specular lobe does not scale with the base colour.
-            return Self::new(Surface::Diffuse { albedo: Vec3::ZERO }, true, sampling);
-        }
+    pub fn black(mut self) -> Self {
         self.color = Vec3::ZERO;
         match &mut self.lobe {
             Lobe::Plastic { specular, .. } | Lobe::RoughPlastic { specular, .. } => {
@@ -810,13 +823,6 @@ impl Bsdf {
             Lobe::Thin { reflectance, .. }
             | Lobe::RoughDielectric { reflectance, .. }
             | Lobe::Dielectric { reflectance, .. } => *reflectance = second.unwrap_or(*reflectance),
-            // A number from each texture, as Mitsuba reads one (its
-            // luminance); the roughness is not clamped as an alpha is.
-            Lobe::Principled(p) => {
-                p.metallic = second.map_or(p.metallic, luminance);
-                p.roughness = alpha.unwrap_or(p.roughness);
-                return self;
-            }
             _ => {}
         }
         if let (Some(a), Lobe::Conductor { alpha, .. } | Lobe::RoughDielectric { alpha, .. }) =
@@ -893,7 +899,11 @@ impl Bsdf {
     /// below the surface too, and not guided (the guides' sectors cover
     /// the side the path arrives on).
     pub fn transmits(&self) -> bool {
-        matches!(self.lobe, Lobe::RoughDielectric { .. })
+        match self.lobe {
+            Lobe::RoughDielectric { .. } => true,
+            Lobe::Principled(p) => p.transmits(),
+            _ => false,
+        }
     }
 
     /// A rough plastic's probability of sampling its coat's microfacets
@@ -935,6 +945,9 @@ impl Bsdf {
                 None => Vec3::ZERO,
             };
         }
+        if let Lobe::Principled(p) = self.lobe {
+            return p.eval(self.color, wo, wi);
+        }
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return Vec3::ZERO;
         }
@@ -962,7 +975,6 @@ impl Bsdf {
                     * (FRAC_1_PI * wi.z / (eta * eta) * table.at(wo.z) * table.at(wi.z))
             }
             Lobe::Diffuse(_) => self.color * (FRAC_1_PI * wi.z),
-            Lobe::Principled(p) => p.eval(self.color, wo, wi),
             Lobe::Plastic {
                 eta,
                 fdr_int,
@@ -1019,6 +1031,9 @@ impl Bsdf {
                 None => 0.0,
             };
         }
+        if let Lobe::Principled(p) = self.lobe {
+            return p.pdf(wo, wi);
+        }
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return 0.0;
         }
@@ -1037,7 +1052,6 @@ impl Bsdf {
             }
             Lobe::Diffuse(Sampling::Cosine) | Lobe::Plastic { .. } => wi.z * FRAC_1_PI,
             Lobe::Diffuse(Sampling::Uniform) => 0.5 * FRAC_1_PI,
-            Lobe::Principled(p) => p.pdf(wo, wi),
             // The normal's density over the reflection's Jacobian 4 wo·h.
             Lobe::Conductor {
                 alpha,
@@ -1424,6 +1438,7 @@ mod tests {
             flatness: 0.0,
             clearcoat: 0.0,
             clearcoat_gloss: 0.0,
+            spec_trans: 0.0,
             eta: 1.5,
         };
         let cases = [
@@ -1437,6 +1452,7 @@ mod tests {
                     specular_tint: 0.5,
                     clearcoat: 0.7,
                     clearcoat_gloss: 0.8,
+                    spec_trans: 0.0,
                     ..p
                 },
             ),
@@ -1452,14 +1468,41 @@ mod tests {
                     ..p
                 },
             ),
+            (
+                "principled glass",
+                Vec3::new(0.9, 0.8, 0.7),
+                Principled {
+                    roughness: 0.45,
+                    spec_trans: 1.0,
+                    ..p
+                },
+            ),
+            (
+                "principled half glass",
+                Vec3::new(0.6, 0.7, 0.9),
+                Principled {
+                    roughness: 0.6,
+                    metallic: 0.2,
+                    spec_trans: 0.5,
+                    clearcoat: 0.5,
+                    eta: 1.33,
+                    ..p
+                },
+            ),
         ];
-        cases
-            .into_iter()
-            .map(|(name, base_color, params)| {
-                let surface = Surface::Principled { base_color, params };
-                (name.to_string(), Bsdf::new(surface, true, Sampling::Cosine))
-            })
-            .collect()
+        let mut out = Vec::new();
+        for (name, base_color, params) in cases {
+            let surface = Surface::Principled { base_color, params };
+            // Where it lets light through, its back too.
+            for front in [true, false]
+                .into_iter()
+                .take(if params.transmits() { 2 } else { 1 })
+            {
+                let name = format!("{name} front {front}");
+                out.push((name, Bsdf::new(surface, front, Sampling::Cosine)));
+            }
+        }
+        out
     }
 
     #[test]
@@ -1482,6 +1525,7 @@ mod tests {
         for (name, bsdf) in rough_lobes() {
             let eta = match bsdf.lobe {
                 Lobe::RoughDielectric { eta, .. } => eta,
+                Lobe::Principled(p) => p.eta,
                 _ => 1.0,
             };
             for theta in [0.0, 45.0, 80.0] {
@@ -1573,6 +1617,11 @@ mod tests {
                             },
                         )
                     }
+                    // Its back is rough glass (Principled::back).
+                    Lobe::Principled(p) if p.transmits() => (
+                        p.eta,
+                        Bsdf::new(p.back(bsdf.color), false, Sampling::Cosine),
+                    ),
                     _ => continue,
                 };
                 let below = Vec3::new(wi.x, wi.y, -wi.z);

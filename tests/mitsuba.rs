@@ -372,6 +372,11 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "give eta or specular, not both",
         ),
         (
+            "<shape type=\"cube\"><bsdf type=\"twosided\">\n<bsdf type=\"principled\"><float name=\"spec_trans\" value=\"0.5\"/></bsdf></bsdf></shape>",
+            6,
+            "twosided takes only BSDFs that let no light through",
+        ),
+        (
             "<shape type=\"cube\"><bsdf type=\"principled\"><float name=\"metallic\" value=\"1.5\"/></bsdf></shape>",
             5,
             "principled metallic 1.5 must lie in [0, 1]",

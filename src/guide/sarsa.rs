@@ -104,7 +104,7 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
     let rough_glass = scene
         .materials
         .iter()
-        .any(|m| matches!(m.surface, crate::bsdf::Surface::RoughDielectric { .. }));
+        .any(|m| m.surface.rough_transmission());
     if !scene.delta_lights.is_empty()
         || rough_glass
         || n > shaders::MAX_GUIDED_LIGHTS as usize

@@ -188,6 +188,15 @@ impl Material {
             return bsdf;
         }
         let look = |slot: u32| self.textures[slot as usize].map(|t| textures[t as usize].eval(uv));
+        if let Surface::Principled { .. } = self.surface {
+            // Its textures' values enter both its sides' lobes.
+            let surface = self.surface.with_means(
+                look(shaders::TEXTURE_SLOT_COLOR),
+                look(shaders::TEXTURE_SLOT_SECOND),
+                look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
+            );
+            return crate::bsdf::Bsdf::new(surface, front, sampling);
+        }
         bsdf.textured(
             look(shaders::TEXTURE_SLOT_COLOR),
             look(shaders::TEXTURE_SLOT_SECOND),
@@ -199,10 +208,13 @@ impl Material {
     /// twin of `bsdf_of` in glsl/bsdf.glsl).
     pub fn bsdf(&self, front: bool, sampling: crate::bsdf::Sampling) -> crate::bsdf::Bsdf {
         let bsdf = crate::bsdf::Bsdf::new(self.surface, front, sampling);
-        if self.one_sided && !front {
-            bsdf.black(sampling)
-        } else {
-            bsdf
+        match self.surface {
+            // Its specular lobe does not scale with its base colour.
+            Surface::Principled { .. } if self.one_sided && !front => {
+                crate::bsdf::Bsdf::new(Surface::Diffuse { albedo: Vec3::ZERO }, true, sampling)
+            }
+            _ if self.one_sided && !front => bsdf.black(),
+            _ => bsdf,
         }
     }
 
@@ -302,7 +314,7 @@ impl Material {
 
 /// The materials as the kernels read them: each one's `Material`, then the
 /// rough plastics' transmittance tables, 4 records each, and the principled
-/// materials' (eta, clearcoat gloss), a record each, which their `k.w`
+/// materials' (eta, clearcoat gloss, spec_trans), a record each, which their `k.w`
 /// points to (as a word of the buffer).
 pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
     let mut out: Vec<shaders::Material> = materials.iter().map(Material::gpu).collect();
@@ -321,7 +333,7 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
         if let Surface::Principled { params, .. } = materials[i].surface {
             out[i].k[3] = (4 * out.len()) as f32;
             out.push(shaders::Material {
-                color: [params.eta, params.clearcoat_gloss, 0.0, 0.0],
+                color: [params.eta, params.clearcoat_gloss, params.spec_trans, 0.0],
                 ..Default::default()
             });
         }
@@ -583,6 +595,10 @@ impl Scene {
                     shaders::FEATURE_PLASTIC | shaders::FEATURE_ROUGH_PLASTIC
                 }
                 Surface::RoughDielectric { .. } => shaders::FEATURE_ROUGH_GLASS,
+                // Its back is rough glass where it lets light through.
+                Surface::Principled { params, .. } if params.transmits() => {
+                    shaders::FEATURE_PRINCIPLED | shaders::FEATURE_ROUGH_GLASS
+                }
                 Surface::Principled { .. } => shaders::FEATURE_PRINCIPLED,
                 _ => 0,
             };

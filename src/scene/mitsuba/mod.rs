@@ -158,6 +158,7 @@ impl BsdfDesc {
                 self.surface,
                 Surface::Dielectric { .. } | Surface::Thin { .. } | Surface::RoughDielectric { .. }
             )
+            || self.surface.rough_transmission()
             || self
                 .choice
                 .as_ref()
@@ -1400,8 +1401,7 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     })
 }
 
-/// A `principled` as Mitsuba reads it (each weight in [0, 1]), without its
-/// transmission: `spec_trans` above 0 is not supported yet.
+/// A `principled` as Mitsuba reads it (each weight in [0, 1]).
 fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     let weight = |name: &str, default: f32| -> Result<f32, SceneError> {
         let v = p.float(name)?.unwrap_or(default);
@@ -1411,11 +1411,6 @@ fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
         Ok(v)
     };
     let spec_trans = weight("spec_trans", 0.0)?;
-    if spec_trans > 0.0 {
-        return Err(el.error(format!(
-            "principled spec_trans {spec_trans}: its transmission is not supported yet (qtrace renders principled with spec_trans 0)"
-        )));
-    }
     let anisotropic = weight("anisotropic", 0.0)?;
     let roughness = weight("roughness", 0.5)?;
     if anisotropic > 0.0 {
@@ -1430,9 +1425,15 @@ fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
         (Some(_), Some(_)) => {
             return Err(el.error("principled: give eta or specular, not both (as in Mitsuba)"))
         }
+        // Mitsuba moves an index of 1, which refracts nothing, off 1 where
+        // the BSDF refracts.
+        (Some(eta), None) if eta == 1.0 && spec_trans > 0.0 => 1.001,
         (Some(eta), None) => positive(el, "eta", eta)?,
         (None, specular) => {
-            let s = specular.unwrap_or(0.5);
+            let s = match specular.unwrap_or(0.5) {
+                0.0 if spec_trans > 0.0 => 1e-3,
+                s => s,
+            };
             if !(0.0..12.5).contains(&s) {
                 return Err(el.error(format!(
                     "principled specular {s} must lie in [0, 12.5) (an index of refraction)"
@@ -1460,6 +1461,7 @@ fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
             flatness: weight("flatness", 0.0)?,
             clearcoat: weight("clearcoat", 0.0)?,
             clearcoat_gloss: weight("clearcoat_gloss", 0.0)?,
+            spec_trans,
             eta,
         },
     })
@@ -1639,7 +1641,14 @@ fn bsdf(
             d
         }
         "roughplastic" => one(rough_plastic(el, &p)?),
-        "principled" => one(principled(el, &p)?),
+        "principled" => {
+            // Where it lets light through, its back is its dielectric's.
+            let surface = principled(el, &p)?;
+            BsdfDesc {
+                one_sided: !surface.rough_transmission(),
+                ..one(surface)
+            }
+        }
         "normalmap" | "bumpmap" => {
             // The texture is the normals' (or the heights'), not a colour
             // of the BSDF's.
@@ -1675,7 +1684,7 @@ fn bsdf(
         "pplastic" | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
         | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, principled (without spec_trans), twosided, normalmap, bumpmap, mask, blendbsdf and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, principled, twosided, normalmap, bumpmap, mask, blendbsdf and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),
