@@ -21,7 +21,7 @@ layout(constant_id = CONSTANT_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
 layout(constant_id = CONSTANT_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
-    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES | FEATURE_PRINCIPLED;
+    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES | FEATURE_PRINCIPLED | FEATURE_ANISOTROPIC;
 
 // A material's scattering at a surface point, seen from one side
 // (docs/scenes.md).
@@ -37,7 +37,11 @@ struct Bsdf {
                   // glass, rough glass: its reflection's tint (ior_eta);
                   // principled: (metallic, specular tint, sheen), (sheen tint, flatness, clearcoat)
     uint table;  // rough plastic: the word its transmittance table begins at;
-                 // principled: the word of (eta, clearcoat gloss)
+                 // principled: the word of (eta, clearcoat gloss, spec_trans, anisotropic)
+    float alpha_v; // rough conductor, rough glass: alpha along the tangent's normal
+                   // (alpha is along the tangent); principled: `anisotropic`
+    vec2 tangent;  // where anisotropic: the surface's tangent (Mitsuba's dp/du)
+                   // in the local frame, set by the trace kernel
 };
 
 // A float of the words after the materials (a rough plastic's table, a
@@ -54,7 +58,14 @@ float rough_table(uint word, uint i) {
 #endif
 
 Bsdf bsdf_diffuse(vec3 albedo) {
-    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
+    return Bsdf(MATERIAL_DIFFUSE, albedo, 0.0, 1.0, 0u, vec3(0.0), vec3(0.0), 0u, 0.0, vec2(1.0, 0.0));
+}
+
+// A principled BSDF's GGX alphas along its tangent and across it, from its
+// roughness r and `anisotropic` (Burley's, as Mitsuba maps them).
+vec2 principled_alphas(float r, float anisotropic) {
+    float aspect = sqrt(1.0 - 0.9 * anisotropic);
+    return max(vec2(r * r / aspect, r * r * aspect), vec2(1e-3));
 }
 
 // Principled material m's BSDF of base colour `base`, roughness r and
@@ -70,10 +81,12 @@ Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic)
     float spec_trans = rough_table(word, 2u);
     float w = (1.0 - metallic) * spec_trans;
     if (front || spec_trans <= 0.0) {
-        return Bsdf(MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb), m.k.rgb, word);
+        return Bsdf(MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb), m.k.rgb, word,
+                    rough_table(word, 3u), vec2(1.0, 0.0));
     }
-    return Bsdf(MATERIAL_DIELECTRIC, sqrt(base) * w, max(r * r, 1e-3), 1.0 / eta, 0u, vec3(w),
-                vec3(0.0), 0u);
+    vec2 alpha = principled_alphas(r, rough_table(word, 3u));
+    return Bsdf(MATERIAL_DIELECTRIC, sqrt(base) * w, alpha.x, 1.0 / eta, 0u, vec3(w), vec3(0.0), 0u, alpha.y,
+                vec2(1.0, 0.0));
 }
 
 // The BSDF of material m for a path arriving on the side the triangle's
@@ -94,8 +107,13 @@ Bsdf bsdf_of(Material m, bool front) {
         // one's back is a black diffuse lobe.
         return black ? bsdf_diffuse(vec3(0.0)) : principled_bsdf(m, front, color, p, m.eta.x);
     }
+    // A rough conductor's or rough glass's alpha across its tangent, where
+    // anisotropic, in k.w.
+    bool across = (MATERIAL_FEATURES & FEATURE_ANISOTROPIC) != 0u && alpha > 0.0 &&
+                  (kind == MATERIAL_CONDUCTOR || kind == MATERIAL_DIELECTRIC) && m.k.w > 0.0;
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
-                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w));
+                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w),
+                across ? max(m.k.w, MIN_ALPHA) : alpha, vec2(1.0, 0.0));
 }
 
 // Whether the BSDF is of kind MATERIAL_*; a constant where NON_DIFFUSE is false.
@@ -106,6 +124,24 @@ bool bsdf_is(Bsdf bsdf, uint kind) {
 // Whether the BSDF is a plastic; a constant false where the scene has none.
 bool bsdf_plastic(Bsdf bsdf) {
     return (MATERIAL_FEATURES & FEATURE_PLASTIC) != 0u && bsdf_is(bsdf, MATERIAL_PLASTIC);
+}
+
+// Whether the BSDF's roughness differs along its tangent and across it
+// (then the trace kernel sets its tangent); a constant false where the scene
+// has no such BSDF.
+bool bsdf_anisotropic(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_ANISOTROPIC) != 0u &&
+           ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && bsdf.kind == MATERIAL_PRINCIPLED ? bsdf.alpha_v > 0.0
+                                                                                              : bsdf.alpha_v != bsdf.alpha);
+}
+
+// A local direction in the frame of the BSDF's tangent, and back.
+vec3 to_tangent(Bsdf bsdf, vec3 w) {
+    return vec3(bsdf.tangent.x * w.x + bsdf.tangent.y * w.y, bsdf.tangent.x * w.y - bsdf.tangent.y * w.x, w.z);
+}
+
+vec3 from_tangent(Bsdf bsdf, vec3 w) {
+    return vec3(bsdf.tangent.x * w.x - bsdf.tangent.y * w.y, bsdf.tangent.y * w.x + bsdf.tangent.x * w.y, w.z);
 }
 
 // Whether the BSDF is a principled one; a constant false where the scene has none.
@@ -145,34 +181,42 @@ bool bsdf_transmits(Bsdf bsdf) {
     return bsdf_rough_glass(bsdf) || principled_transmits(bsdf);
 }
 
-// GGX normal distribution, written without the cancellation of
-// 1 - cos^2 so that narrow lobes keep their precision.
-float ggx_d(float alpha, vec3 h) {
-    float a2 = alpha * alpha;
-    float t = dot(h.xy, h.xy) + a2 * h.z * h.z;
+// The microfacet distributions in the frame of the surface's tangent:
+// alpha.x along it, alpha.y across (equal where isotropic). GGX's normal
+// distribution, written without the cancellation of 1 - cos^2 so that
+// narrow lobes keep their precision.
+float ggx_d(vec2 alpha, vec3 h) {
+    float a2 = alpha.x * alpha.y;
+    float t = h.x * h.x * (alpha.y / alpha.x) + h.y * h.y * (alpha.x / alpha.y) + a2 * h.z * h.z;
     return a2 / (PI * t * t);
 }
 
 // Smith's masking of GGX for a direction above the surface.
-float ggx_g1(float alpha, vec3 w) {
-    float z2 = w.z * w.z;
-    return 2.0 * w.z / (w.z + sqrt(max(alpha * alpha * (1.0 - z2) + z2, 0.0)));
+float ggx_g1(vec2 alpha, vec3 w) {
+    vec2 s = alpha * w.xy;
+    return 2.0 * w.z / (w.z + sqrt(dot(s, s) + w.z * w.z));
 }
 
 // Beckmann's normal distribution.
-float beckmann_d(float alpha, vec3 h) {
-    float a2 = alpha * alpha;
+float beckmann_d(vec2 alpha, vec3 h) {
     float z2 = h.z * h.z;
-    return exp(-dot(h.xy, h.xy) / (a2 * z2)) / (PI * a2 * z2 * z2);
+    vec2 s = h.xy / alpha;
+    return exp(-dot(s, s) / z2) / (PI * alpha.x * alpha.y * z2 * z2);
 }
 
 // Smith's masking of Beckmann, in Walter et al.'s rational fit (2007), as
 // Mitsuba 3.9.1 has it.
-float beckmann_g1(float alpha, vec3 w) {
-    float tan2 = dot(w.xy, w.xy) * alpha * alpha / (w.z * w.z);
+float beckmann_g1(vec2 alpha, vec3 w) {
+    vec2 s = alpha * w.xy;
+    float tan2 = dot(s, s) / (w.z * w.z);
     float a = inversesqrt(max(tan2, 1e-30));
     float g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a);
     return a >= 1.6 ? 1.0 : g;
+}
+
+// The alphas of a microfacet lobe: along the tangent and across it.
+vec2 microfacet_alphas(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_ANISOTROPIC) != 0u ? vec2(bsdf.alpha, bsdf.alpha_v) : vec2(bsdf.alpha);
 }
 
 bool bsdf_beckmann(Bsdf bsdf) {
@@ -180,13 +224,13 @@ bool bsdf_beckmann(Bsdf bsdf) {
 }
 
 float microfacet_d(Bsdf bsdf, vec3 h) {
-    return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) : ggx_d(bsdf.alpha, h);
+    return bsdf_beckmann(bsdf) ? beckmann_d(microfacet_alphas(bsdf), h) : ggx_d(microfacet_alphas(bsdf), h);
 }
 
 // Smith's masking for a direction above the surface (rough glass passes
 // one below mirrored).
 float microfacet_g1(Bsdf bsdf, vec3 w) {
-    return bsdf_beckmann(bsdf) ? beckmann_g1(bsdf.alpha, w) : ggx_g1(bsdf.alpha, w);
+    return bsdf_beckmann(bsdf) ? beckmann_g1(microfacet_alphas(bsdf), w) : ggx_g1(microfacet_alphas(bsdf), w);
 }
 
 // D(h) G1(wo) G1(wi) of a microfacet lobe, wi on either side; over
@@ -197,15 +241,13 @@ float microfacet_dg(Bsdf bsdf, vec3 wo, vec3 wi, vec3 h) {
 
 // A microfacet normal for a path arriving from wo: GGX draws the normals wo
 // sees (spherical caps, Dupuy & Benyoub 2023), Beckmann all of them by
-// D(m) m.z.
+// D(m) m.z (its slopes are Gaussian, scaled by the alphas).
 vec3 microfacet_sample(Bsdf bsdf, vec3 wo, vec2 u) {
-    float alpha = bsdf.alpha;
+    vec2 alpha = microfacet_alphas(bsdf);
     if (bsdf_beckmann(bsdf)) {
-        float tan2 = -alpha * alpha * log(max(1.0 - u.x, 1e-30));
-        float c = inversesqrt(1.0 + tan2);
-        float s = sqrt(max(1.0 - c * c, 0.0));
+        float r = sqrt(-log(max(1.0 - u.x, 1e-30)));
         float phi = 2.0 * PI * u.y;
-        return vec3(s * cos(phi), s * sin(phi), c);
+        return normalize(vec3(alpha * (r * vec2(cos(phi), sin(phi))), 1.0));
     }
     vec3 wh = normalize(vec3(alpha * wo.xy, wo.z));
     float phi = 2.0 * PI * u.x;
@@ -218,8 +260,9 @@ vec3 microfacet_sample(Bsdf bsdf, vec3 wo, vec2 u) {
 // The density of microfacet_sample drawing m: GGX's visible normals
 // G1(wo) (wo.m) D(m) / wo.z, Beckmann's D(m) m.z.
 float microfacet_sample_pdf(Bsdf bsdf, vec3 wo, vec3 m) {
-    return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, m) * m.z
-                               : ggx_g1(bsdf.alpha, wo) * max(dot(wo, m), 0.0) * ggx_d(bsdf.alpha, m) / wo.z;
+    vec2 alpha = microfacet_alphas(bsdf);
+    return bsdf_beckmann(bsdf) ? beckmann_d(alpha, m) * m.z
+                               : ggx_g1(alpha, wo) * max(dot(wo, m), 0.0) * ggx_d(alpha, m) / wo.z;
 }
 
 // wo mirrored about m; below the horizon (pdf 0) where wo does not see m.
@@ -351,11 +394,11 @@ float gtr1_d(float alpha, vec3 h) {
     return (a2 - 1.0) / (PI * log(a2) * (1.0 + (a2 - 1.0) * h.z * h.z));
 }
 
-// The specular lobe as a GGX conductor of alpha roughness^2 (at least
-// 0.001), for the microfacet helpers.
+// The specular lobe as a GGX conductor (principled_alphas), for the
+// microfacet helpers.
 Bsdf principled_specular(Bsdf bsdf) {
-    float alpha = max(bsdf.alpha * bsdf.alpha, 1e-3);
-    return Bsdf(MATERIAL_CONDUCTOR, vec3(1.0), alpha, 1.0, 0u, vec3(0.0), vec3(0.0), 0u);
+    vec2 alpha = principled_alphas(bsdf.alpha, bsdf.alpha_v);
+    return Bsdf(MATERIAL_CONDUCTOR, vec3(1.0), alpha.x, 1.0, 0u, vec3(0.0), vec3(0.0), 0u, alpha.y, vec2(1.0, 0.0));
 }
 
 // The clearcoat's GTR1 alpha: 0.1 at gloss 0 to 0.001 at gloss 1.
@@ -480,6 +523,7 @@ vec3 principled_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
         float phi = 2.0 * PI * u.x;
         m = vec3(s * cos(phi), s * sin(phi), sqrt(max(c2, 0.0)));
         wi = microfacet_reflect(wo, m);
+        wi = wi.z > 0.0 ? wi : vec3(0.0);
     } else {
         m = microfacet_sample(principled_specular(bsdf), wo, u.xy);
         float c = dot(wo, m);
@@ -512,6 +556,10 @@ float bsdf_delta_share(Bsdf bsdf, vec3 wo) {
 
 // f_s(wo, wi) cos(theta_i); zero for delta lobes.
 vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    if (bsdf_anisotropic(bsdf)) {
+        wo = to_tangent(bsdf, wo);
+        wi = to_tangent(bsdf, wi);
+    }
     if (bsdf_rough_glass(bsdf)) {
         vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
         if (hr.w < 0.0) {
@@ -562,6 +610,10 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
 // D_wo(h) / (4 wo.h) with D_wo(h) = G1(wo) (wo.h) D(h) / wo.z; a Beckmann
 // conductor all its normals: D(h) h.z / (4 wo.h).
 float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
+    if (bsdf_anisotropic(bsdf)) {
+        wo = to_tangent(bsdf, wo);
+        wi = to_tangent(bsdf, wi);
+    }
     if (bsdf_rough_glass(bsdf)) {
         vec4 hr = rough_glass_half(wo, wi, bsdf.eta);
         if (hr.w < 0.0) {
@@ -598,8 +650,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
         // microfacet_sample_pdf over the reflection's Jacobian 4 wo.h,
         // simplified.
         vec3 h = normalize(wo + wi);
-        return bsdf_beckmann(bsdf) ? beckmann_d(bsdf.alpha, h) * h.z / (4.0 * dot(wo, h))
-                                   : ggx_g1(bsdf.alpha, wo) * ggx_d(bsdf.alpha, h) / (4.0 * wo.z);
+        vec2 alpha = microfacet_alphas(bsdf);
+        return bsdf_beckmann(bsdf) ? beckmann_d(alpha, h) * h.z / (4.0 * dot(wo, h))
+                                   : ggx_g1(alpha, wo) * ggx_d(alpha, h) / (4.0 * wo.z);
     }
     return 0.0;
 }
@@ -611,7 +664,19 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
 // sector grid; the mirrored direction's for one below), which samplers
 // built on the concentric map know without inverting it
 // (hemisphere_to_square(wi) costs an atan). Not for delta lobes.
+vec3 bsdf_sample_local(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square);
+
 vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
+    if (!bsdf_anisotropic(bsdf)) {
+        return bsdf_sample_local(bsdf, wo, u, square);
+    }
+    vec3 wi = from_tangent(bsdf, bsdf_sample_local(bsdf, to_tangent(bsdf, wo), u, square));
+    square = hemisphere_to_square(wi.z == 0.0 ? vec3(0.0, 0.0, 1.0) : vec3(wi.xy, abs(wi.z)));
+    return wi;
+}
+
+// bsdf_sample in the frame of the BSDF's tangent.
+vec3 bsdf_sample_local(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     if (bsdf_principled(bsdf)) {
         return principled_sample(bsdf, wo, u, square);
     }

@@ -47,6 +47,8 @@ void main() {
         vec4 side = probe_in[b + 4u];
         vec3 u = probe_in[b + 5u].xyz;
         Bsdf bsdf = bsdf_of(m, side.w > 0.5);
+        // An anisotropic BSDF's tangent, at angle in[6i+5].w.
+        bsdf.tangent = vec2(cos(probe_in[b + 5u].w), sin(probe_in[b + 5u].w));
         vec3 wo = side.xyz;
         vec3 delta_weight = vec3(0.0);
         if (bsdf_delta_share(bsdf, wo) > 0.0) {

@@ -276,11 +276,11 @@ struct Triangle {
 // luminance of texture color.y - 1 there. Either may be a choice itself, to
 // MAX_CHOICE_DEPTH levels. Where FEATURE_CHOICES says so.
 #define MATERIAL_CHOICE 5
-// Mitsuba's principled without transmission (src/bsdf/principled.rs):
-// color.rgb its base colour, emission.w its roughness, eta.rgb its metallic,
-// specular tint and sheen, k.rgb its sheen tint, flatness and clearcoat, k.w
-// the word of the materials' buffer where (eta, clearcoat gloss) follow the
-// materials. Where FEATURE_PRINCIPLED says so.
+// Mitsuba's principled (src/bsdf/principled.rs): color.rgb its base
+// colour, emission.w its roughness, eta.rgb its metallic, specular tint and
+// sheen, k.rgb its sheen tint, flatness and clearcoat, k.w the word of the
+// materials' buffer where (eta, clearcoat gloss, spec_trans, anisotropic)
+// follow the materials. Where FEATURE_PRINCIPLED says so.
 #define MATERIAL_PRINCIPLED 6
 #define CHOICE_AT_RANDOM 0
 #define CHOICE_BY_SIDE 1
@@ -319,6 +319,9 @@ struct Triangle {
 #define FEATURE_CHOICES 4096
 // ... a principled material (MATERIAL_PRINCIPLED).
 #define FEATURE_PRINCIPLED 8192
+// ... an anisotropic roughness (a rough conductor's or rough glass's alpha
+// across its tangent in k.w; a principled material's `anisotropic`).
+#define FEATURE_ANISOTROPIC 16384
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

@@ -149,7 +149,9 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
         bsdf.ior_eta = texture_eval(second - 1u, uv);
     }
     if (alpha != 0u) {
+        // (Isotropic: an anisotropic roughness takes no texture.)
         bsdf.alpha = max(luminance(texture_eval(alpha - 1u, uv)), MIN_ALPHA);
+        bsdf.alpha_v = bsdf.alpha;
     }
     return bsdf;
 }

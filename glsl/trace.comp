@@ -779,6 +779,14 @@ bool scatter(inout Path path, inout Trail trail) {
     // Rough glass: sampled and reached by NEE on both sides, not guided.
     bool transmits = bsdf_transmits(bsdf);
     make_frame(s.ns, s.t, s.b);
+    if (bsdf_anisotropic(bsdf)) {
+        // Mitsuba's tangent: dp/du (from the texture coordinates) made
+        // perpendicular to the shading normal; the local frame's own where
+        // they span no area.
+        UvFrame at = uv_frame(hit.triangle, tri, clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0)));
+        vec2 t = vec2(dot(at.dp_du, s.t), dot(at.dp_du, s.b));
+        bsdf.tangent = at.valid && dot(t, t) > 0.0 ? normalize(t) : vec2(1.0, 0.0);
+    }
     s.wo = vec3(-dot(path.dir, s.t), -dot(path.dir, s.b), SHADING_FRAME ? -dot(path.dir, s.ns) : abs(cos_out));
     // A delta vertex or rough glass is never guided: unless it learns, the
     // guide's lookup there (a network inference, for neural) would only tune

@@ -43,6 +43,9 @@ pub enum Surface {
     Conductor {
         reflectance: Vec3,
         alpha: f32,
+        /// Where anisotropic: alpha across the surface's tangent (Mitsuba's
+        /// dp/du), `alpha` being along it.
+        alpha_v: Option<f32>,
         distribution: Distribution,
         fresnel: Option<ComplexIor>,
     },
@@ -81,6 +84,8 @@ pub enum Surface {
         reflectance: Vec3,
         transmittance: Vec3,
         alpha: f32,
+        /// As a conductor's.
+        alpha_v: Option<f32>,
         distribution: Distribution,
     },
     /// Mitsuba's `roughplastic`: `Plastic` under a rough coat, whose
@@ -229,6 +234,7 @@ fn rough_interface_albedo(
     eta: f32,
     wi: Vec3,
 ) -> (f64, f64) {
+    let alpha = Vec2::splat(alpha);
     let (mut reflected, mut transmitted) = (0.0f64, 0.0f64);
     for &(x, wx) in nodes {
         for &(y, wy) in nodes {
@@ -275,6 +281,7 @@ impl Surface {
         Surface::Conductor {
             reflectance,
             alpha,
+            alpha_v: None,
             distribution: Distribution::Ggx,
             fresnel: None,
         }
@@ -438,6 +445,25 @@ impl Surface {
         }
     }
 
+    /// A rough conductor's or rough glass's alpha across the surface's
+    /// tangent, where it differs from the one along it.
+    pub fn alpha_across(&self) -> Option<f32> {
+        match *self {
+            Surface::Conductor { alpha, alpha_v, .. } if alpha > 0.0 => alpha_v,
+            Surface::RoughDielectric { alpha_v, .. } => alpha_v,
+            _ => None,
+        }
+    }
+
+    /// Whether its roughness differs along the surface's tangent (Mitsuba's
+    /// dp/du) and across it.
+    pub fn anisotropic(&self) -> bool {
+        match self {
+            Surface::Principled { params, .. } => params.anisotropic > 0.0,
+            _ => self.alpha_across().is_some(),
+        }
+    }
+
     /// The microfacet distribution of a rough lobe's options
     /// (MATERIAL_BECKMANN), if the surface has one.
     pub fn distribution(&self) -> Option<Distribution> {
@@ -491,8 +517,10 @@ pub fn fresnel_diffuse_reflectance(eta: f32) -> f32 {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Lobe {
     Diffuse(Sampling),
+    /// `alpha` along the tangent, `alpha_v` across (equal where isotropic).
     Conductor {
         alpha: f32,
+        alpha_v: f32,
         distribution: Distribution,
         fresnel: Option<ComplexIor>,
     },
@@ -521,6 +549,7 @@ enum Lobe {
         eta: f32,
         reflectance: Vec3,
         alpha: f32,
+        alpha_v: f32,
         distribution: Distribution,
     },
     /// `color` is the base's diffuse reflectance.
@@ -543,33 +572,39 @@ pub struct Bsdf {
     lobe: Lobe,
     /// Kd, Ks or Tf.
     pub color: Vec3,
+    /// Where its roughness is anisotropic: the surface's tangent (Mitsuba's
+    /// dp/du) in the local frame; (1, 0) by default.
+    tangent: Vec2,
 }
 
-/// GGX normal distribution, written without the cancellation of
-/// 1 − cos²θ so that narrow lobes keep their precision.
-fn ggx_d(alpha: f32, h: Vec3) -> f32 {
-    let a2 = alpha * alpha;
-    let t = h.x * h.x + h.y * h.y + a2 * h.z * h.z;
+/// The microfacet distributions in the frame of the surface's tangent:
+/// alpha.x along it, alpha.y across (equal where isotropic). GGX's normal
+/// distribution, written without the cancellation of 1 − cos²θ so that
+/// narrow lobes keep their precision.
+fn ggx_d(alpha: Vec2, h: Vec3) -> f32 {
+    let a2 = alpha.x * alpha.y;
+    let t = h.x * h.x * (alpha.y / alpha.x) + h.y * h.y * (alpha.x / alpha.y) + a2 * h.z * h.z;
     a2 / (PI * t * t)
 }
 
 /// Smith's masking of GGX for a direction above the surface.
-fn ggx_g1(alpha: f32, w: Vec3) -> f32 {
-    let z2 = w.z * w.z;
-    2.0 * w.z / (w.z + (alpha * alpha * (1.0 - z2) + z2).max(0.0).sqrt())
+fn ggx_g1(alpha: Vec2, w: Vec3) -> f32 {
+    let s = alpha * w.truncate();
+    2.0 * w.z / (w.z + (s.dot(s) + w.z * w.z).sqrt())
 }
 
 /// Beckmann's normal distribution.
-fn beckmann_d(alpha: f32, h: Vec3) -> f32 {
-    let a2 = alpha * alpha;
+fn beckmann_d(alpha: Vec2, h: Vec3) -> f32 {
     let z2 = h.z * h.z;
-    (-(h.x * h.x + h.y * h.y) / (a2 * z2)).exp() / (PI * a2 * z2 * z2)
+    let s = h.truncate() / alpha;
+    (-s.dot(s) / z2).exp() / (PI * alpha.x * alpha.y * z2 * z2)
 }
 
 /// Smith's masking of Beckmann, in Walter et al.'s rational fit (2007), as
 /// Mitsuba 3.9.1 has it.
-fn beckmann_g1(alpha: f32, w: Vec3) -> f32 {
-    let tan2 = (w.x * w.x + w.y * w.y) * alpha * alpha / (w.z * w.z);
+fn beckmann_g1(alpha: Vec2, w: Vec3) -> f32 {
+    let s = alpha * w.truncate();
+    let tan2 = s.dot(s) / (w.z * w.z);
     if tan2 <= 0.0 {
         return 1.0;
     }
@@ -602,14 +637,14 @@ pub fn fresnel_conductor(cos_i: f32, ior: ComplexIor) -> Vec3 {
 }
 
 impl Distribution {
-    fn d(self, alpha: f32, h: Vec3) -> f32 {
+    fn d(self, alpha: Vec2, h: Vec3) -> f32 {
         match self {
             Distribution::Ggx => ggx_d(alpha, h),
             Distribution::Beckmann => beckmann_d(alpha, h),
         }
     }
 
-    fn g1(self, alpha: f32, w: Vec3) -> f32 {
+    fn g1(self, alpha: Vec2, w: Vec3) -> f32 {
         match self {
             Distribution::Ggx => ggx_g1(alpha, w),
             Distribution::Beckmann => beckmann_g1(alpha, w),
@@ -618,36 +653,37 @@ impl Distribution {
 
     /// D(h) G1(wo) G1(wi), wi on either side; over 4 wo.z, a reflection's
     /// f cos without its Fresnel term.
-    fn dg(self, alpha: f32, wo: Vec3, wi: Vec3, h: Vec3) -> f32 {
+    fn dg(self, alpha: Vec2, wo: Vec3, wi: Vec3, h: Vec3) -> f32 {
         self.d(alpha, h) * self.g1(alpha, wo) * self.g1(alpha, Vec3::new(wi.x, wi.y, wi.z.abs()))
     }
 
     /// A microfacet normal for a path arriving from wo: GGX draws the
     /// normals wo sees (spherical caps, Dupuy & Benyoub 2023), Beckmann
     /// all of them by D(m) m.z.
-    fn sample_normal(self, alpha: f32, wo: Vec3, u: Vec2) -> Vec3 {
+    fn sample_normal(self, alpha: Vec2, wo: Vec3, u: Vec2) -> Vec3 {
         match self {
             Distribution::Ggx => {
-                let wh = Vec3::new(alpha * wo.x, alpha * wo.y, wo.z).normalize();
+                let wh = (alpha * wo.truncate()).extend(wo.z).normalize();
                 let phi = 2.0 * PI * u.x;
                 let z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
                 let s = (1.0 - z * z).max(0.0).sqrt();
                 let h = Vec3::new(s * phi.cos(), s * phi.sin(), z) + wh;
-                Vec3::new(alpha * h.x, alpha * h.y, h.z.max(0.0)).normalize()
+                (alpha * h.truncate()).extend(h.z.max(0.0)).normalize()
             }
             Distribution::Beckmann => {
-                let tan2 = -alpha * alpha * (1.0 - u.x).max(1e-30).ln();
-                let cos = 1.0 / (1.0 + tan2).sqrt();
-                let sin = (1.0 - cos * cos).max(0.0).sqrt();
+                // Its slopes are Gaussian, scaled by the alphas.
+                let r = (-(1.0 - u.x).max(1e-30).ln()).sqrt();
                 let phi = 2.0 * PI * u.y;
-                Vec3::new(sin * phi.cos(), sin * phi.sin(), cos)
+                (alpha * (r * Vec2::new(phi.cos(), phi.sin())))
+                    .extend(1.0)
+                    .normalize()
             }
         }
     }
 
     /// The density of `sample_normal` drawing m: GGX's visible normals
     /// G1(wo) (wo·m) D(m) / wo.z, Beckmann's D(m) m.z.
-    fn sampler_pdf(self, alpha: f32, wo: Vec3, m: Vec3) -> f32 {
+    fn sampler_pdf(self, alpha: Vec2, wo: Vec3, m: Vec3) -> f32 {
         match self {
             Distribution::Ggx => ggx_g1(alpha, wo) * wo.dot(m).max(0.0) * ggx_d(alpha, m) / wo.z,
             Distribution::Beckmann => beckmann_d(alpha, m) * m.z,
@@ -655,7 +691,7 @@ impl Distribution {
     }
 
     /// The density of the normals wo sees over `sampler_pdf`, at m.
-    fn visible_weight(self, alpha: f32, wo: Vec3, m: Vec3) -> f32 {
+    fn visible_weight(self, alpha: Vec2, wo: Vec3, m: Vec3) -> f32 {
         match self {
             Distribution::Ggx => 1.0,
             Distribution::Beckmann => beckmann_g1(alpha, wo) * wo.dot(m).max(0.0) / (wo.z * m.z),
@@ -684,77 +720,81 @@ impl Bsdf {
     /// The BSDF of `surface` for a path arriving on its front side (the
     /// side the triangle's normal faces) or its back.
     pub fn new(surface: Surface, front: bool, sampling: Sampling) -> Self {
-        match surface {
-            Surface::Diffuse { albedo } => Self {
-                lobe: Lobe::Diffuse(sampling),
-                color: albedo,
-            },
+        let (lobe, color) = match surface {
+            Surface::Diffuse { albedo } => (Lobe::Diffuse(sampling), albedo),
             Surface::Conductor {
                 reflectance,
                 alpha,
+                alpha_v,
                 distribution,
                 fresnel,
-            } => Self {
-                lobe: Lobe::Conductor {
-                    alpha: if alpha > 0.0 {
-                        alpha.max(MIN_ALPHA)
-                    } else {
-                        0.0
+            } => {
+                let alpha = if alpha > 0.0 {
+                    alpha.max(MIN_ALPHA)
+                } else {
+                    0.0
+                };
+                let alpha_v = alpha_v
+                    .filter(|_| alpha > 0.0)
+                    .map_or(alpha, |a| a.max(MIN_ALPHA));
+                (
+                    Lobe::Conductor {
+                        alpha,
+                        alpha_v,
+                        distribution,
+                        fresnel,
                     },
-                    distribution,
-                    fresnel,
-                },
-                color: reflectance,
-            },
+                    reflectance,
+                )
+            }
             Surface::Dielectric {
                 ior,
                 transmittance,
                 reflectance,
-            } => Self {
-                lobe: Lobe::Dielectric {
+            } => (
+                Lobe::Dielectric {
                     eta: if front { ior } else { 1.0 / ior },
                     reflectance,
                 },
-                color: transmittance,
-            },
+                transmittance,
+            ),
             Surface::Thin {
                 eta,
                 reflectance,
                 transmittance,
-            } => Self {
-                lobe: Lobe::Thin { eta, reflectance },
-                color: transmittance,
-            },
+            } => (Lobe::Thin { eta, reflectance }, transmittance),
             Surface::Plastic {
                 diffuse,
                 specular,
                 eta,
                 nonlinear,
-            } => Self {
-                lobe: Lobe::Plastic {
+            } => (
+                Lobe::Plastic {
                     eta,
                     specular,
                     fdr_int: fresnel_diffuse_reflectance(1.0 / eta),
                     specular_weight: specular_weight(diffuse, specular),
                     nonlinear,
                 },
-                color: diffuse,
-            },
+                diffuse,
+            ),
             Surface::RoughDielectric {
                 ior,
                 reflectance,
                 transmittance,
                 alpha,
+                alpha_v,
                 distribution,
-            } => Self {
-                lobe: Lobe::RoughDielectric {
+            } => (
+                Lobe::RoughDielectric {
                     eta: if front { ior } else { 1.0 / ior },
                     reflectance,
                     alpha: alpha.max(MIN_ALPHA),
+                    alpha_v: alpha_v.unwrap_or(alpha).max(MIN_ALPHA),
                     distribution,
                 },
-                color: transmittance,
-            },
+                transmittance,
+            ),
             Surface::RoughPlastic {
                 diffuse,
                 specular,
@@ -763,8 +803,8 @@ impl Bsdf {
                 alpha,
                 distribution,
                 table,
-            } => Self {
-                lobe: Lobe::RoughPlastic {
+            } => (
+                Lobe::RoughPlastic {
                     eta,
                     specular,
                     alpha: alpha.max(MIN_ALPHA),
@@ -773,20 +813,61 @@ impl Bsdf {
                     nonlinear,
                     table,
                 },
-                color: diffuse,
-            },
+                diffuse,
+            ),
             // Without spec_trans, its back is its front's lobes (inside
             // `twosided`) or black (one-sided, `Material::bsdf`).
             Surface::Principled { base_color, params } if front || params.spec_trans <= 0.0 => {
-                Self {
-                    lobe: Lobe::Principled(params),
-                    color: base_color,
-                }
+                (Lobe::Principled(params), base_color)
             }
             Surface::Principled { base_color, params } => {
-                Self::new(params.back(base_color), false, sampling)
+                return Self::new(params.back(base_color), false, sampling);
             }
+        };
+        Self {
+            lobe,
+            color,
+            tangent: Vec2::X,
         }
+    }
+
+    /// The BSDF with the surface's tangent (Mitsuba's dp/du) at `tangent`
+    /// in the local frame, which an anisotropic roughness follows.
+    pub fn with_tangent(mut self, tangent: Vec2) -> Self {
+        self.tangent = tangent;
+        self
+    }
+
+    /// Whether its roughness differs along its tangent and across it.
+    fn anisotropic(&self) -> bool {
+        match self.lobe {
+            Lobe::Conductor { alpha, alpha_v, .. }
+            | Lobe::RoughDielectric { alpha, alpha_v, .. } => alpha != alpha_v,
+            Lobe::Principled(p) => p.anisotropic > 0.0,
+            _ => false,
+        }
+    }
+
+    /// Its microfacet lobe's alphas along its tangent and across it.
+    fn alphas(&self) -> Vec2 {
+        match self.lobe {
+            Lobe::Conductor { alpha, alpha_v, .. }
+            | Lobe::RoughDielectric { alpha, alpha_v, .. } => Vec2::new(alpha, alpha_v),
+            Lobe::RoughPlastic { alpha, .. } => Vec2::splat(alpha),
+            Lobe::Principled(p) => p.alphas(),
+            _ => Vec2::ZERO,
+        }
+    }
+
+    /// A local direction in the frame of its tangent, and back.
+    fn in_tangent_frame(&self, w: Vec3) -> Vec3 {
+        let t = self.tangent;
+        Vec3::new(t.x * w.x + t.y * w.y, t.x * w.y - t.y * w.x, w.z)
+    }
+
+    fn in_local_frame(&self, w: Vec3) -> Vec3 {
+        let t = self.tangent;
+        Vec3::new(t.x * w.x - t.y * w.y, t.y * w.x + t.x * w.y, w.z)
     }
 
     /// The same lobe reflecting nothing: a one-sided material seen from
@@ -921,17 +1002,47 @@ impl Bsdf {
 
     /// f_s(wo, wi) cos θ_i; zero for delta lobes.
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if self.anisotropic() {
+            return self.eval_local(self.in_tangent_frame(wo), self.in_tangent_frame(wi));
+        }
+        self.eval_local(wo, wi)
+    }
+
+    /// Solid-angle pdf of `sample` choosing wi; zero for delta lobes.
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if self.anisotropic() {
+            return self.pdf_local(self.in_tangent_frame(wo), self.in_tangent_frame(wi));
+        }
+        self.pdf_local(wo, wi)
+    }
+
+    /// A direction from three uniform numbers (None where the lobe sends
+    /// none, as a rough conductor may below the horizon), and its point of
+    /// the equal-area square (the guides' sector grid; of the mirrored
+    /// direction for one below). u.z picks a lobe or reflection against
+    /// refraction where there is a choice. Not for delta lobes.
+    pub fn sample(&self, wo: Vec3, u: Vec3) -> Option<(Vec3, Vec2)> {
+        if !self.anisotropic() {
+            return self.sample_local(wo, u);
+        }
+        let (wi, _) = self.sample_local(self.in_tangent_frame(wo), u)?;
+        let wi = self.in_local_frame(wi);
+        Some((wi, hemisphere_to_square(Vec3::new(wi.x, wi.y, wi.z.abs()))))
+    }
+
+    /// `eval`, `pdf` and `sample` in the frame of its tangent.
+    fn eval_local(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         if let Lobe::RoughDielectric {
             eta,
             reflectance,
-            alpha,
             distribution: m,
+            ..
         } = self.lobe
         {
             return match rough_glass_half(wo, wi, eta) {
                 Some((h, true)) => {
                     reflectance
-                        * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(alpha, wo, wi, h)
+                        * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(self.alphas(), wo, wi, h)
                             / (4.0 * wo.z))
                 }
                 Some((h, false)) => {
@@ -939,7 +1050,7 @@ impl Bsdf {
                     let f = fresnel_dielectric(oh, eta).0;
                     let denom = oh + eta * ih;
                     self.color
-                        * ((1.0 - f) * m.dg(alpha, wo, wi, h) * (oh * ih).abs()
+                        * ((1.0 - f) * m.dg(self.alphas(), wo, wi, h) * (oh * ih).abs()
                             / (wo.z * denom * denom))
                 }
                 None => Vec3::ZERO,
@@ -955,7 +1066,6 @@ impl Bsdf {
             Lobe::RoughPlastic {
                 eta,
                 specular,
-                alpha,
                 distribution: m,
                 nonlinear,
                 table,
@@ -963,7 +1073,7 @@ impl Bsdf {
             } => {
                 let h = (wo + wi).normalize();
                 let coat = specular
-                    * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(alpha, wo, wi, h)
+                    * (fresnel_dielectric(wo.dot(h), eta).0 * m.dg(self.alphas(), wo, wi, h)
                         / (4.0 * wo.z));
                 let d = self.color;
                 let inside = if nonlinear {
@@ -997,21 +1107,20 @@ impl Bsdf {
                 alpha,
                 distribution: m,
                 fresnel,
+                ..
             } if alpha > 0.0 => {
                 let h = (wo + wi).normalize();
                 self.color
                     * self.fresnel(fresnel, wo.dot(h))
-                    * (m.dg(alpha, wo, wi, h) / (4.0 * wo.z))
+                    * (m.dg(self.alphas(), wo, wi, h) / (4.0 * wo.z))
             }
             _ => Vec3::ZERO,
         }
     }
 
-    /// Solid-angle pdf of `sample` choosing wi; zero for delta lobes.
-    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+    fn pdf_local(&self, wo: Vec3, wi: Vec3) -> f32 {
         if let Lobe::RoughDielectric {
             eta,
-            alpha,
             distribution: m,
             ..
         } = self.lobe
@@ -1020,7 +1129,7 @@ impl Bsdf {
                 Some((h, reflect)) => {
                     let (oh, ih) = (wo.dot(h), wi.dot(h));
                     let f = fresnel_dielectric(oh, eta).0;
-                    let normal = m.sampler_pdf(alpha, wo, h);
+                    let normal = m.sampler_pdf(self.alphas(), wo, h);
                     if reflect {
                         f * normal / (4.0 * oh)
                     } else {
@@ -1039,7 +1148,6 @@ impl Bsdf {
         }
         match self.lobe {
             Lobe::RoughPlastic {
-                alpha,
                 distribution: m,
                 specular_weight,
                 table,
@@ -1047,7 +1155,7 @@ impl Bsdf {
             } => {
                 let share = Self::coat_share(&table, specular_weight, wo);
                 let h = (wo + wi).normalize();
-                share * m.sampler_pdf(alpha, wo, h) / (4.0 * wo.dot(h))
+                share * m.sampler_pdf(self.alphas(), wo, h) / (4.0 * wo.dot(h))
                     + (1.0 - share) * wi.z * FRAC_1_PI
             }
             Lobe::Diffuse(Sampling::Cosine) | Lobe::Plastic { .. } => wi.z * FRAC_1_PI,
@@ -1059,18 +1167,13 @@ impl Bsdf {
                 ..
             } if alpha > 0.0 => {
                 let h = (wo + wi).normalize();
-                m.sampler_pdf(alpha, wo, h) / (4.0 * wo.dot(h))
+                m.sampler_pdf(self.alphas(), wo, h) / (4.0 * wo.dot(h))
             }
             _ => 0.0,
         }
     }
 
-    /// A direction from three uniform numbers (None where the lobe sends
-    /// none, as a rough conductor may below the horizon), and its point of
-    /// the equal-area square (the guides' sector grid; of the mirrored
-    /// direction for one below). u.z picks a lobe or reflection against
-    /// refraction where there is a choice. Not for delta lobes.
-    pub fn sample(&self, wo: Vec3, u: Vec3) -> Option<(Vec3, Vec2)> {
+    fn sample_local(&self, wo: Vec3, u: Vec3) -> Option<(Vec3, Vec2)> {
         let reflect = |m: Vec3| {
             let wi = 2.0 * wo.dot(m) * m - wo;
             (wi.z > 0.0 && wo.dot(m) > 0.0).then(|| (wi, hemisphere_to_square(wi)))
@@ -1081,31 +1184,25 @@ impl Bsdf {
             }
             Lobe::Diffuse(Sampling::Cosine) | Lobe::Plastic { .. } => Some(cosine(u.truncate())),
             Lobe::Principled(p) => p.sample(wo, u),
-            Lobe::Conductor {
-                alpha,
-                distribution,
-                ..
-            } => reflect(distribution.sample_normal(alpha, wo, u.truncate())),
+            Lobe::Conductor { distribution, .. } => {
+                reflect(distribution.sample_normal(self.alphas(), wo, u.truncate()))
+            }
             Lobe::RoughPlastic {
-                alpha,
                 distribution,
                 specular_weight,
                 table,
                 ..
             } => {
                 if u.z < Self::coat_share(&table, specular_weight, wo) {
-                    reflect(distribution.sample_normal(alpha, wo, u.truncate()))
+                    reflect(distribution.sample_normal(self.alphas(), wo, u.truncate()))
                 } else {
                     Some(cosine(u.truncate()))
                 }
             }
             Lobe::RoughDielectric {
-                eta,
-                alpha,
-                distribution,
-                ..
+                eta, distribution, ..
             } => {
-                let m = distribution.sample_normal(alpha, wo, u.truncate());
+                let m = distribution.sample_normal(self.alphas(), wo, u.truncate());
                 let c = wo.dot(m);
                 let (f, cos_t) = fresnel_dielectric(c, eta);
                 if c <= 0.0 || u.z < f {
@@ -1190,6 +1287,7 @@ mod tests {
                 let surface = Surface::Conductor {
                     reflectance: Vec3::ONE,
                     alpha,
+                    alpha_v: None,
                     distribution,
                     fresnel,
                 };
@@ -1283,7 +1381,7 @@ mod tests {
             (0.2, 0.99774),
         ] {
             let w = Vec3::new((1.0 - cos * cos).sqrt(), 0.0, cos);
-            let g = beckmann_g1(0.15, w);
+            let g = beckmann_g1(Vec2::splat(0.15), w);
             assert!(
                 (g - want).abs() < 3e-4,
                 "cos θ {cos}: {g} vs Mitsuba's {want}"
@@ -1403,6 +1501,7 @@ mod tests {
                     reflectance: Vec3::ONE,
                     transmittance: Vec3::ONE,
                     alpha,
+                    alpha_v: None,
                     distribution,
                 };
                 for front in [true, false] {
@@ -1423,7 +1522,69 @@ mod tests {
             }
         }
         out.extend(principled_lobes());
+        out.extend(anisotropic_lobes());
         out
+    }
+
+    /// Anisotropic rough lobes, their tangents turned away from the local x
+    /// axis: conductors of both distributions, glass from either side, a
+    /// principled BSDF.
+    fn anisotropic_lobes() -> Vec<(String, Bsdf)> {
+        let conductor = |alpha, alpha_v, distribution| Surface::Conductor {
+            reflectance: Vec3::ONE,
+            alpha,
+            alpha_v: Some(alpha_v),
+            distribution,
+            fresnel: Some(VEACH_METAL),
+        };
+        let glass = Surface::RoughDielectric {
+            ior: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+            alpha: 0.15,
+            alpha_v: Some(0.6),
+            distribution: Distribution::Ggx,
+        };
+        let principled = Surface::Principled {
+            base_color: Vec3::new(0.7, 0.5, 0.3),
+            params: Principled {
+                roughness: 0.6,
+                metallic: 0.5,
+                specular_tint: 0.0,
+                sheen: 0.0,
+                sheen_tint: 0.0,
+                flatness: 0.0,
+                clearcoat: 0.3,
+                clearcoat_gloss: 0.2,
+                spec_trans: 0.0,
+                anisotropic: 0.8,
+                eta: 1.5,
+            },
+        };
+        let cases = [
+            (
+                "anisotropic GGX",
+                conductor(0.1, 0.5, Distribution::Ggx),
+                true,
+                0.4,
+            ),
+            (
+                "anisotropic Beckmann",
+                conductor(0.5, 0.15, Distribution::Beckmann),
+                true,
+                1.1,
+            ),
+            ("anisotropic glass front true", glass, true, 2.0),
+            ("anisotropic glass front false", glass, false, -0.6),
+            ("anisotropic principled", principled, true, 0.9),
+        ];
+        cases
+            .into_iter()
+            .map(|(name, surface, front, angle)| {
+                let bsdf = Bsdf::new(surface, front, Sampling::Cosine);
+                (name.to_string(), bsdf.with_tangent(Vec2::from_angle(angle)))
+            })
+            .collect()
     }
 
     /// Principled BSDFs: nearly all diffuse, metallic with a clearcoat,
@@ -1439,6 +1600,7 @@ mod tests {
             clearcoat: 0.0,
             clearcoat_gloss: 0.0,
             spec_trans: 0.0,
+            anisotropic: 0.0,
             eta: 1.5,
         };
         let cases = [
@@ -1453,6 +1615,7 @@ mod tests {
                     clearcoat: 0.7,
                     clearcoat_gloss: 0.8,
                     spec_trans: 0.0,
+                    anisotropic: 0.0,
                     ..p
                 },
             ),
@@ -1474,6 +1637,7 @@ mod tests {
                 Principled {
                     roughness: 0.45,
                     spec_trans: 1.0,
+                    anisotropic: 0.0,
                     ..p
                 },
             ),
@@ -1484,6 +1648,7 @@ mod tests {
                     roughness: 0.6,
                     metallic: 0.2,
                     spec_trans: 0.5,
+                    anisotropic: 0.0,
                     clearcoat: 0.5,
                     eta: 1.33,
                     ..p
@@ -1601,12 +1766,14 @@ mod tests {
                         eta,
                         reflectance,
                         alpha,
+                        alpha_v,
                         distribution,
                     } => {
                         let lobe = Lobe::RoughDielectric {
                             eta: 1.0 / eta,
                             reflectance,
                             alpha,
+                            alpha_v,
                             distribution,
                         };
                         (
@@ -1614,6 +1781,7 @@ mod tests {
                             Bsdf {
                                 lobe,
                                 color: bsdf.color,
+                                tangent: bsdf.tangent,
                             },
                         )
                     }
@@ -1765,6 +1933,7 @@ mod tests {
             Surface::Conductor {
                 reflectance: Vec3::splat(0.5),
                 alpha: 0.0,
+                alpha_v: None,
                 distribution: Distribution::Beckmann,
                 fresnel: Some(ior),
             },
@@ -1918,6 +2087,7 @@ mod tests {
             reflectance: Vec3::ONE,
             transmittance: Vec3::ONE,
             alpha,
+            alpha_v: None,
             distribution,
         };
         let cases = [
@@ -1960,6 +2130,131 @@ mod tests {
                     "{}: θ {t} φ {p}: {got} vs Mitsuba's {want}",
                     surface.name()
                 );
+            }
+        }
+    }
+
+    /// Anisotropic roughness against Mitsuba 3.9.1 (`BSDF.eval`, and
+    /// `BSDF.pdf` where both sample GGX's visible normals; wi at θ 40°
+    /// φ 30°, alpha_u along the local x axis): roughconductor GGX (Al) and
+    /// Beckmann, principled with `anisotropic`, roughdielectric GGX. The
+    /// same with the frame turned about the normal and the tangent with it.
+    #[test]
+    fn anisotropic_lobes_evaluate_as_mitsuba() {
+        let dir = |t: f32, p: f32| {
+            let (t, p) = (t.to_radians(), p.to_radians());
+            Vec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos())
+        };
+        let al = ComplexIor {
+            eta: Vec3::new(1.657501, 0.880405, 0.521244),
+            k: Vec3::new(9.223811, 6.269502, 4.837004),
+        };
+        let conductor = |alpha, alpha_v, distribution, fresnel| Surface::Conductor {
+            reflectance: Vec3::ONE,
+            alpha,
+            alpha_v: Some(alpha_v),
+            distribution,
+            fresnel,
+        };
+        let principled = Surface::Principled {
+            base_color: Vec3::new(0.9, 0.6, 0.3),
+            params: Principled {
+                roughness: 0.4,
+                metallic: 0.8,
+                specular_tint: 0.0,
+                sheen: 0.0,
+                sheen_tint: 0.0,
+                flatness: 0.0,
+                clearcoat: 0.0,
+                clearcoat_gloss: 0.0,
+                spec_trans: 0.0,
+                anisotropic: 0.7,
+                eta: 2.0 / (1.0 - (0.08f32 * 0.5).sqrt()) - 1.0,
+            },
+        };
+        let glass = Surface::RoughDielectric {
+            ior: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+            alpha: 0.1,
+            alpha_v: Some(0.35),
+            distribution: Distribution::Ggx,
+        };
+        #[allow(clippy::type_complexity)]
+        let cases: [(&str, Surface, bool, [(f32, f32, [f32; 3], f32); 5]); 4] = [
+            (
+                "GGX Al",
+                conductor(0.05, 0.3, Distribution::Ggx, Some(al)),
+                true,
+                [
+                    (35.0, 210.0, [2.570337, 2.541639, 2.54512], 2.782824),
+                    (40.0, 180.0, [0.923888, 0.913563, 0.914833], 0.997921),
+                    (30.0, 250.0, [0.013104, 0.012958, 0.012975], 0.014227),
+                    (60.0, 120.0, [0.11126, 0.110022, 0.110166], 0.12587),
+                    (150.0, 200.0, [0.0; 3], 0.0),
+                ],
+            ),
+            (
+                "Beckmann",
+                conductor(0.4, 0.1, Distribution::Beckmann, None),
+                false,
+                [
+                    (35.0, 210.0, [2.463501; 3], 0.0),
+                    (40.0, 180.0, [0.034261; 3], 0.0),
+                    (30.0, 250.0, [0.906914; 3], 0.0),
+                    (60.0, 120.0, [0.0; 3], 0.0),
+                    (150.0, 200.0, [0.0; 3], 0.0),
+                ],
+            ),
+            (
+                "principled",
+                principled,
+                true,
+                [
+                    (35.0, 210.0, [2.594307, 1.740192, 0.886077], 2.975154),
+                    (40.0, 180.0, [0.141907, 0.095023, 0.048138], 0.154036),
+                    (30.0, 250.0, [0.510461, 0.342105, 0.17375], 0.573855),
+                    (60.0, 120.0, [0.030151, 0.020107, 0.010062], 0.02822),
+                    (150.0, 200.0, [0.0; 3], 0.0),
+                ],
+            ),
+            (
+                "glass",
+                glass,
+                true,
+                [
+                    (35.0, 210.0, [0.099036; 3], 0.099496),
+                    (40.0, 180.0, [0.051416; 3], 0.051507),
+                    (30.0, 250.0, [0.003158; 3], 0.003187),
+                    (60.0, 120.0, [0.005763; 3], 0.006145),
+                    (150.0, 200.0, [0.436709; 3], 0.984489),
+                ],
+            ),
+        ];
+        for turn in [0.0f32, 0.7] {
+            let about_z = |w: Vec3| {
+                let (s, c) = turn.sin_cos();
+                Vec3::new(c * w.x - s * w.y, s * w.x + c * w.y, w.z)
+            };
+            for (name, surface, same_sampler, values) in cases {
+                let bsdf =
+                    Bsdf::new(surface, true, Sampling::Cosine).with_tangent(Vec2::from_angle(turn));
+                let wo = about_z(dir(40.0, 30.0));
+                for (t, phi, want, want_pdf) in values {
+                    let wi = about_z(dir(t, phi));
+                    let (got, want) = (bsdf.eval(wo, wi), Vec3::from(want));
+                    assert!(
+                        (got - want).abs().max_element() <= 2e-3 * want.max_element() + 1e-7,
+                        "{name} turned {turn}: θ {t} φ {phi}: {got} vs Mitsuba's {want}"
+                    );
+                    let pdf = bsdf.pdf(wo, wi);
+                    if same_sampler {
+                        assert!(
+                            (pdf - want_pdf).abs() <= 2e-3 * want_pdf + 1e-7,
+                            "{name} turned {turn}: θ {t} φ {phi}: pdf {pdf} vs Mitsuba's {want_pdf}"
+                        );
+                    }
+                }
             }
         }
     }

@@ -165,24 +165,28 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         Surface::Conductor {
             reflectance: Vec3::new(0.9, 0.8, 0.7),
             alpha: 0.05,
+            alpha_v: None,
             distribution: Distribution::Beckmann,
             fresnel: Some(METAL),
         },
         Surface::Conductor {
             reflectance: Vec3::ONE,
             alpha: 0.4,
+            alpha_v: None,
             distribution: Distribution::Beckmann,
             fresnel: None,
         },
         Surface::Conductor {
             reflectance: Vec3::ONE,
             alpha: 0.3,
+            alpha_v: None,
             distribution: Distribution::Ggx,
             fresnel: Some(METAL),
         },
         Surface::Conductor {
             reflectance: Vec3::splat(0.8),
             alpha: 0.0,
+            alpha_v: None,
             distribution: Distribution::Ggx,
             fresnel: Some(METAL),
         },
@@ -218,6 +222,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             reflectance: Vec3::new(0.9, 1.0, 0.8),
             transmittance: Vec3::new(1.0, 0.9, 0.8),
             alpha: 0.25,
+            alpha_v: None,
             distribution: Distribution::Ggx,
         },
         Surface::RoughDielectric {
@@ -225,6 +230,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
             reflectance: Vec3::ONE,
             transmittance: Vec3::ONE,
             alpha: 0.1,
+            alpha_v: None,
             distribution: Distribution::Beckmann,
         },
         Surface::RoughPlastic {
@@ -257,6 +263,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 clearcoat: 0.0,
                 clearcoat_gloss: 0.0,
                 spec_trans: 0.0,
+                anisotropic: 0.0,
                 eta: 1.5,
             },
         },
@@ -272,6 +279,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 clearcoat: 0.8,
                 clearcoat_gloss: 0.6,
                 spec_trans: 0.0,
+                anisotropic: 0.0,
                 eta: 1.7,
             },
         },
@@ -287,6 +295,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 clearcoat: 0.0,
                 clearcoat_gloss: 0.0,
                 spec_trans: 0.0,
+                anisotropic: 0.0,
                 eta: 0.8,
             },
         },
@@ -302,7 +311,47 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 clearcoat: 0.4,
                 clearcoat_gloss: 0.5,
                 spec_trans: 0.7,
+                anisotropic: 0.0,
                 eta: 1.45,
+            },
+        },
+        // Anisotropic: turned by each query's tangent.
+        Surface::Conductor {
+            reflectance: Vec3::new(0.9, 0.8, 0.7),
+            alpha: 0.05,
+            alpha_v: Some(0.4),
+            distribution: Distribution::Ggx,
+            fresnel: Some(METAL),
+        },
+        Surface::Conductor {
+            reflectance: Vec3::ONE,
+            alpha: 0.5,
+            alpha_v: Some(0.2),
+            distribution: Distribution::Beckmann,
+            fresnel: None,
+        },
+        Surface::RoughDielectric {
+            ior: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::new(1.0, 0.9, 0.8),
+            alpha: 0.3,
+            alpha_v: Some(0.08),
+            distribution: Distribution::Ggx,
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.8, 0.6, 0.4),
+            params: Principled {
+                roughness: 0.5,
+                metallic: 0.3,
+                specular_tint: 0.0,
+                sheen: 0.1,
+                sheen_tint: 0.0,
+                flatness: 0.0,
+                clearcoat: 0.2,
+                clearcoat_gloss: 0.4,
+                spec_trans: 0.5,
+                anisotropic: 0.6,
+                eta: 1.5,
             },
         },
     ];
@@ -328,6 +377,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 front: rng.next() < 0.5,
                 wo: Vec3::new(r * phi.cos(), r * phi.sin(), z),
                 u: Vec3::new(rng.next(), rng.next(), rng.next()),
+                tangent: std::f32::consts::TAU * rng.next(),
             });
         }
     }
@@ -335,7 +385,10 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         let out = probe::bsdf_samples(&ctx, &scene, sampling, &queries).unwrap();
         common::assert_no_validation_errors(&ctx);
         for (q, g) in queries.iter().zip(&out) {
-            let cpu = q.material.bsdf(q.front, sampling);
+            let cpu = q
+                .material
+                .bsdf(q.front, sampling)
+                .with_tangent(Vec2::from_angle(q.tangent));
             let what = format!(
                 "{sampling:?} {:?} front {} wo {} u {}",
                 q.material.surface, q.front, q.wo, q.u
@@ -468,6 +521,7 @@ fn gpu_textures_match_their_cpu_twin() {
             reflectance: Vec3::ONE,
             transmittance: Vec3::ONE,
             alpha: 0.3,
+            alpha_v: None,
             distribution: Distribution::Ggx,
         },
     ];

@@ -951,6 +951,21 @@ fn bump_maps_agree_with_mitsuba() {
 }
 
 #[test]
+fn anisotropic_roughness_agrees_with_mitsuba() {
+    // Brushed metal (GGX and Beckmann), an anisotropic principled torus and
+    // rough glass, each along its surface's dp/du.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-o.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-o",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn principled_materials_agree_with_mitsuba() {
     // Textured base colour and roughness, metallic with tint and clearcoat,
     // sheen with flatness, a bitmap's metallic weight, a one-sided sphere.

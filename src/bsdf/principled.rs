@@ -26,6 +26,9 @@ pub struct Principled {
     /// The share of the dielectric part that refracts rather than
     /// scattering diffusely.
     pub spec_trans: f32,
+    /// How much rougher its specular lobe is along the surface's tangent
+    /// than across it (0: isotropic).
+    pub anisotropic: f32,
     /// The relative index of its dielectric (Mitsuba's `eta`, or the one
     /// its `specular` stands for).
     pub eta: f32,
@@ -61,10 +64,13 @@ fn gtr1_d(alpha: f32, h: Vec3) -> f32 {
 }
 
 impl Principled {
-    /// The specular lobe's GGX alpha: roughness squared, as Mitsuba maps
-    /// it, at least 0.001.
-    pub fn alpha(&self) -> f32 {
-        (self.roughness * self.roughness).max(1e-3)
+    /// The specular lobe's GGX alphas along the surface's tangent and
+    /// across it, as Mitsuba maps roughness and `anisotropic` (Burley's):
+    /// roughness² over and times sqrt(1 - 0.9 anisotropic), at least 0.001.
+    pub fn alphas(&self) -> Vec2 {
+        let aspect = (1.0 - 0.9 * self.anisotropic).sqrt();
+        let r2 = self.roughness * self.roughness;
+        Vec2::new(r2 / aspect, r2 * aspect).max(Vec2::splat(1e-3))
     }
 
     /// The clearcoat's GTR1 alpha: 0.1 at gloss 0 to 0.001 at gloss 1.
@@ -107,11 +113,13 @@ impl Principled {
     /// colour's square root (black where metallic is 1).
     pub fn back(&self, base: Vec3) -> Surface {
         let w = self.weights().1;
+        let alpha = self.alphas();
         Surface::RoughDielectric {
             ior: self.eta,
             reflectance: Vec3::splat(w),
             transmittance: base.map(f32::sqrt) * w,
-            alpha: self.alpha(),
+            alpha: alpha.x,
+            alpha_v: Some(alpha.y),
             distribution: Distribution::Ggx,
         }
     }
@@ -129,7 +137,7 @@ impl Principled {
             let (oh, ih) = (wo.dot(h), wi.dot(h));
             let f = fresnel_dielectric(oh, self.eta).0;
             let denom = oh + self.eta * ih;
-            let dg = Distribution::Ggx.dg(self.alpha(), wo, wi, h);
+            let dg = Distribution::Ggx.dg(self.alphas(), wo, wi, h);
             return base.map(f32::sqrt)
                 * (bsdf * (1.0 - f) * dg * (oh * ih).abs() / (wo.z * denom * denom));
         }
@@ -148,7 +156,7 @@ impl Principled {
             let f = (1.0 - m) * (1.0 - st) * fd
                 + m * schlick(base, oh, self.eta)
                 + (1.0 - m) * st * schlick(tint * r0, oh, self.eta);
-            value += f * (Distribution::Ggx.dg(self.alpha(), wo, wi, h) / (4.0 * wo.z));
+            value += f * (Distribution::Ggx.dg(self.alphas(), wo, wi, h) / (4.0 * wo.z));
         }
         if self.clearcoat > 0.0 {
             let f = schlick(Vec3::splat(0.04), oh, self.eta).x;
@@ -191,7 +199,7 @@ impl Principled {
         };
         let (oh, ih) = (wo.dot(h), wi.dot(h));
         let refracts = self.refraction_share(fresnel_dielectric(oh, self.eta).0);
-        let normal = Distribution::Ggx.sampler_pdf(self.alpha(), wo, h);
+        let normal = Distribution::Ggx.sampler_pdf(self.alphas(), wo, h);
         if !reflect {
             let denom = oh + self.eta * ih;
             return ps * refracts * normal * self.eta * self.eta * ih.abs() / (denom * denom);
@@ -216,7 +224,7 @@ impl Principled {
             let phi = 2.0 * PI * u.x;
             Vec3::new(s * phi.cos(), s * phi.sin(), c2.max(0.0).sqrt())
         } else {
-            let m = Distribution::Ggx.sample_normal(self.alpha(), wo, u.truncate());
+            let m = Distribution::Ggx.sample_normal(self.alphas(), wo, u.truncate());
             let c = wo.dot(m);
             let (f, cos_t) = fresnel_dielectric(c, self.eta);
             if c > 0.0 && (u.z - pd - pc) < ps * self.refraction_share(f) {
@@ -251,6 +259,7 @@ mod tests {
             clearcoat: 0.0,
             clearcoat_gloss: 0.0,
             spec_trans: 0.0,
+            anisotropic: 0.0,
             eta: 1.5,
         }
     }
@@ -397,6 +406,7 @@ mod tests {
             base_color: Vec3::new(0.9, 0.8, 0.7),
             params: Principled {
                 spec_trans: 1.0,
+                anisotropic: 0.0,
                 eta: 2.0 / (1.0 - (0.08f32 * 0.5).sqrt()) - 1.0,
                 ..params(0.45)
             },
@@ -406,6 +416,7 @@ mod tests {
             params: Principled {
                 metallic: 0.2,
                 spec_trans: 0.5,
+                anisotropic: 0.0,
                 clearcoat: 0.5,
                 sheen: 0.3,
                 eta: 1.33,

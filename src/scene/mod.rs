@@ -153,10 +153,14 @@ impl Material {
         }
     }
 
+    /// Whether it reads texture coordinates: a texture, a normal or bump
+    /// map, a textured choice, or a roughness that follows them.
     pub fn textured(&self) -> bool {
         self.textures.iter().any(Option::is_some)
             || self.normal_map.is_some()
             || self.choice.is_some_and(|c| c.texture().is_some())
+            // Its roughness follows the texture coordinates' dp/du.
+            || self.surface.anisotropic()
     }
 
     /// What users call its kind: its surface's, or its choice's; a sheet
@@ -307,14 +311,14 @@ impl Material {
             color: color.extend(code as f32).into(),
             emission: emission.extend(parameter).into(),
             eta: eta.extend(slots).into(),
-            k: k.extend(0.0).into(),
+            k: k.extend(self.surface.alpha_across().unwrap_or(0.0)).into(),
         }
     }
 }
 
 /// The materials as the kernels read them: each one's `Material`, then the
 /// rough plastics' transmittance tables, 4 records each, and the principled
-/// materials' (eta, clearcoat gloss, spec_trans), a record each, which their `k.w`
+/// materials' (eta, clearcoat gloss, spec_trans, anisotropic), a record each, which their `k.w`
 /// points to (as a word of the buffer).
 pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
     let mut out: Vec<shaders::Material> = materials.iter().map(Material::gpu).collect();
@@ -333,7 +337,12 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
         if let Surface::Principled { params, .. } = materials[i].surface {
             out[i].k[3] = (4 * out.len()) as f32;
             out.push(shaders::Material {
-                color: [params.eta, params.clearcoat_gloss, params.spec_trans, 0.0],
+                color: [
+                    params.eta,
+                    params.clearcoat_gloss,
+                    params.spec_trans,
+                    params.anisotropic,
+                ],
                 ..Default::default()
             });
         }
@@ -617,7 +626,12 @@ impl Scene {
             } else {
                 0
             };
-            acc | (code & flags) | feature | textured | mapped | chooses
+            let anisotropic = if m.surface.anisotropic() {
+                shaders::FEATURE_ANISOTROPIC
+            } else {
+                0
+            };
+            acc | (code & flags) | feature | textured | mapped | chooses | anisotropic
         })
     }
 

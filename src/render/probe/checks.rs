@@ -233,6 +233,9 @@ pub struct BsdfQuery {
     pub front: bool,
     pub wo: Vec3,
     pub u: Vec3,
+    /// The angle of the surface's tangent in the local frame (from x toward
+    /// y), which an anisotropic roughness follows.
+    pub tangent: f32,
 }
 
 /// GPU `bsdf_sample` (or `bsdf_sample_delta`), `bsdf_pdf`, `bsdf_eval` and
@@ -268,7 +271,7 @@ pub fn bsdf_samples(
         .zip(&materials)
         .flat_map(|(q, m)| {
             let [color, emission, eta, k, side] = material_texels(*m, q.wo, q.front);
-            [color, emission, eta, k, side, q.u.extend(0.0)]
+            [color, emission, eta, k, side, q.u.extend(q.tangent)]
         })
         .collect();
     let n = queries.len();

@@ -645,6 +645,13 @@ impl Builder<'_, '_> {
         let emission = area_emission(&p, &mut self.textures, self.loader)?;
         let (desc, shared) = self.shape_bsdf(&p)?;
         p.finish()?;
+        if desc.surface.anisotropic() && mesh.2.is_none() {
+            log::warn!(
+                "{}:{}: an anisotropic BSDF on a mesh without texture coordinates: its roughness follows each triangle's first edge in qtrace, Mitsuba's own frame about the face normal in Mitsuba (give the mesh texture coordinates)",
+                el.file.display(),
+                el.line
+            );
+        }
         let label = format!(
             "shape '{}' ({kind}) at line {}",
             el.attr("id").unwrap_or("unnamed"),
@@ -1282,7 +1289,9 @@ fn area_emission(
 
 /// A rough BSDF's `alpha` (or `alpha_u` and `alpha_v`, rendered isotropic
 /// with a warning) and `distribution`, Mitsuba's defaults 0.1 and Beckmann.
-fn roughness(el: &Element, p: &Props, kind: &str) -> Result<(f32, Distribution), SceneError> {
+/// A rough BSDF's alpha (along the surface's tangent where `alpha_u` and
+/// `alpha_v` differ, then with the alpha across it) and distribution.
+fn roughness(el: &Element, p: &Props) -> Result<(f32, Option<f32>, Distribution), SceneError> {
     let distribution = match p.string("distribution")?.unwrap_or("beckmann") {
         "beckmann" => Distribution::Beckmann,
         "ggx" => Distribution::Ggx,
@@ -1291,26 +1300,19 @@ fn roughness(el: &Element, p: &Props, kind: &str) -> Result<(f32, Distribution),
     // Sampling visible normals or all of them changes noise only.
     p.ignore("sample_visible");
     let (u, v) = (p.float("alpha_u")?, p.float("alpha_v")?);
-    let a = match (p.float("alpha")?, u, v) {
-        (Some(a), None, None) => a,
-        (None, None, None) => 0.1,
-        (None, Some(u), Some(v)) if u == v => u,
-        (None, Some(u), Some(v)) => {
-            // The isotropic lobe of the same area of normals.
-            let a = (u * v).sqrt();
-            log::warn!(
-                "{}:{}: qtrace's {kind} is isotropic: alpha_u {u} and alpha_v {v} render as alpha {a}",
-                el.file.display(),
-                el.line
-            );
-            a
-        }
+    let (a, across) = match (p.float("alpha")?, u, v) {
+        (Some(a), None, None) => (a, None),
+        (None, None, None) => (0.1, None),
+        (None, Some(u), Some(v)) if u == v => (u, None),
+        (None, Some(u), Some(v)) => (u, Some(v)),
         _ => return Err(el.error("give alpha, or alpha_u and alpha_v together, not both")),
     };
-    if !(a > 0.0 && a <= 1.0) {
-        return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
+    for a in std::iter::once(a).chain(across) {
+        if !(a > 0.0 && a <= 1.0) {
+            return Err(el.error(format!("alpha {a} must lie in (0, 1]")));
+        }
     }
-    Ok((a, distribution))
+    Ok((a, across, distribution))
 }
 
 /// A `conductor` or `roughconductor`: its Fresnel term (a named metal, or
@@ -1348,14 +1350,15 @@ fn conductor(el: &Element, p: &Props, kind: &str) -> Result<Surface, SceneError>
         }
     };
     let reflectance = reflectance(el, p, "specular_reflectance", 1.0)?;
-    let (alpha, distribution) = if kind == "roughconductor" {
-        roughness(el, p, kind)?
+    let (alpha, alpha_v, distribution) = if kind == "roughconductor" {
+        roughness(el, p)?
     } else {
-        (0.0, Distribution::Ggx)
+        (0.0, None, Distribution::Ggx)
     };
     Ok(Surface::Conductor {
         reflectance,
         alpha,
+        alpha_v,
         distribution,
         fresnel,
     })
@@ -1383,7 +1386,7 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
             "roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u and alpha_v",
         ));
     }
-    let (alpha, distribution) = roughness(el, p, "roughplastic")?;
+    let (alpha, _, distribution) = roughness(el, p)?;
     let diffuse = reflectance(el, p, "diffuse_reflectance", 0.5)?;
     let specular = p.color("specular_reflectance")?.unwrap_or(Vec3::ONE);
     if specular.min_element() < 0.0 {
@@ -1413,14 +1416,6 @@ fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     let spec_trans = weight("spec_trans", 0.0)?;
     let anisotropic = weight("anisotropic", 0.0)?;
     let roughness = weight("roughness", 0.5)?;
-    if anisotropic > 0.0 {
-        log::warn!(
-            "{}:{}: qtrace's principled is isotropic: anisotropic {anisotropic} renders as 0 (alpha {}, the mean of Mitsuba's two)",
-            el.file.display(),
-            el.line,
-            (roughness * roughness).max(1e-3)
-        );
-    }
     let eta = match (p.float("eta")?, p.float("specular")?) {
         (Some(_), Some(_)) => {
             return Err(el.error("principled: give eta or specular, not both (as in Mitsuba)"))
@@ -1462,6 +1457,7 @@ fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
             clearcoat: weight("clearcoat", 0.0)?,
             clearcoat_gloss: weight("clearcoat_gloss", 0.0)?,
             spec_trans,
+            anisotropic,
             eta,
         },
     })
@@ -1629,12 +1625,13 @@ fn bsdf(
             let int = ior(el, &p, "int_ior", "bk7")?;
             let ext = ior(el, &p, "ext_ior", "air")?;
             distinct_iors(el, kind, int, ext)?;
-            let (alpha, distribution) = roughness(el, &p, kind)?;
+            let (alpha, alpha_v, distribution) = roughness(el, &p)?;
             let mut d = one(Surface::RoughDielectric {
                 ior: int / ext,
                 reflectance: reflectance(el, &p, "specular_reflectance", 1.0)?,
                 transmittance: reflectance(el, &p, "specular_transmittance", 1.0)?,
                 alpha,
+                alpha_v,
                 distribution,
             });
             d.one_sided = false;
