@@ -145,13 +145,21 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
         float metallic = second != 0u ? luminance(texture_eval(second - 1u, uv)) : m.eta.x;
         return principled_bsdf(m, front, base, r, metallic);
     }
+    // An isotropic roughness's texture sets both alphas; a rough
+    // conductor's second texture, its alpha across its tangent.
+    bool isotropic = bsdf.alpha_v == bsdf.alpha;
+    bool conductor = bsdf_is(bsdf, MATERIAL_CONDUCTOR);
     if (second != 0u) {
-        bsdf.ior_eta = texture_eval(second - 1u, uv);
+        vec3 t = texture_eval(second - 1u, uv);
+        if (conductor) {
+            bsdf.alpha_v = max(luminance(t), MIN_ALPHA);
+        } else {
+            bsdf.ior_eta = t;
+        }
     }
     if (alpha != 0u) {
-        // (Isotropic: an anisotropic roughness takes no texture.)
         bsdf.alpha = max(luminance(texture_eval(alpha - 1u, uv)), MIN_ALPHA);
-        bsdf.alpha_v = bsdf.alpha;
+        bsdf.alpha_v = isotropic && !(conductor && second != 0u) ? bsdf.alpha : bsdf.alpha_v;
     }
     return bsdf;
 }

@@ -347,11 +347,19 @@ impl Surface {
     pub fn with_means(mut self, color: Option<Vec3>, second: Option<Vec3>, a: Option<f32>) -> Self {
         match &mut self {
             Surface::Diffuse { albedo } => *albedo = color.unwrap_or(*albedo),
+            // A rough conductor's second texture is its alpha across its
+            // tangent.
             Surface::Conductor {
-                reflectance, alpha, ..
+                reflectance,
+                alpha,
+                alpha_v,
+                ..
             } => {
                 *reflectance = color.unwrap_or(*reflectance);
                 *alpha = a.unwrap_or(*alpha);
+                if let Some(s) = second {
+                    *alpha_v = Some(luminance(s).clamp(1e-4, 1.0));
+                }
             }
             Surface::Dielectric {
                 transmittance,
@@ -906,10 +914,27 @@ impl Bsdf {
             | Lobe::Dielectric { reflectance, .. } => *reflectance = second.unwrap_or(*reflectance),
             _ => {}
         }
-        if let (Some(a), Lobe::Conductor { alpha, .. } | Lobe::RoughDielectric { alpha, .. }) =
-            (alpha, &mut self.lobe)
+        // An isotropic roughness's texture sets both alphas; a rough
+        // conductor's second texture, its alpha across its tangent.
+        let conductor = matches!(self.lobe, Lobe::Conductor { .. });
+        if let Lobe::Conductor {
+            alpha: a, alpha_v, ..
+        }
+        | Lobe::RoughDielectric {
+            alpha: a, alpha_v, ..
+        } = &mut self.lobe
         {
-            *alpha = a.max(MIN_ALPHA);
+            let isotropic = *alpha_v == *a;
+            let across = second.filter(|_| conductor);
+            if let Some(s) = across {
+                *alpha_v = luminance(s).max(MIN_ALPHA);
+            }
+            if let Some(t) = alpha {
+                *a = t.max(MIN_ALPHA);
+                if isotropic && across.is_none() {
+                    *alpha_v = *a;
+                }
+            }
         }
         self
     }

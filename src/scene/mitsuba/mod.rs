@@ -1299,11 +1299,23 @@ fn roughness(el: &Element, p: &Props) -> Result<(f32, Option<f32>, Distribution)
     };
     // Sampling visible normals or all of them changes noise only.
     p.ignore("sample_visible");
-    let (u, v) = (p.float("alpha_u")?, p.float("alpha_v")?);
-    let (a, across) = match (p.float("alpha")?, u, v) {
+    // A roughness given as a texture (roughconductor's) takes the
+    // texture's mean here (Surface::with_means); 0.1 holds its place.
+    let textured = |name: &str| {
+        el.children
+            .iter()
+            .any(|c| (c.tag == "texture" || c.tag == "ref") && c.attr("name") == Some(name))
+    };
+    let value = |name: &str| -> Result<Option<f32>, SceneError> {
+        Ok(p.float(name)?.or(textured(name).then_some(0.1)))
+    };
+    let (u, v) = (value("alpha_u")?, value("alpha_v")?);
+    let (a, across) = match (value("alpha")?, u, v) {
         (Some(a), None, None) => (a, None),
         (None, None, None) => (0.1, None),
-        (None, Some(u), Some(v)) if u == v => (u, None),
+        (None, Some(u), Some(v)) if u == v && !textured("alpha_u") && !textured("alpha_v") => {
+            (u, None)
+        }
         (None, Some(u), Some(v)) => (u, Some(v)),
         _ => return Err(el.error("give alpha, or alpha_u and alpha_v together, not both")),
     };

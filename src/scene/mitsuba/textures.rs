@@ -29,7 +29,13 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
     match kind {
         "diffuse" => &[("reflectance", COLOR)],
         "conductor" => &[("specular_reflectance", COLOR)],
-        "roughconductor" => &[("specular_reflectance", COLOR), ("alpha", ALPHA)],
+        // Anisotropic: alpha_u in the alpha slot, alpha_v in the second.
+        "roughconductor" => &[
+            ("specular_reflectance", COLOR),
+            ("alpha", ALPHA),
+            ("alpha_u", ALPHA),
+            ("alpha_v", SECOND),
+        ],
         "dielectric" => &[
             ("specular_transmittance", COLOR),
             ("specular_reflectance", SECOND),
@@ -125,7 +131,7 @@ impl Textures {
             }
             let number = slot == TEXTURE_SLOT_ALPHA
                 || matches!(kind, "mask" | "blendbsdf")
-                || (kind == "principled" && slot == TEXTURE_SLOT_SECOND);
+                || (matches!(kind, "principled" | "roughconductor") && slot == TEXTURE_SLOT_SECOND);
             let texture = if number {
                 read_as_number(texture)
             } else {
