@@ -1575,15 +1575,10 @@ mod tests {
             params: Principled {
                 roughness: 0.6,
                 metallic: 0.5,
-                specular_tint: 0.0,
-                sheen: 0.0,
-                sheen_tint: 0.0,
-                flatness: 0.0,
                 clearcoat: 0.3,
                 clearcoat_gloss: 0.2,
-                spec_trans: 0.0,
                 anisotropic: 0.8,
-                eta: 1.5,
+                ..Principled::default()
             },
         };
         let cases = [
@@ -1615,19 +1610,7 @@ mod tests {
     /// Principled BSDFs: nearly all diffuse, metallic with a clearcoat,
     /// sheen and flatness across an index below 1.
     fn principled_lobes() -> Vec<(String, Bsdf)> {
-        let p = Principled {
-            roughness: 0.5,
-            metallic: 0.0,
-            specular_tint: 0.0,
-            sheen: 0.0,
-            sheen_tint: 0.0,
-            flatness: 0.0,
-            clearcoat: 0.0,
-            clearcoat_gloss: 0.0,
-            spec_trans: 0.0,
-            anisotropic: 0.0,
-            eta: 1.5,
-        };
+        let p = Principled::default();
         let cases = [
             ("principled diffuse", Vec3::new(0.8, 0.4, 0.2), p),
             (
@@ -2186,15 +2169,9 @@ mod tests {
             params: Principled {
                 roughness: 0.4,
                 metallic: 0.8,
-                specular_tint: 0.0,
-                sheen: 0.0,
-                sheen_tint: 0.0,
-                flatness: 0.0,
-                clearcoat: 0.0,
-                clearcoat_gloss: 0.0,
-                spec_trans: 0.0,
                 anisotropic: 0.7,
                 eta: 2.0 / (1.0 - (0.08f32 * 0.5).sqrt()) - 1.0,
+                ..Principled::default()
             },
         };
         let glass = Surface::RoughDielectric {

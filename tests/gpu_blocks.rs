@@ -254,17 +254,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         Surface::Principled {
             base_color: Vec3::new(0.8, 0.4, 0.2),
             params: Principled {
-                roughness: 0.5,
-                metallic: 0.0,
-                specular_tint: 0.0,
-                sheen: 0.0,
-                sheen_tint: 0.0,
-                flatness: 0.0,
-                clearcoat: 0.0,
-                clearcoat_gloss: 0.0,
-                spec_trans: 0.0,
-                anisotropic: 0.0,
-                eta: 1.5,
+                ..Principled::default()
             },
         },
         Surface::Principled {
@@ -275,12 +265,10 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 specular_tint: 0.4,
                 sheen: 0.3,
                 sheen_tint: 0.8,
-                flatness: 0.0,
                 clearcoat: 0.8,
                 clearcoat_gloss: 0.6,
-                spec_trans: 0.0,
-                anisotropic: 0.0,
                 eta: 1.7,
+                ..Principled::default()
             },
         },
         Surface::Principled {
@@ -292,11 +280,8 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 sheen: 0.6,
                 sheen_tint: 0.5,
                 flatness: 0.6,
-                clearcoat: 0.0,
-                clearcoat_gloss: 0.0,
-                spec_trans: 0.0,
-                anisotropic: 0.0,
                 eta: 0.8,
+                ..Principled::default()
             },
         },
         Surface::Principled {
@@ -306,13 +291,12 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 metallic: 0.1,
                 specular_tint: 0.3,
                 sheen: 0.2,
-                sheen_tint: 0.0,
                 flatness: 0.3,
                 clearcoat: 0.4,
                 clearcoat_gloss: 0.5,
                 spec_trans: 0.7,
-                anisotropic: 0.0,
                 eta: 1.45,
+                ..Principled::default()
             },
         },
         // Anisotropic: turned by each query's tangent.
@@ -341,17 +325,13 @@ fn gpu_bsdf_matches_its_cpu_twin() {
         Surface::Principled {
             base_color: Vec3::new(0.8, 0.6, 0.4),
             params: Principled {
-                roughness: 0.5,
                 metallic: 0.3,
-                specular_tint: 0.0,
                 sheen: 0.1,
-                sheen_tint: 0.0,
-                flatness: 0.0,
                 clearcoat: 0.2,
                 clearcoat_gloss: 0.4,
                 spec_trans: 0.5,
                 anisotropic: 0.6,
-                eta: 1.5,
+                ..Principled::default()
             },
         },
     ];

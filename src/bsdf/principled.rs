@@ -34,6 +34,26 @@ pub struct Principled {
     pub eta: f32,
 }
 
+/// Mitsuba's defaults: roughness 0.5, the index that `specular` 0.5 stands
+/// for (1.5), every other weight 0.
+impl Default for Principled {
+    fn default() -> Self {
+        Self {
+            roughness: 0.5,
+            metallic: 0.0,
+            specular_tint: 0.0,
+            sheen: 0.0,
+            sheen_tint: 0.0,
+            flatness: 0.0,
+            clearcoat: 0.0,
+            clearcoat_gloss: 0.0,
+            spec_trans: 0.0,
+            anisotropic: 0.0,
+            eta: 1.5,
+        }
+    }
+}
+
 /// Schlick's weight (1 - c)^5.
 fn schlick_weight(c: f32) -> f32 {
     let m = (1.0 - c).clamp(0.0, 1.0);
@@ -251,16 +271,7 @@ mod tests {
     fn params(roughness: f32) -> Principled {
         Principled {
             roughness,
-            metallic: 0.0,
-            specular_tint: 0.0,
-            sheen: 0.0,
-            sheen_tint: 0.0,
-            flatness: 0.0,
-            clearcoat: 0.0,
-            clearcoat_gloss: 0.0,
-            spec_trans: 0.0,
-            anisotropic: 0.0,
-            eta: 1.5,
+            ..Principled::default()
         }
     }
 
