@@ -454,7 +454,8 @@ fn light_summary(scene: &Scene) -> String {
         );
     }
     let lights = crate::guide::sarsa::separate_lights(scene);
-    let how = if lights > 1 {
+    // As the guides decide it: not with delta lights or rough glass either.
+    let how = if !crate::guide::sarsa::guided_light_power(scene).is_empty() {
         "guides learn which one NEE picks where (`pick_lights`)"
     } else {
         "NEE picks by emitted power"
