@@ -124,8 +124,9 @@ uint texture_slot(Material m, uint s) {
 }
 
 // The BSDF of material m (bsdf_of's) with its textures looked up at uv: they
-// replace its colour, its second colour and its alpha. A one-sided
-// material's back stays black.
+// replace its colour, its second colour (a rough conductor's: its alpha
+// across its tangent) and its alpha (a principled material's: metallic and
+// roughness). A one-sided material's back stays black.
 Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     if (!scene_textured() || ((uint(m.color.w) & MATERIAL_ONE_SIDED) != 0u && !front)) {
         return bsdf;
@@ -136,7 +137,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     if (color != 0u) {
         bsdf.color = texture_eval(color - 1u, uv);
     }
-    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && (uint(m.color.w) & 7u) == MATERIAL_PRINCIPLED) {
+    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && (uint(m.color.w) & (MATERIAL_ONE_SIDED - 1u)) == MATERIAL_PRINCIPLED) {
         // Numbers from the second and alpha slots, as Mitsuba reads them:
         // metallic, and the roughness (not clamped as an alpha is); all
         // enter both sides' lobes.
