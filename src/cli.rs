@@ -784,5 +784,18 @@ fn material_summary(scene: &Scene) -> String {
     }
     kinds.sort_by_key(|&(_, n)| std::cmp::Reverse(n));
     let kinds: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
-    format!("{} ({})", scene.materials.len(), kinds.join(", "))
+    let anisotropic = scene
+        .materials
+        .iter()
+        .filter(|m| m.surface.anisotropic())
+        .count();
+    let anisotropic = match anisotropic {
+        0 => String::new(),
+        n => format!("; {n} with anisotropic roughness"),
+    };
+    format!(
+        "{} ({}){anisotropic}",
+        scene.materials.len(),
+        kinds.join(", ")
+    )
 }

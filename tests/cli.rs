@@ -522,7 +522,8 @@ fn devices_and_inspect() {
         stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
         "{stdout}"
     );
-    // A thin lens, hidden emitters, normal and bump maps, masks and blends show.
+    // A thin lens, hidden emitters, normal and bump maps, masks and blends,
+    // principled materials and anisotropic roughness show.
     for (scene, want) in [
         ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
         ("coverage-h.xml", "emitters hidden from the camera"),
@@ -532,6 +533,8 @@ fn devices_and_inspect() {
             "6 diffuse, 2 null, 2 mask, 1 blend, 1 two-faced",
         ),
         ("coverage-m.xml", "5 bump-mapped materials"),
+        ("coverage-n.xml", "materials    8 (7 principled, 1 diffuse)"),
+        ("coverage-o.xml", "; 5 with anisotropic roughness"),
     ] {
         let output = qtrace()
             .arg("inspect")
