@@ -306,6 +306,15 @@ vec4 rough_glass_half(vec3 wo, vec3 wi, float eta) {
     return vec4(h, ok ? (reflect ? 1.0 : 0.0) : -1.0);
 }
 
+// A refraction from wo to wi about microfacet normal h across relative
+// index eta (Walter et al.): the Jacobian of h over wi, its density's
+// factor, eta^2 |wi.h| / (wo.h + eta wi.h)^2. A rough interface's f cos
+// there is (1 - F) D G |wo.h| / (eta^2 wo.z) times it.
+float refraction_jacobian(vec3 wo, vec3 wi, vec3 h, float eta) {
+    float denom = dot(wo, h) + eta * dot(wi, h);
+    return eta * eta * abs(dot(wi, h)) / (denom * denom);
+}
+
 // Fresnel reflectance of a conductor of complex index eta + i k for
 // cos_i > 0 (exact, unpolarised).
 vec3 fresnel_conductor(float cos_i, vec3 eta, vec3 k) {
@@ -434,11 +443,10 @@ vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
             return vec3(0.0);
         }
         float oh = dot(wo, hr.xyz);
-        float ih = dot(wi, hr.xyz);
         float f = fresnel_dielectric(oh, bsdf.eta);
-        float denom = oh + bsdf.eta * ih;
         float dg = microfacet_dg(principled_specular(bsdf), wo, wi, hr.xyz);
-        return sqrt(base) * (weights.y * (1.0 - f) * dg * abs(oh * ih) / (wo.z * denom * denom));
+        float jacobian = refraction_jacobian(wo, wi, hr.xyz, bsdf.eta);
+        return sqrt(base) * (weights.y * (1.0 - f) * dg * oh * jacobian / (bsdf.eta * bsdf.eta * wo.z));
     }
     vec3 h = normalize(wo + wi);
     float oh = dot(wo, h);
@@ -491,12 +499,10 @@ float principled_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     vec3 h = hr.xyz;
     float oh = dot(wo, h);
-    float ih = dot(wi, h);
     float refracts = principled_weights(bsdf).y * (1.0 - fresnel_dielectric(oh, bsdf.eta));
     float normal = microfacet_sample_pdf(principled_specular(bsdf), wo, h);
     if (hr.w == 0.0) {
-        float denom = oh + bsdf.eta * ih;
-        return ps * refracts * normal * bsdf.eta * bsdf.eta * abs(ih) / (denom * denom);
+        return ps * refracts * normal * refraction_jacobian(wo, wi, h, bsdf.eta);
     }
     float clearcoat = gtr1_d(principled_clearcoat_alpha(bsdf), h) * h.z;
     return (ps * (1.0 - refracts) * normal + share.y * clearcoat) / (4.0 * oh) + share.x * wi.z * INV_PI;
@@ -567,14 +573,13 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         }
         vec3 h = hr.xyz;
         float oh = dot(wo, h);
-        float ih = dot(wi, h);
         float f = fresnel_dielectric(oh, bsdf.eta);
         float dg = microfacet_dg(bsdf, wo, wi, h);
         if (hr.w > 0.0) {
             return bsdf.ior_eta * (f * dg / (4.0 * wo.z));
         }
-        float denom = oh + bsdf.eta * ih;
-        return bsdf.color * ((1.0 - f) * dg * abs(oh * ih) / (wo.z * denom * denom));
+        float jacobian = refraction_jacobian(wo, wi, h, bsdf.eta);
+        return bsdf.color * ((1.0 - f) * dg * oh * jacobian / (bsdf.eta * bsdf.eta * wo.z));
     }
     if (bsdf_principled(bsdf)) {
         return wo.z > 0.0 && wi.z != 0.0 ? principled_eval(bsdf, wo, wi) : vec3(0.0);
@@ -620,14 +625,12 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
             return 0.0;
         }
         float oh = dot(wo, hr.xyz);
-        float ih = dot(wi, hr.xyz);
         float f = fresnel_dielectric(oh, bsdf.eta);
         float m = microfacet_sample_pdf(bsdf, wo, hr.xyz);
         if (hr.w > 0.0) {
             return f * m / (4.0 * oh);
         }
-        float denom = oh + bsdf.eta * ih;
-        return (1.0 - f) * m * bsdf.eta * bsdf.eta * abs(ih) / (denom * denom);
+        return (1.0 - f) * m * refraction_jacobian(wo, wi, hr.xyz, bsdf.eta);
     }
     if (bsdf_principled(bsdf)) {
         return principled_pdf(bsdf, wo, wi);

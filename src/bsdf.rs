@@ -198,6 +198,16 @@ fn rough_glass_half(wo: Vec3, wi: Vec3, eta: f32) -> Option<(Vec3, bool)> {
     (oh > 0.0 && (ih > 0.0) == reflect).then_some((h, reflect))
 }
 
+/// A refraction from wo to wi about microfacet normal h across relative
+/// index η (Walter et al.): the Jacobian of h over wi, its density's
+/// factor, η² |wi·h| / (wo·h + η wi·h)². A rough interface's f cos there
+/// is (1 − F) D G |wo·h| / (η² wo.z) times it. (`refraction_jacobian` in
+/// glsl/bsdf.glsl.)
+fn refraction_jacobian(wo: Vec3, wi: Vec3, h: Vec3, eta: f32) -> f32 {
+    let denom = wo.dot(h) + eta * wi.dot(h);
+    eta * eta * wi.dot(h).abs() / (denom * denom)
+}
+
 /// Gauss-Legendre nodes and weights on [0, 1].
 fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
     (0..n)
@@ -1071,12 +1081,14 @@ impl Bsdf {
                             / (4.0 * wo.z))
                 }
                 Some((h, false)) => {
-                    let (oh, ih) = (wo.dot(h), wi.dot(h));
+                    let oh = wo.dot(h);
                     let f = fresnel_dielectric(oh, eta).0;
-                    let denom = oh + eta * ih;
                     self.color
-                        * ((1.0 - f) * m.dg(self.alphas(), wo, wi, h) * (oh * ih).abs()
-                            / (wo.z * denom * denom))
+                        * ((1.0 - f)
+                            * m.dg(self.alphas(), wo, wi, h)
+                            * oh
+                            * refraction_jacobian(wo, wi, h, eta)
+                            / (eta * eta * wo.z))
                 }
                 None => Vec3::ZERO,
             };
@@ -1152,14 +1164,13 @@ impl Bsdf {
         {
             return match rough_glass_half(wo, wi, eta) {
                 Some((h, reflect)) => {
-                    let (oh, ih) = (wo.dot(h), wi.dot(h));
+                    let oh = wo.dot(h);
                     let f = fresnel_dielectric(oh, eta).0;
                     let normal = m.sampler_pdf(self.alphas(), wo, h);
                     if reflect {
                         f * normal / (4.0 * oh)
                     } else {
-                        let denom = oh + eta * ih;
-                        (1.0 - f) * normal * eta * eta * ih.abs() / (denom * denom)
+                        (1.0 - f) * normal * refraction_jacobian(wo, wi, h, eta)
                     }
                 }
                 None => 0.0,

@@ -7,7 +7,10 @@
 //! `Principled::back`). The device's twin is `principled_*` in
 //! glsl/bsdf.glsl.
 
-use super::{cosine, fresnel_dielectric, luminance, rough_glass_half, Distribution, Surface};
+use super::{
+    cosine, fresnel_dielectric, luminance, refraction_jacobian, rough_glass_half, Distribution,
+    Surface,
+};
 use crate::sampling::hemisphere_to_square;
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_1_PI, PI};
@@ -154,12 +157,12 @@ impl Principled {
             let Some((h, false)) = rough_glass_half(wo, wi, self.eta) else {
                 return Vec3::ZERO;
             };
-            let (oh, ih) = (wo.dot(h), wi.dot(h));
+            let oh = wo.dot(h);
             let f = fresnel_dielectric(oh, self.eta).0;
-            let denom = oh + self.eta * ih;
             let dg = Distribution::Ggx.dg(self.alphas(), wo, wi, h);
+            let jacobian = refraction_jacobian(wo, wi, h, self.eta);
             return base.map(f32::sqrt)
-                * (bsdf * (1.0 - f) * dg * (oh * ih).abs() / (wo.z * denom * denom));
+                * (bsdf * (1.0 - f) * dg * oh * jacobian / (self.eta * self.eta * wo.z));
         }
         let h = (wo + wi).normalize();
         let (oh, ih) = (wo.dot(h), wi.dot(h));
@@ -217,12 +220,11 @@ impl Principled {
         else {
             return 0.0;
         };
-        let (oh, ih) = (wo.dot(h), wi.dot(h));
+        let oh = wo.dot(h);
         let refracts = self.refraction_share(fresnel_dielectric(oh, self.eta).0);
         let normal = Distribution::Ggx.sampler_pdf(self.alphas(), wo, h);
         if !reflect {
-            let denom = oh + self.eta * ih;
-            return ps * refracts * normal * self.eta * self.eta * ih.abs() / (denom * denom);
+            return ps * refracts * normal * refraction_jacobian(wo, wi, h, self.eta);
         }
         let clearcoat = gtr1_d(self.clearcoat_alpha(), h) * h.z;
         ((ps * (1.0 - refracts) * normal + pc * clearcoat) / (4.0 * oh)) + pd * wi.z * FRAC_1_PI
