@@ -74,7 +74,7 @@ void main() {
         Material m = Material(probe_in[b], probe_in[b + 1u], probe_in[b + 2u], probe_in[b + 3u]);
         vec4 at = probe_in[b + 4u];
         bool front = at.z > 0.5;
-        Bsdf bsdf = bsdf_textured(bsdf_of(m, front), m, front, at.xy);
+        Bsdf bsdf = bsdf_textured(bsdf_of(m, front), m, front, 0u, vec2(0.0), at.xy);
         probe_out[i] = vec4(bsdf.color, bsdf.alpha);
         probe_out[params.item_count + i] = vec4(bsdf.ior_eta, 0.0);
     } else if (params.selector == PROBE_ENVIRONMENT) {

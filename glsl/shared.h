@@ -101,6 +101,10 @@
 // u2 v2), and the textures (TEXTURE_*), where FEATURE_TEXTURES says so.
 #define B_UVS 47
 #define B_TEXTURES 48
+// Per triangle, the values at its corners (three texels, rgb) of each mesh
+// attribute the scene's textures read (TEXTURE_ATTRIBUTE), where
+// FEATURE_ATTRIBUTES says so.
+#define B_ATTRIBUTES 50
 // The environment (glsl/environment.glsl): a header of
 // ENVIRONMENT_HEADER_WORDS words ((width, height, cells, first cell word);
 // the rows of to_local, whose w hold NEE's cells' block width and height
@@ -322,6 +326,9 @@ struct Triangle {
 // ... an anisotropic roughness (a rough conductor's or rough glass's alpha
 // across its tangent in k.w; a principled material's `anisotropic`).
 #define FEATURE_ANISOTROPIC 16384
+// ... a texture of mesh attributes (TEXTURE_ATTRIBUTE), whose values
+// B_ATTRIBUTES holds.
+#define FEATURE_ATTRIBUTES 32768
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4
@@ -383,7 +390,9 @@ struct Material {
 // sRGB bytes (TEXTURE_TABLE_WORDS words), then TEXTURE_HEADER_WORDS words
 // per texture: (flags, first word of its texels, width, height) and the
 // two rows of its to_uv; then the texels: one float RGB a word, or four
-// 8-bit RGB a word (TEXTURE_BYTES), or a checkerboard's two colours.
+// 8-bit RGB a word (TEXTURE_BYTES), or a checkerboard's two colours; a mesh
+// attribute (TEXTURE_ATTRIBUTE) has none: its header holds its scale, its
+// place among each triangle's attributes in B_ATTRIBUTES and their number.
 #define TEXTURE_SLOT_BITS 9
 // Set in every word of slots, so that it reads as a normal float.
 #define TEXTURE_SLOT_MARK 0x40000000u
@@ -395,6 +404,7 @@ struct Material {
 #define TEXTURE_FLOATS 0
 #define TEXTURE_BYTES 1
 #define TEXTURE_CHECKERBOARD 2
+#define TEXTURE_ATTRIBUTE 3
 #define TEXTURE_SRGB 4
 #define TEXTURE_NEAREST 8
 #define TEXTURE_REPEAT 0

@@ -6,6 +6,7 @@
 
 WORDS(uv_texels, B_UVS)           // 2 per triangle, where a material is textured
 WORDS(texture_texels, B_TEXTURES) // headers, then texels (TEXTURE_* in shared.h)
+WORDS(attribute_texels, B_ATTRIBUTES) // 3 per triangle, where FEATURE_ATTRIBUTES
 
 // Whether some material of the scene is textured; a constant, so that the
 // kernels of the others carry no texture code.
@@ -96,6 +97,24 @@ vec3 texture_eval(uint t, vec2 uv) {
     return mix(top, bottom, f.y);
 }
 
+// Texture t's value at barycentric coordinates b of triangle i, where the
+// surface's (u, v) is uv: a mesh attribute's from the triangle's corners,
+// as Mitsuba interpolates it, times its scale; else texture_eval's.
+vec3 texture_at(uint t, uint i, vec2 b, vec2 uv) {
+    if ((MATERIAL_FEATURES & FEATURE_ATTRIBUTES) != 0u) {
+        uvec4 h = FETCH(texture_texels, int(TEXTURE_TABLE_WORDS + TEXTURE_HEADER_WORDS * t));
+        if ((h.x & 3u) == TEXTURE_ATTRIBUTE) {
+            // Its place (h.z) among the triangle's attributes (h.w of them).
+            int at = int(3u * (i * h.w + h.z));
+            vec3 c0 = uintBitsToFloat(FETCH(attribute_texels, at).rgb);
+            vec3 c1 = uintBitsToFloat(FETCH(attribute_texels, at + 1).rgb);
+            vec3 c2 = uintBitsToFloat(FETCH(attribute_texels, at + 2).rgb);
+            return uintBitsToFloat(h.y) * ((1.0 - b.x - b.y) * c0 + b.x * c1 + b.y * c2);
+        }
+    }
+    return texture_eval(t, uv);
+}
+
 // The derivatives along a surface's u and v of texture t's luminance at
 // (u, v), as its bilinear lookup varies (Mitsuba's eval_1_grad, scaled by
 // the resolution after to_uv's transpose, as Mitsuba scales it); 0 for a
@@ -123,11 +142,12 @@ uint texture_slot(Material m, uint s) {
     return (floatBitsToUint(m.eta.w) >> (TEXTURE_SLOT_BITS * s)) & ((1u << TEXTURE_SLOT_BITS) - 1u);
 }
 
-// The BSDF of material m (bsdf_of's) with its textures looked up at uv: they
+// The BSDF of material m (bsdf_of's) with its textures looked up at
+// barycentric coordinates b of triangle i, (u, v) uv there: they
 // replace its colour, its second colour (a rough conductor's: its alpha
 // across its tangent) and its alpha (a principled material's: metallic and
 // roughness). A one-sided material's back stays black.
-Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
+Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
     if (!scene_textured() || ((uint(m.color.w) & MATERIAL_ONE_SIDED) != 0u && !front)) {
         return bsdf;
     }
@@ -135,15 +155,15 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     uint second = texture_slot(m, TEXTURE_SLOT_SECOND);
     uint alpha = texture_slot(m, TEXTURE_SLOT_ALPHA);
     if (color != 0u) {
-        bsdf.color = texture_eval(color - 1u, uv);
+        bsdf.color = texture_at(color - 1u, i, b, uv);
     }
     if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && (uint(m.color.w) & (MATERIAL_ONE_SIDED - 1u)) == MATERIAL_PRINCIPLED) {
         // Numbers from the second and alpha slots, as Mitsuba reads them:
         // metallic, and the roughness (not clamped as an alpha is); all
         // enter both sides' lobes.
         vec3 base = color != 0u ? bsdf.color : m.color.rgb;
-        float r = alpha != 0u ? luminance(texture_eval(alpha - 1u, uv)) : m.emission.w;
-        float metallic = second != 0u ? luminance(texture_eval(second - 1u, uv)) : m.eta.x;
+        float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
+        float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) : m.eta.x;
         return principled_bsdf(m, front, base, r, metallic);
     }
     // An isotropic roughness's texture sets both alphas; a rough
@@ -151,7 +171,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
     bool isotropic = bsdf.alpha_v == bsdf.alpha;
     bool conductor = bsdf_is(bsdf, MATERIAL_CONDUCTOR);
     if (second != 0u) {
-        vec3 t = texture_eval(second - 1u, uv);
+        vec3 t = texture_at(second - 1u, i, b, uv);
         if (conductor) {
             bsdf.alpha_v = max(luminance(t), MIN_ALPHA);
         } else {
@@ -159,7 +179,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, vec2 uv) {
         }
     }
     if (alpha != 0u) {
-        bsdf.alpha = max(luminance(texture_eval(alpha - 1u, uv)), MIN_ALPHA);
+        bsdf.alpha = max(luminance(texture_at(alpha - 1u, i, b, uv)), MIN_ALPHA);
         bsdf.alpha_v = isotropic && !(conductor && second != 0u) ? bsdf.alpha : bsdf.alpha_v;
     }
     return bsdf;

@@ -681,7 +681,7 @@ Material chosen_material(Material mat, bool front, uint i, Triangle tri, vec3 p,
             uint t = uint(mat.color.y);
             if (scene_textured() && t != 0u) {
                 vec2 b = clamp(barycentric(tri, p), vec2(0.0), vec2(1.0));
-                w = clamp(luminance(texture_eval(t - 1u, surface_uv(i, b))), 0.0, 1.0);
+                w = clamp(luminance(texture_at(t - 1u, i, b, surface_uv(i, b))), 0.0, 1.0);
             }
             second = rng_next(rng) < w;
         }
@@ -732,7 +732,7 @@ bool scatter(inout Path path, inout Trail trail) {
     Bsdf bsdf = bsdf_of(mat, front);
     if (scene_textured()) {
         vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
-        bsdf = bsdf_textured(bsdf, mat, front, surface_uv(hit.triangle, b));
+        bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, surface_uv(hit.triangle, b));
     }
     s.unmapped = s.ns;
     s.map_alpha2 = -1.0;
@@ -768,7 +768,7 @@ bool scatter(inout Path path, inout Trail trail) {
                     front = mapped_front;
                     bsdf = bsdf_of(mat, front);
                     if (scene_textured()) {
-                        bsdf = bsdf_textured(bsdf, mat, front, at.uv);
+                        bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, at.uv);
                     }
                 }
             }

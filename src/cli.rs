@@ -417,6 +417,8 @@ fn texture_summary(scene: &Scene) -> String {
         return "none".into();
     }
     let bytes = crate::scene::texture::pack(&scene.textures, u64::MAX).map_or(0, |w| 16 * w.len());
+    // Mesh attributes: three texels of 16 bytes per triangle each.
+    let bytes = bytes + 48 * scene.triangles.len() * scene.attributes.len();
     let mut names: Vec<&str> = scene.textures.iter().map(|t| t.name.as_str()).collect();
     let count = names.len();
     names.sort_unstable();

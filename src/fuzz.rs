@@ -87,6 +87,9 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-k.xml",
         "tests/fixtures/mitsuba/coverage-l.xml",
         "tests/fixtures/mitsuba/coverage-m.xml",
+        "tests/fixtures/mitsuba/coverage-n.xml",
+        "tests/fixtures/mitsuba/coverage-o.xml",
+        "tests/fixtures/mitsuba/coverage-p.xml",
         "tests/fixtures/mitsuba/choices.xml",
     ]
     .iter()
@@ -273,6 +276,11 @@ const LINES: &[&str] = &[
     "<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"1e30\"/></rfilter>",
     "<integer name=\"max_depth\" value=\"-2\"/>",
     "</scene>",
+    "<texture type=\"mesh_attribute\" name=\"reflectance\"><string name=\"name\" value=\"vertex_color\"/></texture>",
+    "<texture type=\"mesh_attribute\" name=\"alpha\"><string name=\"name\" value=\"face_color\"/></texture>",
+    "property float r",
+    "property uchar green",
+    "property float q_0",
     "element vertex 4294967295",
     "element face 1",
     "property list uchar int vertex_indices",

@@ -523,7 +523,8 @@ fn devices_and_inspect() {
         "{stdout}"
     );
     // A thin lens, hidden emitters, normal and bump maps, masks and blends,
-    // principled materials and anisotropic roughness show.
+    // principled materials, anisotropic roughness and mesh attributes (on
+    // the device: three corners of each of four per triangle) show.
     for (scene, want) in [
         ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
         ("coverage-h.xml", "emitters hidden from the camera"),
@@ -535,6 +536,10 @@ fn devices_and_inspect() {
         ("coverage-m.xml", "5 bump-mapped materials"),
         ("coverage-n.xml", "materials    8 (7 principled, 1 diffuse)"),
         ("coverage-o.xml", "; 5 with anisotropic roughness"),
+        (
+            "coverage-p.xml",
+            "mesh attribute 'vertex_color', mesh attribute 'vertex_rough', mesh attribute 'vertex_w'), 0.72 MiB on the device",
+        ),
     ] {
         let output = qtrace()
             .arg("inspect")

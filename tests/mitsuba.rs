@@ -77,6 +77,9 @@ fn load_text(text: &str) -> Result<Scene, String> {
             // Quads with texture coordinates.
             Some("qt.obj") => Ok(b"v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n".to_vec()),
             Some("q.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0 0 0\n1 -1 0 1 0\n1 1 0 1 1\n-1 1 0 0 1\n3 0 1 2\n3 0 2 3\n".to_vec()),
+            // A triangle with an RGBA colour and a weight per vertex and a
+            // colour per face.
+            Some("c.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float r\nproperty float g\nproperty float b\nproperty float a\nproperty float w_0\nelement face 1\nproperty list uchar int vertex_indices\nproperty float k_r\nproperty float k_g\nproperty float k_b\nend_header\n0 0 0 1 0 0 1 0.2\n1 0 0 0 1 0 1 0.5\n0 1 0 0 0 1 1 0.9\n3 0 1 2 0.1 0.2 0.3\n".to_vec()),
             Some("small.png") => std::fs::read(concat!(
                 env!("CARGO_MANIFEST_DIR"),
                 "/tests/fixtures/textures/small.png"
@@ -475,6 +478,21 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             6,
             "a normalmap or bumpmap around a thindielectric BSDF",
         ),
+        (
+            "<shape type=\"ply\"><string name=\"filename\" value=\"c.ply\"/><bsdf type=\"plastic\"><texture type=\"mesh_attribute\" name=\"diffuse_reflectance\"><string name=\"name\" value=\"face_k_color\"/></texture></bsdf></shape>",
+            5,
+            "plastic's 'diffuse_reflectance' cannot be a mesh attribute ('face_k_color'), as in Mitsuba",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"mesh_attribute\" name=\"reflectance\"><string name=\"name\" value=\"vertex_w\"/></texture></bsdf></shape>",
+            5,
+            "shape 'cube' has no mesh attribute 'vertex_w'",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"mesh_attribute\" name=\"reflectance\"><string name=\"name\" value=\"color\"/></texture></bsdf></shape>",
+            5,
+            "mesh attribute 'color' must start with 'vertex_' or 'face_'",
+        ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),
         ("<shape type=\"cube\"", 6, "malformed XML"),
@@ -498,6 +516,46 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         err,
         "mem/m.obj: malformed PLY: not a PLY file (it does not start with 'ply') (the shape at mem/s.xml:5)"
     );
+    // A mesh attribute the mesh lacks, or cannot give as Mitsuba reads it.
+    let ply = |bsdf: &str| {
+        with_body(&format!(
+            "<shape type=\"ply\"><string name=\"filename\" value=\"c.ply\"/>{bsdf}</shape>"
+        ))
+    };
+    let attribute = |param: &str, name: &str| {
+        format!("<texture type=\"mesh_attribute\" name=\"{param}\"><string name=\"name\" value=\"{name}\"/></texture>")
+    };
+    for (bsdf, want) in [
+        (
+            format!("<bsdf type=\"diffuse\">{}</bsdf>", attribute("reflectance", "vertex_gone")),
+            "mem/c.ply: the mesh has no attribute 'vertex_gone' (it has vertex_color, vertex_w, face_k_color) (the shape at mem/s.xml:5)",
+        ),
+        (
+            format!("<bsdf type=\"roughconductor\">{}</bsdf>", attribute("alpha", "face_k_color")),
+            "mem/c.ply: a number is read from attribute 'face_k_color', which has 3 channels (Mitsuba reads numbers from attributes of one) (the shape at mem/s.xml:5)",
+        ),
+        (
+            format!("<bsdf type=\"diffuse\">{}</bsdf>", attribute("reflectance", "vertex_color")),
+            "mem/c.ply: attribute 'vertex_color' has 4 channels; Mitsuba evaluates attributes of 1 or 3 (the shape at mem/s.xml:5)",
+        ),
+    ] {
+        assert_eq!(load_text(&ply(&bsdf)).err().as_deref(), Some(want), "{bsdf}");
+    }
+    // Two attributes, one read as a number: each triangle holds both.
+    let scene = load_text(&ply(&format!(
+        "<bsdf type=\"blendbsdf\">{}<bsdf type=\"diffuse\">{}</bsdf><bsdf type=\"diffuse\"/></bsdf>",
+        attribute("weight", "vertex_w"),
+        attribute("reflectance", "face_k_color")
+    )))
+    .unwrap();
+    let names: Vec<&str> = scene.attributes.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["vertex_w", "face_k_color"]);
+    let last = scene
+        .attributes
+        .iter()
+        .map(|(_, v)| v.iter().find(|c| c[0] != Vec3::ZERO));
+    let values: Vec<_> = last.map(|c| c.map(|c| c.map(|v| v.x))).collect();
+    assert_eq!(values, [Some([0.2, 0.5, 0.9]), Some([0.1, 0.1, 0.1])]);
 }
 
 /// A Mitsuba reference: its image and the variance of each pixel's mean.
@@ -958,6 +1016,22 @@ fn anisotropic_roughness_agrees_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-o",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn mesh_attributes_agree_with_mitsuba() {
+    // PLY vertex and face colours and one-channel attributes in diffuse,
+    // principled, rough metal (scaled) and a blend's weight, through a
+    // shared BSDF and flipped normals.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-p.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-p",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

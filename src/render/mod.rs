@@ -51,6 +51,9 @@ pub struct GpuScene {
     /// material is textured.
     pub uvs: Buffer,
     pub textures: Buffer,
+    /// Mesh attributes at the triangles' corners; one unused texel where
+    /// no texture reads one.
+    pub attributes: Buffer,
     /// The environment; one unused texel where there is none.
     pub environment: Buffer,
     /// How its texels lie (SKY_*: the kernels' CONSTANT_ENVIRONMENT).
@@ -84,6 +87,27 @@ impl GpuScene {
             )
         } else {
             (unused("texture coordinates")?, unused("textures")?)
+        };
+        let attributes = if scene.attributes.is_empty() {
+            unused("mesh attributes")?
+        } else {
+            // Per triangle, each attribute's three corners.
+            let texels: Vec<[f32; 4]> = (0..scene.triangles.len())
+                .flat_map(|i| scene.attributes.iter().flat_map(move |(_, v)| v[i]))
+                .map(|c| c.extend(0.0).to_array())
+                .collect();
+            let bytes = 16 * texels.len() as u64;
+            if bytes > limit {
+                return Err(RenderError::Textures(
+                    scene.path.clone(),
+                    crate::scene::texture::TextureTooLarge {
+                        name: "mesh attributes".into(),
+                        bytes,
+                        limit,
+                    },
+                ));
+            }
+            Buffer::gpu_only_with(ctx, "mesh attributes", &texels)?
         };
         let (environment, sky) = match &scene.environment {
             Some(e) => {
@@ -139,6 +163,7 @@ impl GpuScene {
             sky,
             uvs,
             textures,
+            attributes,
             // The largest table: a CPU device reads the scene's own copy.
             nodes: match Buffer::import_host(ctx, "bvh nodes", &scene.nodes, scene.nodes.clone())? {
                 Some(imported) => imported,
@@ -165,9 +190,10 @@ impl GpuScene {
     }
 
     /// Bindings every kernel that traces rays uses.
-    pub fn bindings(&self) -> [(u32, &Buffer); 9] {
+    pub fn bindings(&self) -> [(u32, &Buffer); 10] {
         [
             (shaders::B_ENVIRONMENT, &self.environment),
+            (shaders::B_ATTRIBUTES, &self.attributes),
             (shaders::B_UVS, &self.uvs),
             (shaders::B_TEXTURES, &self.textures),
             (shaders::B_NODES, &self.nodes),

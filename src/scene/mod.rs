@@ -537,6 +537,11 @@ pub struct Scene {
     pub uvs: Vec<[Vec2; 3]>,
     /// What textured materials' slots index.
     pub textures: Vec<texture::Texture>,
+    /// The mesh attributes textures read, by name: per triangle, in
+    /// `triangles`' order, the values at its corners (a one-channel
+    /// attribute's value in all three channels; zeros where its shape has
+    /// none).
+    pub attributes: Vec<(String, Vec<[Vec3; 3]>)>,
     pub lights: Vec<shaders::Light>,
     /// Point, spot and directional lights, and the entries of NEE's light
     /// list that follow `lights` on the GPU: theirs (`LIGHT_DELTA | index`),
@@ -632,7 +637,11 @@ impl Scene {
                 0
             };
             acc | (code & flags) | feature | textured | mapped | chooses | anisotropic
-        })
+        }) | if self.attributes.is_empty() {
+            0
+        } else {
+            shaders::FEATURE_ATTRIBUTES
+        }
     }
 
     /// The scene's table of guide `name` (empty when it has none).
@@ -755,6 +764,7 @@ impl Scene {
             positions,
             normals,
             uvs,
+            attributes,
             material_of,
             sources,
             source_of,
@@ -778,17 +788,22 @@ impl Scene {
         let zero_area = |t: &[Vec3; 3]| {
             0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() <= 1e-12 * extent * extent
         };
-        let (positions, (normals, uvs), material_of, source_of) = if drop_degenerate {
+        let (positions, (normals, uvs, attributes), material_of, source_of) = if drop_degenerate {
             drop_zero_area(
                 positions,
-                (normals, uvs),
+                (normals, uvs, attributes),
                 material_of,
                 source_of,
                 &sources,
                 zero_area,
             )
         } else {
-            (positions, (normals, uvs), material_of, source_of)
+            (
+                positions,
+                (normals, uvs, attributes),
+                material_of,
+                source_of,
+            )
         };
         if positions.is_empty() {
             return Err(invalid(
@@ -851,6 +866,22 @@ impl Scene {
             .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
         let (lights, delta_entries) =
             build_lights(&mut triangles, &materials, &delta_lights, sky_weight);
+        let attributes: Attributes = attributes
+            .into_iter()
+            .map(|(n, v)| (n, in_order(v, &bvh.order)))
+            .collect();
+        // Each attribute texture reads its values at its place among
+        // the triangle's.
+        let mut textures = textures;
+        for t in &mut textures {
+            if let texture::Pattern::Attribute {
+                name, slot, stride, ..
+            } = &mut t.pattern
+            {
+                *slot = attributes.iter().position(|(n, _)| n == name).unwrap_or(0) as u32;
+                *stride = attributes.len() as u32;
+            }
+        }
         let mut uvs = in_order(uvs, &bvh.order);
         if uvs.is_empty() && materials.iter().any(Material::textured) {
             uvs = vec![BARYCENTRIC_UVS; triangles.len()];
@@ -865,6 +896,7 @@ impl Scene {
             environment,
             materials,
             textures,
+            attributes,
             triangles,
             normals,
             uvs,
@@ -1042,14 +1074,14 @@ fn in_order<T: Copy>(items: Vec<T>, order: &[u32]) -> Vec<T> {
 #[allow(clippy::type_complexity)]
 fn drop_zero_area(
     positions: Vec<[Vec3; 3]>,
-    (normals, uvs): (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>),
+    (normals, uvs, attributes): (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>, Attributes),
     material_of: Vec<u32>,
     source_of: Vec<u32>,
     sources: &[(PathBuf, String)],
     zero_area: impl Fn(&[Vec3; 3]) -> bool,
 ) -> (
     Vec<[Vec3; 3]>,
-    (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>),
+    (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>, Attributes),
     Vec<u32>,
     Vec<u32>,
 ) {
@@ -1064,7 +1096,12 @@ fn drop_zero_area(
         })
         .collect();
     if dropped.iter().all(|&n| n == 0) {
-        return (positions, (normals, uvs), material_of, source_of);
+        return (
+            positions,
+            (normals, uvs, attributes),
+            material_of,
+            source_of,
+        );
     }
     for ((path, what), &n) in sources.iter().zip(&dropped) {
         if n > 0 {
@@ -1091,9 +1128,13 @@ fn drop_zero_area(
     } else {
         filter(uvs, &keep)
     };
+    let attributes = attributes
+        .into_iter()
+        .map(|(n, v)| (n, filter(v, &keep)))
+        .collect();
     (
         filter(positions, &keep),
-        (normals, uvs),
+        (normals, uvs, attributes),
         filter(material_of, &keep),
         filter(source_of, &keep),
     )
@@ -1181,10 +1222,16 @@ struct Geometry {
     /// has them (then a triangle's barycentric coordinates, as in
     /// Mitsuba, fill in for them).
     uvs: Vec<[Vec2; 3]>,
+    /// The mesh attributes materials read, by name, at each triangle's
+    /// corners (zeros where its shape's material reads none).
+    attributes: Vec<(String, Vec<[Vec3; 3]>)>,
     material_of: Vec<u32>,
     sources: Vec<(PathBuf, String)>,
     source_of: Vec<u32>,
 }
+
+/// Mesh attributes by name, at each triangle's corners.
+type Attributes = Vec<(String, Vec<[Vec3; 3]>)>;
 
 /// A triangle's texture coordinates where its shape has none: Mitsuba's,
 /// the barycentric coordinates of its corners.
@@ -1204,8 +1251,23 @@ impl Geometry {
         triangles: Vec<[Vec3; 3]>,
         normals: Option<Vec<[Vec3; 3]>>,
         uvs: Option<Vec<[Vec2; 3]>>,
+        attributes: Vec<(String, Vec<[Vec3; 3]>)>,
         material: u32,
     ) {
+        for (name, values) in attributes {
+            match self.attributes.iter_mut().find(|(n, _)| *n == name) {
+                Some((_, v)) => v.extend(values),
+                None => {
+                    let mut v = vec![[Vec3::ZERO; 3]; self.positions.len()];
+                    v.extend(values);
+                    self.attributes.push((name, v));
+                }
+            }
+        }
+        let count = self.positions.len() + triangles.len();
+        for (_, v) in &mut self.attributes {
+            v.resize(count, [Vec3::ZERO; 3]);
+        }
         match uvs {
             Some(uv) => {
                 if self.uvs.is_empty() {

@@ -1,6 +1,8 @@
 //! Stanford PLY meshes, ASCII and binary (either byte order): vertex
-//! positions, normals and texture coordinates, and faces as polygons (fans
-//! of triangles). Other elements and properties are read past. Every count
+//! positions, normals and texture coordinates, faces as polygons (fans of
+//! triangles), and the vertices' and faces' other properties as Mitsuba 3
+//! groups them into attributes (`vertex_color`, `face_color`, ...). Other
+//! elements are read past. Every count
 //! the header gives is checked against the bytes that follow before anything
 //! is allocated for it, so no file can make the reader panic or allocate
 //! beyond its own size.
@@ -16,6 +18,31 @@ pub struct IndexedMesh {
     /// Per vertex, where the file has `u v` (or `s t`, `texture_u ...`).
     pub uvs: Option<Vec<Vec2>>,
     pub triangles: Vec<[u32; 3]>,
+    /// Per-vertex and per-face attributes, as Mitsuba 3 names them.
+    pub attributes: Vec<Attribute>,
+}
+
+/// Properties of vertices or faces read as one attribute (Mitsuba's mesh
+/// attributes, which its `mesh_attribute` texture reads).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Attribute {
+    /// `vertex_...` or `face_...`.
+    pub name: String,
+    /// Its values' channels: 1 or 3 (or 4 for an `r g b a` colour, which
+    /// Mitsuba reads but cannot evaluate).
+    pub channels: usize,
+    /// `channels` values per vertex, or per triangle for a face attribute
+    /// (a polygon's repeated for each of its triangles).
+    pub values: Vec<f32>,
+    /// Whether the file stores it in integers: Mitsuba reads those as
+    /// they are (a byte colour's 255 is 255), with a warning.
+    pub integer: bool,
+}
+
+impl Attribute {
+    pub fn per_face(&self) -> bool {
+        self.name.starts_with("face_")
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -245,6 +272,104 @@ pub fn parse_ply(bytes: &[u8], max_triangles: usize) -> Result<IndexedMesh, Stri
     Ok(mesh)
 }
 
+/// Which of an element's scalar properties Mitsuba 3 reads as attributes,
+/// and under what names (`kind` is `vertex_` or `face_`): `r g b [a]` (or
+/// `red green blue [alpha]`) as `<kind>color`; other properties named
+/// `<prefix>_<c>`, one or three in a row with one prefix and the suffixes
+/// of one of x y z, r g b (then named `<kind><prefix>_color`), 0 1 2 or
+/// 1 2 3, as `<kind><prefix>`. Anything else it ignores. Returns each
+/// attribute's name, property indices and whether they are integers.
+fn attribute_fields(
+    kind: &str,
+    properties: &[Property],
+    reserved: &[&str],
+) -> Vec<(String, Vec<usize>, bool)> {
+    let scalar = |i: usize| match &properties[i] {
+        Property::Scalar(n, t) => Some((n.as_str(), *t)),
+        Property::List(..) => None,
+    };
+    let find =
+        |name: &str| (0..properties.len()).find(|&i| scalar(i).is_some_and(|(n, _)| n == name));
+    let integer = |t: Scalar| !matches!(t, Scalar::F32 | Scalar::F64);
+    let mut out = Vec::new();
+    let mut taken: Vec<&str> = reserved.to_vec();
+    for names in [["r", "g", "b", "a"], ["red", "green", "blue", "alpha"]] {
+        if let (Some(r), Some(g), Some(b)) = (find(names[0]), find(names[1]), find(names[2])) {
+            let mut fields = vec![r, g, b];
+            fields.extend(find(names[3]));
+            let int = scalar(r).is_some_and(|(_, t)| integer(t));
+            out.push((format!("{kind}color"), fields, int));
+            taken.extend(names);
+            break;
+        }
+    }
+    taken.extend(["r", "g", "b", "a"]);
+    const SUFFIXES: [&[u8; 4]; 4] = [b"xr01", b"yg12", b"zb23", b"wa34"];
+    let mut seen: Vec<String> = Vec::new();
+    // The attribute being read: its prefix, suffix family and fields.
+    let mut current: Option<(String, usize, Vec<usize>)> = None;
+    let flush = |current: &mut Option<(String, usize, Vec<usize>)>,
+                 seen: &mut Vec<String>,
+                 out: &mut Vec<(String, Vec<usize>, bool)>| {
+        if let Some((prefix, family, fields)) = current.take() {
+            if matches!(fields.len(), 1 | 3) {
+                let last = fields[fields.len() - 1];
+                let int = scalar(last).is_some_and(|(_, t)| integer(t));
+                let color = if family == 1 { "_color" } else { "" };
+                out.push((format!("{kind}{prefix}{color}"), fields, int));
+            }
+            seen.push(prefix);
+        }
+    };
+    for i in 0..properties.len() {
+        let Some((name, _)) = scalar(i) else { continue };
+        if taken.contains(&name) {
+            continue;
+        }
+        let split = name.rsplit_once('_').filter(|(_, s)| s.len() == 1);
+        let Some((prefix, suffix)) = split else {
+            flush(&mut current, &mut seen, &mut out);
+            continue;
+        };
+        let c = suffix.as_bytes()[0];
+        if current.as_ref().is_some_and(|(p, _, _)| p != prefix) {
+            flush(&mut current, &mut seen, &mut out);
+        }
+        match &mut current {
+            Some((_, family, fields)) => {
+                let next = SUFFIXES.get(fields.len()).map(|s| s[*family]);
+                if next == Some(c) {
+                    fields.push(i);
+                } else {
+                    // An invalid sequence: the attribute is ignored.
+                    fields.clear();
+                }
+            }
+            None if seen.iter().any(|p| p == prefix) => {}
+            None => {
+                if let Some(family) = SUFFIXES[0].iter().position(|&s| s == c) {
+                    current = Some((prefix.to_string(), family, vec![i]));
+                }
+            }
+        }
+    }
+    flush(&mut current, &mut seen, &mut out);
+    out
+}
+
+/// Attributes named by `fields`, with room for `count` items.
+fn new_attributes(fields: &[(String, Vec<usize>, bool)], count: usize) -> Vec<Attribute> {
+    fields
+        .iter()
+        .map(|(name, f, integer)| Attribute {
+            name: name.clone(),
+            channels: f.len(),
+            values: Vec::with_capacity(count * f.len()),
+            integer: *integer,
+        })
+        .collect()
+}
+
 fn read_vertices(e: &Element, v: &mut Values, mesh: &mut IndexedMesh) -> Result<(), String> {
     let find = |names: &[&str]| {
         e.properties
@@ -262,6 +387,24 @@ fn read_vertices(e: &Element, v: &mut Values, mesh: &mut IndexedMesh) -> Result<
     let has_normals = matches!(normal, (Some(_), Some(_), Some(_)));
     let has_uvs = matches!(uv, (Some(_), Some(_)));
     mesh.positions.reserve(e.count);
+    const RESERVED: [&str; 14] = [
+        "x",
+        "y",
+        "z",
+        "nx",
+        "ny",
+        "nz",
+        "u",
+        "v",
+        "s",
+        "t",
+        "texture_u",
+        "texture_v",
+        "texture_s",
+        "texture_t",
+    ];
+    let fields = attribute_fields("vertex_", &e.properties, &RESERVED);
+    let mut attributes = new_attributes(&fields, e.count);
     let mut normals = Vec::new();
     let mut uvs = Vec::new();
     let mut row = vec![0.0f64; e.properties.len()];
@@ -286,9 +429,13 @@ fn read_vertices(e: &Element, v: &mut Values, mesh: &mut IndexedMesh) -> Result<
         if let (Some(a), Some(b)) = uv {
             uvs.push(Vec2::new(row[a] as f32, row[b] as f32));
         }
+        for (a, (_, f, _)) in attributes.iter_mut().zip(&fields) {
+            a.values.extend(f.iter().map(|&k| row[k] as f32));
+        }
     }
     mesh.normals = has_normals.then_some(normals);
     mesh.uvs = has_uvs.then_some(uvs);
+    mesh.attributes.extend(attributes);
     Ok(())
 }
 
@@ -312,12 +459,16 @@ fn read_faces(
     let Some(index) = index else {
         return Err("element 'face' has no vertex_indices list".into());
     };
+    let fields = attribute_fields("face_", &e.properties, &[]);
+    let mut attributes = new_attributes(&fields, e.count);
     let mut corners: Vec<u32> = Vec::new();
+    let mut row = vec![0.0f64; e.properties.len()];
     for _ in 0..e.count {
+        let first = mesh.triangles.len();
         for (k, p) in e.properties.iter().enumerate() {
             match p {
                 Property::Scalar(_, t) => {
-                    v.next(*t)?;
+                    row[k] = v.next(*t)?;
                 }
                 Property::List(_, c, t) => {
                     let n = list_len(v.next(*c)?, v)?;
@@ -350,7 +501,13 @@ fn read_faces(
                 }
             }
         }
+        for (a, (_, f, _)) in attributes.iter_mut().zip(&fields) {
+            for _ in first..mesh.triangles.len() {
+                a.values.extend(f.iter().map(|&k| row[k] as f32));
+            }
+        }
     }
+    mesh.attributes.extend(attributes);
     Ok(())
 }
 
@@ -440,6 +597,45 @@ mod tests {
             assert_eq!(b.triangles, a.triangles);
             assert_eq!((b.normals, b.uvs), (None, None));
         }
+    }
+
+    #[test]
+    fn attributes_are_named_as_mitsuba_names_them() {
+        // Header and values as Mitsuba 3.9.1 read them (through its Python
+        // API): byte colours as they are, polygons' face values on each of
+        // their triangles, and runs of one or three suffixed properties.
+        let text = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
+            property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
+            property uchar blue\nproperty float rough_0\nproperty float quality\n\
+            property float two_x\nproperty float two_y\nproperty float Col_r\n\
+            property float Col_g\nproperty float Col_b\nelement face 2\n\
+            property list uchar int vertex_indices\nproperty float q_x\nend_header\n\
+            0 0 0 255 0 128 0.1 9 1 2 0.5 0.6 0.7\n1 0 0 0 64 0 0.2 9 1 2 0 0 0\n\
+            1 1 0 1 2 3 0.3 9 1 2 1 1 1\n0 1 0 4 5 6 0.4 9 1 2 0 0 1\n\
+            4 0 1 2 3 0.25\n3 0 1 2 0.75\n";
+        let m = parse_ply(text.as_bytes(), 10).unwrap();
+        let names: Vec<(&str, usize, bool)> = m
+            .attributes
+            .iter()
+            .map(|a| (a.name.as_str(), a.channels, a.integer))
+            .collect();
+        assert_eq!(
+            names,
+            [
+                ("vertex_color", 3, true),
+                ("vertex_rough", 1, false),
+                ("vertex_Col_color", 3, false),
+                ("face_q", 1, false)
+            ]
+        );
+        assert_eq!(
+            m.attributes[0].values[..6],
+            [255.0, 0.0, 128.0, 0.0, 64.0, 0.0]
+        );
+        assert_eq!(m.attributes[1].values, [0.1, 0.2, 0.3, 0.4]);
+        assert_eq!(m.attributes[2].values[..3], [0.5, 0.6, 0.7]);
+        assert_eq!(m.attributes[3].values, [0.25, 0.25, 0.75]);
+        assert!(m.attributes[3].per_face() && !m.attributes[0].per_face());
     }
 
     #[test]

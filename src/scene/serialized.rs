@@ -169,6 +169,7 @@ pub fn parse_serialized(bytes: &[u8], index: u32, max_triangles: usize) -> Resul
             normals,
             uvs,
             triangles: out,
+            attributes: Vec::new(),
         },
         flags,
     })

@@ -74,6 +74,20 @@ pub enum Pattern {
     /// `color0` where the fractional parts of u and v lie on the same side
     /// of one half, else `color1`.
     Checkerboard { color0: Vec3, color1: Vec3 },
+    /// Mitsuba's `mesh_attribute`: attribute `name` of the surface's mesh
+    /// (`vertex_...`, interpolated across each triangle, or `face_...`)
+    /// times `scale`. Its values live with the triangles (the scene's
+    /// `attributes`), not here; `number` says whether a BSDF reads one
+    /// number from it (Mitsuba's `eval_1`, which takes one channel only);
+    /// `slot` is its place among the attributes each triangle holds, and
+    /// `stride` their number (the scene's).
+    Attribute {
+        name: String,
+        scale: f32,
+        number: bool,
+        slot: u32,
+        stride: u32,
+    },
 }
 
 /// A texture and the affine map from a surface's (u, v) to its own.
@@ -216,10 +230,12 @@ impl Texture {
         })
     }
 
-    /// The texture's value at a surface's (u, v).
+    /// The texture's value at a surface's (u, v); a mesh attribute, which
+    /// no (u, v) tells, gives its placeholder mean.
     pub fn eval(&self, uv: Vec2) -> Vec3 {
         let uv = self.to_uv.transform_point2(uv);
         match &self.pattern {
+            Pattern::Attribute { .. } => self.mean(),
             Pattern::Checkerboard { color0, color1 } => {
                 let f = uv - uv.floor();
                 if (f.x > 0.5) == (f.y > 0.5) {
@@ -287,9 +303,12 @@ impl Texture {
 
 impl Texture {
     /// The mean over its texels (a bitmap) or its two colours: what
-    /// Mitsuba's plastics weigh their lobes by.
+    /// Mitsuba's plastics weigh their lobes by. A mesh attribute has none
+    /// (nor in Mitsuba, which refuses it in a plastic, as qtrace does): it
+    /// gives half its scale, which only a BSDF's host-side estimates read.
     pub fn mean(&self) -> Vec3 {
         match &self.pattern {
+            Pattern::Attribute { scale, .. } => Vec3::splat(0.5 * scale),
             Pattern::Checkerboard { color0, color1 } => 0.5 * (*color0 + *color1),
             Pattern::Bitmap { texels, .. } => {
                 let n = texels.len();
@@ -367,6 +386,7 @@ impl Texture {
     /// headers).
     fn words(&self) -> usize {
         match &self.pattern {
+            Pattern::Attribute { .. } => 0,
             Pattern::Checkerboard { .. } => 2,
             Pattern::Bitmap {
                 texels: Texels::Floats(v),
@@ -382,6 +402,8 @@ impl Texture {
     fn header(&self, offset: usize) -> [[u32; 4]; TEXTURE_HEADER_WORDS] {
         let (flags, width, height) = match &self.pattern {
             Pattern::Checkerboard { .. } => (shaders::TEXTURE_CHECKERBOARD, 0, 0),
+            // Its scale where others' texels start.
+            Pattern::Attribute { slot, stride, .. } => (shaders::TEXTURE_ATTRIBUTE, *slot, *stride),
             Pattern::Bitmap {
                 width,
                 height,
@@ -409,12 +431,18 @@ impl Texture {
         };
         let m = self.to_uv;
         let row = |r: usize| [m.x_axis[r], m.y_axis[r], m.z_axis[r], 0.0].map(f32::to_bits);
-        [[flags, offset as u32, width, height], row(0), row(1)]
+        // An attribute's scale where others' texels start.
+        let offset = match &self.pattern {
+            Pattern::Attribute { scale, .. } => scale.to_bits(),
+            _ => offset as u32,
+        };
+        [[flags, offset, width, height], row(0), row(1)]
     }
 
     fn push_texels(&self, out: &mut Vec<[u32; 4]>) {
         let bits = |c: Vec3| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits(), 0];
         match &self.pattern {
+            Pattern::Attribute { .. } => {}
             Pattern::Checkerboard { color0, color1 } => out.extend([bits(*color0), bits(*color1)]),
             Pattern::Bitmap {
                 texels: Texels::Floats(v),

@@ -10,6 +10,7 @@ mod textures;
 mod xml;
 
 use super::file::RenderDefaults;
+use super::texture::{Pattern, Texture};
 use super::{obj, ply, serialized};
 use super::{
     Camera, Choice, ChoiceKind, FovAxis, Geometry, Loader, Material, NormalMap, Parts, PixelFilter,
@@ -108,6 +109,9 @@ type Mesh = (
     Option<Vec<[Vec3; 3]>>,
     Option<Vec<[Vec2; 3]>>,
 );
+
+/// Mesh attributes by name, at a shape's triangles' corners.
+type Attributes = Vec<(String, Vec<[Vec3; 3]>)>;
 
 /// A BSDF as a shape uses it: the surface, and whether its back is black
 /// (Mitsuba's BSDFs reflect on the front only unless wrapped in `twosided`).
@@ -641,9 +645,14 @@ impl Builder<'_, '_> {
             _ => {}
         }
         let p = Props::new(el);
-        let mesh = self.shape_mesh(el, kind, &p)?;
         let emission = area_emission(&p, &mut self.textures, self.loader)?;
         let (desc, shared) = self.shape_bsdf(&p)?;
+        // Paths end at an emitter: its BSDF's textures go unread.
+        let attributes = match emission {
+            Some(_) => Vec::new(),
+            None => self.attribute_read(&desc),
+        };
+        let (mesh, attributes) = self.shape_mesh(el, kind, &p, &attributes)?;
         p.finish()?;
         if desc.surface.anisotropic() && mesh.2.is_none() {
             log::warn!(
@@ -685,7 +694,7 @@ impl Builder<'_, '_> {
                 normal_map: None,
                 choice: None,
             });
-            self.add(el, &label, mesh, m);
+            self.add(el, &label, mesh, Vec::new(), m);
             return Ok(());
         }
         let m = match shared {
@@ -700,8 +709,40 @@ impl Builder<'_, '_> {
                 m
             }
         };
-        self.add(el, &label, mesh, m);
+        self.add(el, &label, mesh, attributes, m);
         Ok(())
+    }
+
+    /// The mesh attributes the textures of `desc` (and of the BSDFs it
+    /// chooses between) read, each once, and whether a number is read
+    /// from it.
+    fn attribute_read(&self, desc: &BsdfDesc) -> Vec<(String, bool)> {
+        fn walk(desc: &BsdfDesc, textures: &[Texture], out: &mut Vec<(String, bool)>) {
+            let weight = desc.choice.as_ref().and_then(|c| match c.kind {
+                ChoiceKind::Mask {
+                    opacity: Weight::Texture(t),
+                }
+                | ChoiceKind::Blend {
+                    weight: Weight::Texture(t),
+                } => Some(t),
+                _ => None,
+            });
+            for t in desc.textures.iter().flatten().chain(weight.as_ref()) {
+                if let Pattern::Attribute { name, number, .. } = &textures[*t as usize].pattern {
+                    match out.iter_mut().find(|(n, _)| n == name) {
+                        Some((_, num)) => *num |= number,
+                        None => out.push((name.clone(), *number)),
+                    }
+                }
+            }
+            if let Some(c) = &desc.choice {
+                walk(&c.first, textures, out);
+                walk(&c.second, textures, out);
+            }
+        }
+        let mut read = Vec::new();
+        walk(desc, &self.textures.used, &mut read);
+        read
     }
 
     /// A `shapegroup`: shapes kept by id until an `instance` places them.
@@ -751,7 +792,15 @@ impl Builder<'_, '_> {
 
     /// A shape's triangles (with normals and UVs where it has them), in
     /// world space, turned over with `flip_normals`.
-    fn shape_mesh(&mut self, el: &Element, kind: &str, p: &Props) -> Result<Mesh, SceneError> {
+    /// With the values at its triangles' corners of the mesh attributes
+    /// `attributes` name (each with whether a number is read from it).
+    fn shape_mesh(
+        &mut self,
+        el: &Element,
+        kind: &str,
+        p: &Props,
+        attributes: &[(String, bool)],
+    ) -> Result<(Mesh, Attributes), SceneError> {
         let to_world = p.transform("to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip = p.boolean("flip_normals")?.unwrap_or(false);
         let face_normals = p.boolean("face_normals")?.unwrap_or(false);
@@ -763,6 +812,12 @@ impl Builder<'_, '_> {
         let flip_v = || -> Result<bool, SceneError> {
             Ok(p.boolean("flip_tex_coords")?.unwrap_or(kind == "obj"))
         };
+        if let Some((name, _)) = attributes.first().filter(|_| kind != "ply") {
+            return Err(el.error(format!(
+                "shape '{kind}' has no mesh attribute '{name}' (qtrace reads them from PLY files, as Mitsuba)"
+            )));
+        }
+        let mut corners = Vec::new();
         let (triangles, normals, uvs) = match kind {
             "rectangle" => {
                 let (t, uv) = shapes::rectangle(to_world);
@@ -797,7 +852,17 @@ impl Builder<'_, '_> {
                 (t, Some(n), Some(uv))
             }
             "obj" => self.obj(el, filename()?, to_world, (face_normals, flip_v()?))?,
-            "ply" => self.ply(el, filename()?, to_world, (face_normals, flip_v()?))?,
+            "ply" => {
+                let (mesh, a) = self.ply(
+                    el,
+                    filename()?,
+                    to_world,
+                    (face_normals, flip_v()?),
+                    attributes,
+                )?;
+                corners = a;
+                mesh
+            }
             "serialized" => {
                 let name = filename()?;
                 let index = p.integer("shape_index")?.unwrap_or(0);
@@ -818,6 +883,9 @@ impl Builder<'_, '_> {
             }
         };
         let mesh = if flip {
+            for (_, v) in &mut corners {
+                v.iter_mut().for_each(|t| t.swap(1, 2));
+            }
             (
                 triangles.into_iter().map(|[a, b, c]| [a, c, b]).collect(),
                 normals.map(|n| n.into_iter().map(|[a, b, c]| [-a, -c, -b]).collect()),
@@ -826,7 +894,7 @@ impl Builder<'_, '_> {
         } else {
             (triangles, normals, uvs)
         };
-        Ok(placed_by_instance(mesh, self.instance_to_world))
+        Ok((placed_by_instance(mesh, self.instance_to_world), corners))
     }
 
     /// A shape's BSDF, nested or by reference (Mitsuba's default where it
@@ -893,9 +961,17 @@ impl Builder<'_, '_> {
         self.materials.len() as u32 - 1
     }
 
-    fn add(&mut self, el: &Element, label: &str, (triangles, normals, uvs): Mesh, material: u32) {
+    fn add(
+        &mut self,
+        el: &Element,
+        label: &str,
+        (triangles, normals, uvs): Mesh,
+        attributes: Attributes,
+        material: u32,
+    ) {
         let source = (el.file.as_ref().clone(), label.to_string());
-        self.geometry.add(source, triangles, normals, uvs, material);
+        self.geometry
+            .add(source, triangles, normals, uvs, attributes, material);
     }
 
     /// An OBJ mesh in world space, with Mitsuba's shading normals unless
@@ -978,18 +1054,31 @@ impl Builder<'_, '_> {
             .saturating_sub(self.geometry.positions.len())
     }
 
-    /// A PLY mesh in world space.
+    /// A PLY mesh in world space, and the values at its triangles' corners
+    /// of the attributes `attributes` name.
     fn ply(
         &self,
         el: &Element,
         name: &str,
         to_world: Mat4,
         (face_normals, flip_v): (bool, bool),
-    ) -> Result<Mesh, SceneError> {
+        attributes: &[(String, bool)],
+    ) -> Result<(Mesh, Attributes), SceneError> {
         let (path, bytes) = self.mesh_file(el, name)?;
         let mesh = ply::parse_ply(&bytes, self.triangle_budget())
             .map_err(|m| malformed(&path, "PLY", &m, el))?;
-        Ok(placed_mesh(&mesh, to_world, face_normals, flip_v))
+        let corners = attributes
+            .iter()
+            .map(|(wanted, number)| {
+                let values =
+                    attribute_corners(&mesh, wanted, *number).map_err(|m| SceneError::Invalid {
+                        path: path.clone(),
+                        message: format!("{m} (the shape at {}:{})", el.file.display(), el.line),
+                    })?;
+                Ok((wanted.clone(), values))
+            })
+            .collect::<Result<_, SceneError>>()?;
+        Ok((placed_mesh(&mesh, to_world, face_normals, flip_v), corners))
     }
 
     /// Shape `index` of a serialized file in world space; the file's own
@@ -1008,6 +1097,70 @@ impl Builder<'_, '_> {
         let flat = face_normals || shape.flags & serialized::FACE_NORMALS != 0;
         Ok(placed_mesh(&shape.mesh, to_world, flat, flip_v))
     }
+}
+
+/// The values at each triangle's corners of mesh attribute `name` (a
+/// one-channel attribute's value in all three channels; a face's at all
+/// three corners), checked as Mitsuba 3 evaluates it: colours from one or
+/// three channels, numbers (`number`) from one.
+fn attribute_corners(
+    mesh: &ply::IndexedMesh,
+    name: &str,
+    number: bool,
+) -> Result<Vec<[Vec3; 3]>, String> {
+    let Some(a) = mesh.attributes.iter().find(|a| a.name == name) else {
+        let names: Vec<&str> = mesh.attributes.iter().map(|a| a.name.as_str()).collect();
+        return Err(format!(
+            "the mesh has no attribute '{name}' ({})",
+            if names.is_empty() {
+                "it has none".to_string()
+            } else {
+                format!("it has {}", names.join(", "))
+            }
+        ));
+    };
+    match (a.channels, number) {
+        (1, _) | (3, false) => {}
+        (3, true) => {
+            return Err(format!(
+                "a number is read from attribute '{name}', which has 3 channels (Mitsuba reads numbers from attributes of one)"
+            ))
+        }
+        (n, _) => {
+            return Err(format!(
+                "attribute '{name}' has {n} channels; Mitsuba evaluates attributes of 1 or 3"
+            ))
+        }
+    }
+    // A file of several vertex or face elements gives some items none.
+    let items = if a.per_face() {
+        mesh.triangles.len()
+    } else {
+        mesh.positions.len()
+    };
+    if a.values.len() != a.channels * items {
+        return Err(format!(
+            "attribute '{name}' is not given for every {}",
+            if a.per_face() { "face" } else { "vertex" }
+        ));
+    }
+    if a.integer {
+        log::warn!(
+            "mesh attribute '{name}' is stored in integers: Mitsuba and qtrace read them as they are (a byte's 255 is 255), not scaled to [0, 1]"
+        );
+    }
+    let value = |k: usize| match a.channels {
+        1 => Vec3::splat(a.values[k]),
+        _ => Vec3::new(a.values[3 * k], a.values[3 * k + 1], a.values[3 * k + 2]),
+    };
+    Ok(if a.per_face() {
+        (0..mesh.triangles.len()).map(|j| [value(j); 3]).collect()
+    } else {
+        mesh.triangles
+            .iter()
+            .map(|t| t.map(|i| value(i as usize)))
+            .collect()
+    })
 }
 
 /// A mesh file's problem, naming the file and the shape that reads it.

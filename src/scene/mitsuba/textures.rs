@@ -1,5 +1,6 @@
-//! Mitsuba's `<texture>` plugins (`bitmap`, `checkerboard`), given nested
-//! in a BSDF or at the top level with an id and named by `<ref>`.
+//! Mitsuba's `<texture>` plugins (`bitmap`, `checkerboard`,
+//! `mesh_attribute`), given nested in a BSDF or at the top level with an id
+//! and named by `<ref>`.
 
 use super::xml::{Element, Props};
 use super::{Loader, SceneError};
@@ -126,6 +127,24 @@ impl Textures {
                     "a bumpmap's height field must be a bitmap (Mitsuba takes no checkerboard's gradient)",
                 ));
             }
+            if let Pattern::Attribute { name: a, .. } = &texture.pattern {
+                // Mitsuba has no mean of a mesh attribute (which its
+                // plastics weigh their lobes by) and no gradient; qtrace
+                // weighs an emitter by its radiance's mean too.
+                if matches!(
+                    kind,
+                    "plastic" | "roughplastic" | "normalmap" | "bumpmap" | "area"
+                ) {
+                    return Err(c.error(format!(
+                        "{kind}'s '{name}' cannot be a mesh attribute ('{a}'){}",
+                        if kind == "area" {
+                            " in qtrace yet"
+                        } else {
+                            ", as in Mitsuba"
+                        }
+                    )));
+                }
+            }
             if bump && out[slot as usize].is_some() {
                 return Err(c.error("a bumpmap takes one texture"));
             }
@@ -167,6 +186,9 @@ impl Textures {
 /// but a checkerboard's colours swapped, each read as its channels' mean
 /// (measured in Mitsuba 3.9.1, unlike its colour lookup).
 fn read_as_number(mut t: Texture) -> Texture {
+    if let Pattern::Attribute { number, .. } = &mut t.pattern {
+        *number = true;
+    }
     if let Pattern::Checkerboard { color0, color1 } = t.pattern {
         let mean = |c: Vec3| Vec3::splat(c.element_sum() / 3.0);
         t.pattern = Pattern::Checkerboard {
@@ -193,6 +215,12 @@ fn pattern_key(p: &Pattern) -> String {
             )
         ),
         Pattern::Checkerboard { color0, color1 } => format!("{color0} {color1}"),
+        Pattern::Attribute {
+            name,
+            scale,
+            number,
+            ..
+        } => format!("{name} {scale} {number}"),
     }
 }
 
@@ -266,6 +294,34 @@ fn read(el: &Element, loader: &Loader<'_>) -> Result<Texture, SceneError> {
                 to_uv,
             }
         }
+        "mesh_attribute" => {
+            if m != glam::Mat4::IDENTITY {
+                return Err(el.error("mesh_attribute takes no to_uv"));
+            }
+            let name = p
+                .string("name")?
+                .ok_or_else(|| el.error("mesh_attribute needs a name"))?;
+            if !(name.starts_with("vertex_") || name.starts_with("face_")) {
+                return Err(el.error(format!(
+                    "mesh attribute '{name}' must start with 'vertex_' or 'face_' (as in Mitsuba)"
+                )));
+            }
+            let scale = p.float_or("scale", 1.0)?;
+            if !scale.is_finite() {
+                return Err(el.error(format!("mesh_attribute scale {scale} is not finite")));
+            }
+            Texture {
+                name: format!("mesh attribute '{name}'"),
+                pattern: Pattern::Attribute {
+                    name: name.to_string(),
+                    scale,
+                    number: false,
+                    slot: 0,
+                    stride: 0,
+                },
+                to_uv,
+            }
+        }
         "checkerboard" => {
             let color = |name, default| {
                 if p.textures().iter().any(|c| c.attr("name") == Some(name)) {
@@ -286,7 +342,7 @@ fn read(el: &Element, loader: &Loader<'_>) -> Result<Texture, SceneError> {
         }
         other => {
             return Err(el.error(format!(
-                "texture '{other}' is not supported; qtrace has bitmap and checkerboard"
+                "texture '{other}' is not supported; qtrace has bitmap, checkerboard and mesh_attribute"
             )))
         }
     };
