@@ -80,6 +80,8 @@ fn load_text(text: &str) -> Result<Scene, String> {
             // A triangle with an RGBA colour and a weight per vertex and a
             // colour per face.
             Some("c.ply") => Ok(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float r\nproperty float g\nproperty float b\nproperty float a\nproperty float w_0\nelement face 1\nproperty list uchar int vertex_indices\nproperty float k_r\nproperty float k_g\nproperty float k_b\nend_header\n0 0 0 1 0 0 1 0.2\n1 0 0 0 1 0 1 0.5\n0 1 0 0 0 1 1 0.9\n3 0 1 2 0.1 0.2 0.3\n".to_vec()),
+            // A spectrum file, as Mitsuba writes them.
+            Some("s.spd") => Ok(b"# reflectance\n400 0.5\n500 0.7\n\n600 0.2\n700 0.9 # red\n".to_vec()),
             Some("small.png") => std::fs::read(concat!(
                 env!("CARGO_MANIFEST_DIR"),
                 "/tests/fixtures/textures/small.png"
@@ -292,6 +294,16 @@ fn spectra_turn_into_mitsubas_rgb() {
     let (a, e) = case(s, s);
     assert!(close(a, [0.833828, 0.68912, 0.265243]), "{a}");
     assert!(close(e, [0.974324, 0.661608, 0.229711]), "{e}");
+    // From a file (Mitsuba 3.9.1 reads this one as 0.219942, 0.493022,
+    // 0.626373).
+    let scene = load_text(&with_body(
+        "<shape type=\"cube\"><bsdf type=\"diffuse\"><spectrum name=\"reflectance\" filename=\"s.spd\"/></bsdf></shape>",
+    ))
+    .unwrap();
+    let qtrace::bsdf::Surface::Diffuse { albedo } = scene.materials.last().unwrap().surface else {
+        panic!("not diffuse")
+    };
+    assert!(close(albedo, [0.219942, 0.493022, 0.626373]), "{albedo}");
 }
 
 #[test]
@@ -492,6 +504,16 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"mesh_attribute\" name=\"reflectance\"><string name=\"name\" value=\"color\"/></texture></bsdf></shape>",
             5,
             "mesh attribute 'color' must start with 'vertex_' or 'face_'",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"diffuse\"><spectrum name=\"reflectance\" filename=\"gone.spd\"/></bsdf></shape>",
+            5,
+            "cannot read the spectrum 'gone.spd'",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"diffuse\"><spectrum name=\"reflectance\" filename=\"m.obj\"/></bsdf></shape>",
+            5,
+            "the spectrum 'm.obj', line 1: 'v 0 0 0' is not a wavelength and a value",
         ),
         ("<include filename=\"missing.xml\"/>", 5, "missing.xml"),
         ("<shape type=\"cube\"><transform name=\"to_world\"><skew/></transform></shape>", 5, "<skew>"),

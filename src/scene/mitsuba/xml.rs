@@ -173,6 +173,39 @@ impl Reader<'_, '_> {
         Ok(out)
     }
 
+    /// Spectrum file `name` (beside `file`, named at `line`) as
+    /// `wavelength:value` pairs.
+    fn spectrum_file(&self, file: &Path, line: u32, name: &str) -> Result<String, SceneError> {
+        let path = file.parent().unwrap_or(Path::new(".")).join(name);
+        let text = self.loader.text(&path).map_err(|e| {
+            at(
+                file,
+                line,
+                format!("cannot read the spectrum '{name}': {e}"),
+            )
+        })?;
+        let mut pairs = Vec::new();
+        for (i, l) in text.lines().enumerate() {
+            let l = l.split('#').next().unwrap_or("").trim();
+            if l.is_empty() {
+                continue;
+            }
+            let words: Vec<&str> = l.split_whitespace().collect();
+            let [w, v] = words[..] else {
+                return Err(at(
+                    file,
+                    line,
+                    format!(
+                        "the spectrum '{name}', line {}: '{l}' is not a wavelength and a value",
+                        i + 1
+                    ),
+                ));
+            };
+            pairs.push(format!("{w}:{v}"));
+        }
+        Ok(pairs.join(", "))
+    }
+
     fn element(
         &self,
         doc: &roxmltree::Document,
@@ -186,6 +219,15 @@ impl Reader<'_, '_> {
                 a.name().to_string(),
                 self.substitute(file, line, a.value())?,
             ));
+        }
+        // Mitsuba's spectrum file (lines of wavelength and value, `#`
+        // comments), read here into the pairs a `value` gives.
+        if node.tag_name().name() == "spectrum" {
+            if let Some(k) = attrs.iter().position(|(n, _)| n == "filename") {
+                let (_, name) = attrs.remove(k);
+                let pairs = self.spectrum_file(file, line, &name)?;
+                attrs.push(("value".into(), pairs));
+            }
         }
         let mut children = Vec::new();
         for c in node.children().filter(|n| n.is_element()) {
