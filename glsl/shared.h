@@ -319,6 +319,10 @@ struct Triangle {
 // bumpmap's height field, its gradient times emission.x (the material
 // emits nothing) tilting the normal.
 #define MATERIAL_MAP_BUMP 131072
+// Added to an emitter's kind: its BSDF is Mitsuba's null (as exporters give
+// Blender's lights), so paths go on straight through it, each a bounce, as
+// through any null surface; other emitters end a path.
+#define MATERIAL_EMITTER_PASSES 262144
 // ... a choice (MATERIAL_CHOICE).
 #define FEATURE_CHOICES 4096
 // ... a principled material (MATERIAL_PRINCIPLED).

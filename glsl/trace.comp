@@ -352,8 +352,8 @@ void gather_sky(inout Path path, inout Trail trail) {
     }
 }
 
-// The path's ray reached an emitter, which ends it; emitters emit on their
-// front side only.
+// The path's ray reached an emitter, which ends it unless its BSDF is null;
+// emitters emit on their front side only.
 void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
     vec3 le = vec3(0.0);
@@ -708,7 +708,18 @@ bool scatter(inout Path path, inout Trail trail) {
     float cos_out = -dot(n, path.dir);
     if (tri.light_pdf > 0.0) {
         gather_emitter(path, trail, hit, tri, mat, cos_out);
-        return false;
+        if ((uint(mat.color.w) & MATERIAL_EMITTER_PASSES) == 0u || path.depth >= params.max_depth) {
+            return false;
+        }
+        // A null BSDF: on through the emitter, a delta bounce counted in
+        // the depth (as in Mitsuba). The guide learned its emission; what
+        // lies beyond goes unlearned.
+        path.origin = path.origin + hit.t * path.dir + (cos_out > 0.0 ? -eps : eps) * n;
+        path.prev_bsdf_pdf = 0.0;
+        trail.prev_vertex = guide_none();
+        trail.chaining = false;
+        path.depth += 1u;
+        return true;
     }
 
     // Shade in the frame of the normal facing the ray (materials are

@@ -178,6 +178,17 @@ impl Material {
         }
     }
 
+    /// Whether it emits and its BSDF is Mitsuba's `null`: paths go on
+    /// through it (other emitters end them).
+    pub fn emitter_passes(&self) -> bool {
+        let null = Surface::Thin {
+            eta: 1.0,
+            reflectance: Vec3::ZERO,
+            transmittance: Vec3::ONE,
+        };
+        self.emission.max_element() > 0.0 && self.surface == null && self.choice.is_none()
+    }
+
     /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
     /// then `bsdf_textured`).
     pub fn bsdf_at(
@@ -246,6 +257,9 @@ impl Material {
         let mut code = self.surface.kind();
         if self.one_sided {
             code |= shaders::MATERIAL_ONE_SIDED;
+        }
+        if self.emitter_passes() {
+            code |= shaders::MATERIAL_EMITTER_PASSES;
         }
         if let Some(map) = self.normal_map {
             code |= (map.texture + 1) << shaders::MATERIAL_NORMAL_MAP_SHIFT;

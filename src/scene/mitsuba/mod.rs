@@ -669,17 +669,14 @@ impl Builder<'_, '_> {
         if let Some((le, radiance_texture)) = emission {
             // qtrace's paths end at an emitter: exact for a black BSDF.
             let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
-            if desc.null || desc.choice.is_some() || !black {
+            // A null BSDF (as exporters give Blender's lights) passes
+            // paths on (Material::emitter_passes), as in Mitsuba.
+            if !desc.null && (desc.choice.is_some() || !black) {
                 log::warn!(
-                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's {}",
+                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's also reflect from it",
                     el.file.display(),
                     el.line,
                     desc.name,
-                    if desc.null {
-                        "pass through it"
-                    } else {
-                        "also reflect from it"
-                    }
                 );
             }
             let m = self.materials.len() as u32;
