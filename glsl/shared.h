@@ -323,6 +323,10 @@ struct Triangle {
 // Blender's lights), so paths go on straight through it, each a bounce, as
 // through any null surface; other emitters end a path.
 #define MATERIAL_EMITTER_PASSES 262144
+// Added to an emitter's kind: its BSDF scatters light (Mitsuba's default
+// diffuse, where a scene gives an emitter none), so paths gather its
+// emission and are shaded there as on any surface (FEATURE_EMITTERS_REFLECT).
+#define MATERIAL_EMITTER_REFLECTS 524288
 // ... a choice (MATERIAL_CHOICE).
 #define FEATURE_CHOICES 4096
 // ... a principled material (MATERIAL_PRINCIPLED).
@@ -333,6 +337,8 @@ struct Triangle {
 // ... a texture of mesh attributes (TEXTURE_ATTRIBUTE), whose values
 // B_ATTRIBUTES holds.
 #define FEATURE_ATTRIBUTES 32768
+// ... an emitter whose BSDF scatters (MATERIAL_EMITTER_REFLECTS).
+#define FEATURE_EMITTERS_REFLECT 65536
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

@@ -352,9 +352,10 @@ void gather_sky(inout Path path, inout Trail trail) {
     }
 }
 
-// The path's ray reached an emitter, which ends it unless its BSDF is null;
-// emitters emit on their front side only.
-void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
+// The path's ray reached an emitter: its emission (on its front side only),
+// weighed against NEE's draws of it, added to the path's radiance; returns
+// the emission's luminance and that weight, for the guide.
+vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
     vec3 le = vec3(0.0);
     if (cos_out > 0.0) {
@@ -367,8 +368,15 @@ void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, M
         }
         path.radiance += path.throughput * le * weight;
     }
+    return vec2(luminance(le), weight);
+}
+
+// The path's ray reached an emitter whose BSDF is black or null, where the
+// transition it took lands.
+void gather_emitter(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
+    vec2 light = emitter_light(path, trail, hit, tri, mat, cos_out);
     if (learn) {
-        land(trail, luminance(le), weight, 0.0, 0.0);
+        land(trail, light.x, light.y, 0.0, 0.0);
     }
 }
 
@@ -706,7 +714,14 @@ bool scatter(inout Path path, inout Trail trail) {
     Material mat = load_material(tri.material);
     vec3 n = normalize(cross(tri.e1, tri.e2));
     float cos_out = -dot(n, path.dir);
-    if (tri.light_pdf > 0.0) {
+    // An emitter whose BSDF scatters: its light, which the transition's
+    // landing here takes with what the vertex reflects.
+    vec2 light = vec2(0.0, 1.0);
+    bool scatters = (MATERIAL_FEATURES & FEATURE_EMITTERS_REFLECT) != 0u && tri.light_pdf > 0.0 &&
+                    (uint(mat.color.w) & MATERIAL_EMITTER_REFLECTS) != 0u;
+    if (scatters) {
+        light = emitter_light(path, trail, hit, tri, mat, cos_out);
+    } else if (tri.light_pdf > 0.0) {
         gather_emitter(path, trail, hit, tri, mat, cos_out);
         if ((uint(mat.color.w) & MATERIAL_EMITTER_PASSES) == 0u || path.depth >= params.max_depth) {
             return false;
@@ -741,7 +756,8 @@ bool scatter(inout Path path, inout Trail trail) {
         mat = chosen_material(mat, front, hit.triangle, tri, s.point, path.rng);
     }
     Bsdf bsdf = bsdf_of(mat, front);
-    if (scene_textured()) {
+    // (An emitter's colour slot holds its radiance's texture.)
+    if (scene_textured() && !scatters) {
         vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
         bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, surface_uv(hit.triangle, b));
     }
@@ -828,7 +844,7 @@ bool scatter(inout Path path, inout Trail trail) {
         if (learn) {
             // (A glossy lobe here, where the path ends, learns 0 for what it
             // would reflect: only paths max_depth long reach it.)
-            land(trail, 0.0, 1.0, reflected, 0.0);
+            land(trail, light.x, light.y, reflected, 0.0);
         }
         return false;
     }
@@ -838,7 +854,7 @@ bool scatter(inout Path path, inout Trail trail) {
         if (unguided && (trail.chaining || guide_covers(trail.prev_vertex))) {
             pass_through_delta(trail);
         } else {
-            land(trail, 0.0, 1.0, reflected, direct_lum);
+            land(trail, light.x, light.y, reflected, direct_lum);
         }
     }
     float mix;

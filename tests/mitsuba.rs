@@ -1080,6 +1080,21 @@ fn lights_with_a_null_bsdf_agree_with_mitsuba() {
 }
 
 #[test]
+fn lights_whose_bsdf_scatters_agree_with_mitsuba() {
+    // Lights of diffuse and rough metal reflect the room's light (and NEE
+    // runs at them); a lamp given no BSDF is black, as Mitsuba makes it.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-r.xml");
+    for (m, nee) in [
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
+    ] {
+        check("coverage-r", &scene, &[("res", "64")], method(m, nee, 1024));
+    }
+}
+
+#[test]
 fn principled_materials_agree_with_mitsuba() {
     // Textured base colour and roughness, metallic with tint and clearcoat,
     // sheen with flatness, a bitmap's metallic weight, a one-sided sphere.

@@ -189,6 +189,17 @@ impl Material {
         self.emission.max_element() > 0.0 && self.surface == null && self.choice.is_none()
     }
 
+    /// Whether it emits and its BSDF scatters light (neither black nor
+    /// null): paths are shaded there as on any surface, after gathering
+    /// its emission.
+    pub fn emitter_reflects(&self) -> bool {
+        let black = matches!(self.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
+        self.emission.max_element() > 0.0
+            && self.choice.is_none()
+            && !black
+            && !self.emitter_passes()
+    }
+
     /// Its BSDF at texture coordinates `uv` (the CPU twin of `bsdf_of`
     /// then `bsdf_textured`).
     pub fn bsdf_at(
@@ -260,6 +271,9 @@ impl Material {
         }
         if self.emitter_passes() {
             code |= shaders::MATERIAL_EMITTER_PASSES;
+        }
+        if self.emitter_reflects() {
+            code |= shaders::MATERIAL_EMITTER_REFLECTS;
         }
         if let Some(map) = self.normal_map {
             code |= (map.texture + 1) << shaders::MATERIAL_NORMAL_MAP_SHIFT;
@@ -655,6 +669,10 @@ impl Scene {
             0
         } else {
             shaders::FEATURE_ATTRIBUTES
+        } | if self.materials.iter().any(Material::emitter_reflects) {
+            shaders::FEATURE_EMITTERS_REFLECT
+        } else {
+            0
         }
     }
 

@@ -646,8 +646,8 @@ impl Builder<'_, '_> {
         }
         let p = Props::new(el);
         let emission = area_emission(&p, &mut self.textures, self.loader)?;
-        let (desc, shared) = self.shape_bsdf(&p)?;
-        // Paths end at an emitter: its BSDF's textures go unread.
+        let (desc, shared) = self.shape_bsdf(&p, emission.is_some())?;
+        // An emitter's BSDF takes no textures.
         let attributes = match emission {
             Some(_) => Vec::new(),
             None => self.attribute_read(&desc),
@@ -667,26 +667,34 @@ impl Builder<'_, '_> {
             el.line
         );
         if let Some((le, radiance_texture)) = emission {
-            // qtrace's paths end at an emitter: exact for a black BSDF.
-            let black = matches!(desc.surface, Surface::Diffuse { albedo } if albedo == Vec3::ZERO);
-            // A null BSDF (as exporters give Blender's lights) passes
-            // paths on (Material::emitter_passes), as in Mitsuba.
-            if !desc.null && (desc.choice.is_some() || !black) {
+            // Paths go on at an emitter as its BSDF says (through a null
+            // one, scattered by others: Material::emitter_passes and
+            // emitter_reflects), as in Mitsuba; but an emitter's material
+            // has no room for textures, a normal map or a choice: those
+            // end paths, as a black BSDF does.
+            let faithful = desc.choice.is_none()
+                && desc.normal_map.is_none()
+                && desc.textures.iter().all(Option::is_none);
+            if !faithful {
                 log::warn!(
-                    "{}:{}: an emitter with BSDF {}: qtrace ends a path at an emitter, where Mitsuba's also reflect from it",
+                    "{}:{}: an emitter with BSDF {} (textured, normal-mapped or a mask, blend or two-faced twosided): qtrace ends a path at such an emitter, where Mitsuba's also reflect from it",
                     el.file.display(),
                     el.line,
                     desc.name,
                 );
             }
+            let surface = if faithful {
+                desc.surface
+            } else {
+                Surface::Diffuse { albedo: Vec3::ZERO }
+            };
             let m = self.materials.len() as u32;
             self.materials.push(Material {
                 name: label.clone(),
-                surface: desc.surface,
+                surface,
                 emission: le,
                 one_sided: desc.one_sided,
-                // Paths end at an emitter: its BSDF's textures go unread,
-                // and the colour slot holds a radiance texture.
+                // The colour slot holds a radiance texture.
                 textures: [radiance_texture, None, None],
                 normal_map: None,
                 choice: None,
@@ -895,12 +903,13 @@ impl Builder<'_, '_> {
     }
 
     /// A shape's BSDF, nested or by reference (Mitsuba's default where it
-    /// has none), and for a reference, its id and the material it made, if
+    /// has none, black where it `emits`), and for a reference, its id and the material it made, if
     /// an earlier shape made one.
     #[allow(clippy::type_complexity)]
     fn shape_bsdf(
         &mut self,
         p: &Props,
+        emits: bool,
     ) -> Result<(BsdfDesc, Option<(String, Option<u32>)>), SceneError> {
         let mut desc = None;
         let mut shared = None;
@@ -923,11 +932,12 @@ impl Builder<'_, '_> {
             desc = Some(d.clone());
             shared = Some((id.to_string(), *m));
         }
-        // Mitsuba's default: a one-sided diffuse surface of reflectance 0.5.
+        // Mitsuba's default: a one-sided diffuse surface of reflectance 0.5,
+        // or 0 on an emitter.
         let desc = desc.unwrap_or(BsdfDesc {
             name: "default diffuse".into(),
             surface: Surface::Diffuse {
-                albedo: Vec3::splat(0.5),
+                albedo: Vec3::splat(if emits { 0.0 } else { 0.5 }),
             },
             one_sided: true,
             null: false,
