@@ -1092,6 +1092,14 @@ fn lights_whose_bsdf_scatters_agree_with_mitsuba() {
     ] {
         check("coverage-r", &scene, &[("res", "64")], method(m, nee, 1024));
     }
+    // Hidden from the camera, as in Mitsuba, the camera's ray passes them
+    // by, whatever their BSDF.
+    check(
+        "coverage-r-hidden",
+        &scene,
+        &[("res", "64"), ("hide", "true")],
+        method(Method::PT, true, 1024),
+    );
 }
 
 #[test]
