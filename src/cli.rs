@@ -444,6 +444,25 @@ fn texture_summary(scene: &Scene) -> String {
     )
 }
 
+/// What the emitters' BSDFs do with the paths that reach them, where
+/// they do not end them.
+fn emitter_bsdfs(scene: &Scene) -> String {
+    let count =
+        |f: fn(&crate::scene::Material) -> bool| scene.materials.iter().filter(|m| f(m)).count();
+    let (passes, scatters) = (
+        count(|m| m.emitter_passes()),
+        count(|m| m.emitter_reflects()),
+    );
+    let mut out = String::new();
+    if passes > 0 {
+        out += &format!("; paths pass through {passes} (a null BSDF)");
+    }
+    if scatters > 0 {
+        out += &format!("; {scatters} scatter them (their BSDF)");
+    }
+    out
+}
+
 /// How many lights the emitters make and how NEE picks among them. (The
 /// lights are told apart only where the guides could pick among them: the
 /// grouping compares each emitting triangle with every light found so far.)
@@ -484,10 +503,11 @@ pub fn inspect_summary(scene: &Scene) -> String {
         format!("triangles    {}", scene.triangles.len()),
         format!("materials    {}", material_summary(scene)),
         format!(
-            "emitters     {} triangles, {:.4} units² of {:.4} total",
+            "emitters     {} triangles, {:.4} units² of {:.4} total{}",
             scene.lights.len(),
             light_area,
-            area
+            area,
+            emitter_bsdfs(scene)
         ),
         format!("lights       {}", light_summary(scene)),
         format!("textures     {}", texture_summary(scene)),

@@ -522,9 +522,12 @@ fn devices_and_inspect() {
         stdout.contains("lights       3 by material and plane; guides learn which one NEE picks"),
         "{stdout}"
     );
+    // A TOML scene's emitters end paths, whatever their Kd.
+    assert!(!stdout.contains("scatter them"), "{stdout}");
     // A thin lens, hidden emitters, normal and bump maps, masks and blends,
-    // principled materials, anisotropic roughness and mesh attributes (on
-    // the device: three corners of each of four per triangle) show.
+    // principled materials, anisotropic roughness, mesh attributes (on the
+    // device: three corners of each of four per triangle) and what emitters'
+    // BSDFs do with paths show.
     for (scene, want) in [
         ("coverage-i.xml", "thin lens of radius 0.12 in focus at 4"),
         ("coverage-h.xml", "emitters hidden from the camera"),
@@ -536,6 +539,8 @@ fn devices_and_inspect() {
         ("coverage-m.xml", "5 bump-mapped materials"),
         ("coverage-n.xml", "materials    8 (7 principled, 1 diffuse)"),
         ("coverage-o.xml", "; 5 with anisotropic roughness"),
+        ("coverage-q.xml", "; paths pass through 3 (a null BSDF)"),
+        ("coverage-r.xml", "; 3 scatter them (their BSDF)"),
         (
             "coverage-p.xml",
             "mesh attribute 'vertex_color', mesh attribute 'vertex_rough', mesh attribute 'vertex_w'), 0.72 MiB on the device",

@@ -1563,6 +1563,11 @@ fn load_obj(
             material.textures[shaders::TEXTURE_SLOT_COLOR as usize] = Some(textures.len() as u32);
             textures.push(t);
         }
+        // An emitter of a TOML scene ends paths (docs/scenes.md), as a black
+        // BSDF would; Mitsuba's scatter them as their BSDF says.
+        if material.emission.max_element() > 0.0 {
+            material.surface = Surface::Diffuse { albedo: Vec3::ZERO };
+        }
         materials.push(material);
     }
     // Faces without a material get a neutral grey.
