@@ -531,12 +531,16 @@ pub fn inspect_summary(scene: &Scene) -> String {
             scene.bvh_depth,
         ),
         format!(
-            "camera       at {:?} looking {:?}, fov {}° ({:?} axis), filter {:?}{}",
+            "camera       at {:?} looking {:?}, fov {}° ({:?} axis), filter {:?}{}{}",
             c.position.to_array(),
             c.forward.to_array(),
             c.fov_degrees,
             c.fov_axis,
             scene.filter,
+            c.crop.map_or(String::new(), |k| format!(
+                ", the crop {}x{} at ({}, {}) of a {}x{} film",
+                k.size.0, k.size.1, k.offset.0, k.offset.1, k.film.0, k.film.1
+            )),
             if let Some(o) = c.orthographic {
                 format!(", orthographic, {} across half the width", o.half_width)
             } else if c.aperture_radius > 0.0 {

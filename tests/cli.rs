@@ -540,6 +540,7 @@ fn devices_and_inspect() {
         ("coverage-n.xml", "materials    8 (7 principled, 1 diffuse)"),
         ("coverage-o.xml", "; 5 with anisotropic roughness"),
         ("coverage-q.xml", "; paths pass through 3 (a null BSDF)"),
+        ("crop.xml", ", the crop 40x24 at (14, 10) of a 64x48 film"),
         ("coverage-r.xml", "; 3 scatter them (their BSDF)"),
         (
             "coverage-p.xml",

@@ -1103,6 +1103,46 @@ fn lights_whose_bsdf_scatters_agree_with_mitsuba() {
 }
 
 #[test]
+fn crop_windows_agree_with_mitsuba() {
+    // Parts of a thin lens's film and of an orthographic camera's.
+    for name in ["crop", "crop-orthographic"] {
+        let scene = common::repo(&format!("tests/fixtures/mitsuba/{name}.xml"));
+        check(name, &scene, &[], method(Method::PT, true, 1024));
+    }
+}
+
+#[test]
+fn a_crop_window_sizes_the_image_and_lies_within_its_film() {
+    let film = |crop: &str| {
+        with_body("").replace(
+            "<sensor type=\"perspective\"/>",
+            &format!("<sensor type=\"perspective\"><film type=\"hdrfilm\"><integer name=\"width\" value=\"64\"/><integer name=\"height\" value=\"48\"/>{crop}</film></sensor>"),
+        )
+    };
+    let scene = load_text(&film(
+        "<integer name=\"crop_offset_x\" value=\"14\"/><integer name=\"crop_width\" value=\"40\"/>",
+    ))
+    .unwrap();
+    assert_eq!(
+        (scene.defaults.width, scene.defaults.height),
+        (Some(40), Some(48))
+    );
+    assert_eq!(
+        scene.camera.crop,
+        Some(qtrace::scene::Crop {
+            film: (64, 48),
+            offset: (14, 0),
+            size: (40, 48)
+        })
+    );
+    let err = load_text(&film("<integer name=\"crop_offset_y\" value=\"10\"/><integer name=\"crop_height\" value=\"40\"/>")).err();
+    assert_eq!(
+        err.as_deref(),
+        Some("mem/s.xml:2: the film's crop window (64x40 at 0, 10) must lie within its 64x48")
+    );
+}
+
+#[test]
 fn principled_materials_agree_with_mitsuba() {
     // Textured base colour and roughness, metallic with tint and clearcoat,
     // sheen with flatness, a bitmap's metallic weight, a one-sided sphere.

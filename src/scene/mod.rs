@@ -429,6 +429,18 @@ pub struct Camera {
     /// centred on moved right and down by these fractions of its width and
     /// height (a pinhole's view shifted, not turned).
     pub shift: Vec2,
+    /// Mitsuba's film crop window: the image shows this part of the film.
+    pub crop: Option<Crop>,
+}
+
+/// A crop window of a film (Mitsuba's `crop_offset_x`, `crop_width`, ...),
+/// in the film's pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Crop {
+    /// The whole film's width and height, which the field of view spans.
+    pub film: (u32, u32),
+    pub offset: (u32, u32),
+    pub size: (u32, u32),
 }
 
 /// An orthographic camera's extent (see [`Camera::orthographic`]).
@@ -483,13 +495,29 @@ impl Camera {
             focus_distance: d.focus_distance.unwrap_or(to.length()),
             orthographic: None,
             shift: Vec2::ZERO,
+            crop: None,
         })
     }
 
     /// Tangents of half the horizontal and vertical fields of view of a
-    /// `width` × `height` image.
+    /// `width` × `height` image (of its crop window, where the film has
+    /// one, whatever the image's size).
     /// (An orthographic camera's half extents instead.)
     pub fn tan_half_fov(&self, width: u32, height: u32) -> (f32, f32) {
+        match self.crop {
+            None => self.film_tan_half_fov(width, height),
+            Some(c) => {
+                let (tx, ty) = self.film_tan_half_fov(c.film.0, c.film.1);
+                (
+                    tx * c.size.0 as f32 / c.film.0 as f32,
+                    ty * c.size.1 as f32 / c.film.1 as f32,
+                )
+            }
+        }
+    }
+
+    /// [`Camera::tan_half_fov`] of a whole film of `width` × `height`.
+    fn film_tan_half_fov(&self, width: u32, height: u32) -> (f32, f32) {
         let aspect = width as f32 / height as f32;
         if let Some(o) = self.orthographic {
             return (o.half_width, o.half_height / aspect);
@@ -511,6 +539,17 @@ impl Camera {
         }
     }
 
+    /// Where a crop window's centre lies from the film's, along `right` and
+    /// `up`, for the film's half-field tangents (fx, fy).
+    fn crop_centre(&self, fx: f32, fy: f32) -> Vec3 {
+        let Some(c) = self.crop else {
+            return Vec3::ZERO;
+        };
+        let cx = (2 * c.offset.0 + c.size.0) as f32 / c.film.0 as f32 - 1.0;
+        let cy = 1.0 - (2 * c.offset.1 + c.size.1) as f32 / c.film.1 as f32;
+        cx * fx * self.right + cy * fy * self.up
+    }
+
     /// The ray (origin, unit direction) through image point (x, y) in
     /// pixels (fractional), a thin lens's centre's; row 0 is the top of the
     /// image.
@@ -520,7 +559,7 @@ impl Camera {
         let sy = 1.0 - 2.0 * y / height as f32;
         let across = sx * tx * self.right + sy * ty * self.up;
         match self.orthographic {
-            Some(o) => (self.position + o.near * self.forward + across, self.forward),
+            Some(_) => (self.origin() + across, self.forward),
             None => (
                 self.position,
                 (self.centre_ray(tx, ty) + across).normalize(),
@@ -529,14 +568,33 @@ impl Camera {
     }
 
     /// The direction (not unit) of the ray through the image's centre, at
-    /// the half-field tangents (tx, ty): `forward`, moved by the shift.
+    /// the half-field tangents (tx, ty): `forward`, moved by the shift and
+    /// to a crop window's centre (an orthographic camera's: `forward`).
     pub fn centre_ray(&self, tx: f32, ty: f32) -> Vec3 {
-        self.forward + 2.0 * self.shift.x * tx * self.right - 2.0 * self.shift.y * ty * self.up
+        if self.orthographic.is_some() {
+            return self.forward;
+        }
+        let (fx, fy) = match self.crop {
+            None => (tx, ty),
+            Some(c) => self.film_tan_half_fov(c.film.0, c.film.1),
+        };
+        self.forward + 2.0 * self.shift.x * fx * self.right - 2.0 * self.shift.y * fy * self.up
+            + self.crop_centre(fx, fy)
     }
 
     /// Where the kernels start camera rays: an orthographic camera's plane.
     pub fn origin(&self) -> Vec3 {
-        self.position + self.orthographic.map_or(0.0, |o| o.near) * self.forward
+        let Some(o) = self.orthographic else {
+            return self.position;
+        };
+        let centre = match self.crop {
+            None => Vec3::ZERO,
+            Some(c) => {
+                let (fx, fy) = self.film_tan_half_fov(c.film.0, c.film.1);
+                self.crop_centre(fx, fy)
+            }
+        };
+        self.position + o.near * self.forward + centre
     }
 }
 

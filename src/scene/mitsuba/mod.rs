@@ -44,6 +44,7 @@ pub(super) fn read(
         instance_to_world: Mat4::IDENTITY,
         environment: None,
         envmap: None,
+        crop: None,
     };
     for el in &elements {
         b.top_level(el)?;
@@ -236,6 +237,8 @@ struct Builder<'a, 'l> {
     environment: Option<Vec3>,
     /// An `envmap`: its file, size, linear texels (scaled) and rotation.
     envmap: Option<(String, usize, usize, Vec<Vec3>, glam::Mat3)>,
+    /// The film's crop window, if it has one.
+    crop: Option<crate::scene::Crop>,
 }
 
 impl Builder<'_, '_> {
@@ -557,6 +560,7 @@ impl Builder<'_, '_> {
             focus_distance,
             orthographic,
             shift,
+            crop: self.crop,
         });
         Ok(())
     }
@@ -603,8 +607,41 @@ impl Builder<'_, '_> {
                 ))),
             }
         };
-        self.defaults.width = Some(size("width", 768)?);
-        self.defaults.height = Some(size("height", 576)?);
+        let (width, height) = (size("width", 768)?, size("height", 576)?);
+        self.defaults.width = Some(width);
+        self.defaults.height = Some(height);
+        // A crop window: the image shows that part of the film.
+        let at = |name: &str, default: u32| -> Result<u32, SceneError> {
+            match p.integer(name)? {
+                None => Ok(default),
+                Some(v) if (0..=u32::MAX as i64).contains(&v) => Ok(v as u32),
+                Some(v) => Err(el.error(format!("film {name} {v} must not be negative"))),
+            }
+        };
+        let offset = (at("crop_offset_x", 0)?, at("crop_offset_y", 0)?);
+        let crop = (
+            at("crop_width", width.saturating_sub(offset.0))?,
+            at("crop_height", height.saturating_sub(offset.1))?,
+        );
+        if crop.0 == 0
+            || crop.1 == 0
+            || offset.0 as u64 + crop.0 as u64 > width as u64
+            || offset.1 as u64 + crop.1 as u64 > height as u64
+        {
+            return Err(el.error(format!(
+                "the film's crop window ({}x{} at {}, {}) must lie within its {width}x{height}",
+                crop.0, crop.1, offset.0, offset.1
+            )));
+        }
+        self.crop = (crop != (width, height)).then(|| {
+            self.defaults.width = Some(crop.0);
+            self.defaults.height = Some(crop.1);
+            crate::scene::Crop {
+                film: (width, height),
+                offset,
+                size: crop,
+            }
+        });
         // What the file holds, not what the image shows.
         for k in [
             "file_format",
