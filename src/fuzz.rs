@@ -90,6 +90,9 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-n.xml",
         "tests/fixtures/mitsuba/coverage-o.xml",
         "tests/fixtures/mitsuba/coverage-p.xml",
+        "tests/fixtures/mitsuba/coverage-q.xml",
+        "tests/fixtures/mitsuba/coverage-r.xml",
+        "tests/fixtures/mitsuba/crop.xml",
         "tests/fixtures/mitsuba/choices.xml",
     ]
     .iter()
@@ -278,6 +281,9 @@ const LINES: &[&str] = &[
     "</scene>",
     "<texture type=\"mesh_attribute\" name=\"reflectance\"><string name=\"name\" value=\"vertex_color\"/></texture>",
     "<texture type=\"mesh_attribute\" name=\"alpha\"><string name=\"name\" value=\"face_color\"/></texture>",
+    "<integer name=\"crop_width\" value=\"4294967295\"/>",
+    "<integer name=\"crop_offset_y\" value=\"-1\"/>",
+    "<bsdf type=\"null\"/>",
     "property float r",
     "property uchar green",
     "property float q_0",
