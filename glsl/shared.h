@@ -323,9 +323,9 @@ struct Triangle {
 // Blender's lights), so paths go on straight through it, each a bounce, as
 // through any null surface; other emitters end a path.
 #define MATERIAL_EMITTER_PASSES 262144
-// Added to an emitter's kind: its BSDF scatters light (Mitsuba's default
-// diffuse, where a scene gives an emitter none), so paths gather its
-// emission and are shaded there as on any surface (FEATURE_EMITTERS_REFLECT).
+// Added to an emitter's kind: its BSDF scatters light (neither black nor
+// null: a diffuse, a rough metal), so paths gather its emission and are
+// shaded there as on any surface, as in Mitsuba (FEATURE_EMITTERS_REFLECT).
 #define MATERIAL_EMITTER_REFLECTS 524288
 // ... a choice (MATERIAL_CHOICE).
 #define FEATURE_CHOICES 4096
