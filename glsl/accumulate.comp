@@ -80,7 +80,8 @@ void main() {
                 a.sum += vec4(radiance, 1.0);
                 ref = race ? ref : a.sum;
                 a.sum_sq += vec4(radiance * radiance, 0.0);
-                c[1] = (radiance.r + radiance.g + radiance.b) / 3.0 < 1e-4 ? 1u : 0u;
+                // (A filter with negative lobes makes some samples negative.)
+                c[1] = abs(radiance.r + radiance.g + radiance.b) / 3.0 < 1e-4 ? 1u : 0u;
             }
             c[0] = 1u;
             c[2] = t0.w & ((1u << PATH_RAYS_SHIFT) - 1u);

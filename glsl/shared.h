@@ -356,6 +356,13 @@ struct Triangle {
 #define FILTER_BOX 0
 #define FILTER_TENT 1
 #define FILTER_GAUSSIAN 2
+// Filters with negative lobes (Mitsuba's mitchell with B = C = 1/3,
+// catmullrom, lanczos of PassParams.cam_forward.w lobes): a sample's point
+// is drawn from the filter's magnitude, and its radiance carries the sign
+// and the normalization (trace.comp, signed_filter_point).
+#define FILTER_MITCHELL 3
+#define FILTER_CATMULL_ROM 4
+#define FILTER_LANCZOS 5
 // Specialization constant of the kernels that shade: the MATERIAL_BECKMANN,
 // MATERIAL_FRESNEL and MATERIAL_NONLINEAR flags some material of the scene
 // has, and FEATURE_PLASTIC (all, where not given), so that a scene without

@@ -107,6 +107,9 @@ struct Path {
     // The squared TD errors of the transitions the guide learned from it.
     uint td_count;
     float td_sq_sum;
+    // What its radiance counts for in the image: a filter with negative
+    // lobes' sign and normalization at its point (1 for the others).
+    float filter_weight;
 };
 
 // What the guide keeps of a path, to learn from it and to steer its roulette.
@@ -181,11 +184,72 @@ vec2 filter_offset(vec2 u) {
     return u;
 }
 
+// A signed filter's value at offset x (in pixels, from the pixel's centre)
+// along one axis (Mitsuba's mitchell, catmullrom and lanczos).
+float signed_filter(float x) {
+    x = abs(x);
+    if (PIXEL_FILTER == FILTER_LANCZOS) {
+        float r = params.cam_forward.w;
+        float x1 = PI * x;
+        float x2 = x1 / r;
+        return x < 1e-6 ? 1.0 : x > r ? 0.0 : sin(x1) * sin(x2) / (x1 * x2);
+    }
+    float b = PIXEL_FILTER == FILTER_MITCHELL ? 1.0 / 3.0 : 0.0;
+    float c = PIXEL_FILTER == FILTER_MITCHELL ? 1.0 / 3.0 : 0.5;
+    float x2 = x * x;
+    float x3 = x2 * x;
+    float v = x < 1.0 ? (12.0 - 9.0 * b - 6.0 * c) * x3 + (-18.0 + 12.0 * b + 6.0 * c) * x2 + (6.0 - 2.0 * b)
+                      : (-b - 6.0 * c) * x3 + (6.0 * b + 30.0 * c) * x2 + (-12.0 * b - 48.0 * c) * x + (8.0 * b + 24.0 * c);
+    return x < 2.0 ? v / 6.0 : 0.0;
+}
+
+// One axis of a signed filter's point for a pixel whose offsets inside the
+// image lie in [lo, hi): drawn in proportion to the filter's magnitude
+// there (by rejection: its magnitude peaks at 0, at 1), with weight
+// sign x (integral of |f| / integral of f) over [lo, hi), as a renderer that
+// splats with the filter weighs the samples it gathers (midpoint sums of
+// 64 steps).
+float signed_filter_axis(float lo, float hi, inout uint rng, inout float weight) {
+    float r = PIXEL_FILTER == FILTER_LANCZOS ? params.cam_forward.w : 2.0;
+    lo = max(lo, -r);
+    hi = min(hi, r);
+    float x = 0.0;
+    float fx = 1.0;
+    for (uint i = 0u; i < 64u; i++) {
+        float u = rng_next(rng);
+        float v = rng_next(rng);
+        float t = mix(lo, hi, u);
+        float f = signed_filter(t);
+        if (v * (PIXEL_FILTER == FILTER_MITCHELL ? 8.0 / 9.0 : 1.0) < abs(f)) {
+            x = t;
+            fx = f;
+            break;
+        }
+    }
+    float total = 0.0;
+    float magnitude = 0.0;
+    float dx = (hi - lo) / 64.0;
+    for (uint k = 0u; k < 64u; k++) {
+        float f = signed_filter(lo + (float(k) + 0.5) * dx);
+        total += f;
+        magnitude += abs(f);
+    }
+    weight *= (fx < 0.0 ? -1.0 : 1.0) * magnitude / total;
+    return x;
+}
+
 // A point of the image for this pixel, in pixels. A splatting renderer's
 // pixel at the border gathers only samples inside the image, so its filter
 // is cut at the border: draws that land outside are drawn again (a box
 // filter's never do).
-vec2 image_point(uvec2 pixel, inout uint rng) {
+vec2 image_point(uvec2 pixel, inout uint rng, inout float weight) {
+    if (PIXEL_FILTER >= FILTER_MITCHELL) {
+        // Offsets from the pixel's centre that stay inside the image.
+        vec2 c = vec2(pixel) + 0.5;
+        float x = signed_filter_axis(-c.x, float(params.width) - c.x, rng, weight);
+        float y = signed_filter_axis(-c.y, float(params.height) - c.y, rng, weight);
+        return c + vec2(x, y);
+    }
     vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
     if (PIXEL_FILTER == FILTER_BOX) {
         return p;
@@ -204,7 +268,8 @@ vec2 image_point(uvec2 pixel, inout uint rng) {
 // of the pixel drawn from the pixel filter.
 void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) {
     path.rng = rng_init(pixel.y * params.width + pixel.x, sample_index, params.seed);
-    vec2 point = image_point(pixel, path.rng);
+    path.filter_weight = 1.0;
+    vec2 point = image_point(pixel, path.rng, path.filter_weight);
     vec2 ndc = vec2(
         2.0 * point.x / float(params.width) - 1.0,
         1.0 - 2.0 * point.y / float(params.height));
@@ -950,7 +1015,7 @@ void main() {
                 samples[out_slot].td_sq_sum = path.td_sq_sum;
                 lengths |= PATH_LEARNED;
             }
-            samples[out_slot].radiance = path.radiance;
+            samples[out_slot].radiance = PIXEL_FILTER >= FILTER_MITCHELL ? path.radiance * path.filter_weight : path.radiance;
             samples[out_slot].lengths = lengths;
             if (learn) {
                 learn_share_samples(trail, path);

@@ -93,6 +93,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-q.xml",
         "tests/fixtures/mitsuba/coverage-r.xml",
         "tests/fixtures/mitsuba/crop.xml",
+        "tests/fixtures/mitsuba/rfilters.xml",
         "tests/fixtures/mitsuba/choices.xml",
     ]
     .iter()
@@ -284,6 +285,7 @@ const LINES: &[&str] = &[
     "<integer name=\"crop_width\" value=\"4294967295\"/>",
     "<integer name=\"crop_offset_y\" value=\"-1\"/>",
     "<bsdf type=\"null\"/>",
+    "<rfilter type=\"lanczos\"><integer name=\"lobes\" value=\"0\"/></rfilter>",
     "property float r",
     "property uchar green",
     "property float q_0",

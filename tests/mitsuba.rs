@@ -1112,7 +1112,7 @@ fn crop_windows_agree_with_mitsuba() {
 }
 
 #[test]
-fn a_crop_window_sizes_the_image_and_lies_within_its_film() {
+fn a_films_crop_window_and_filter_read_as_mitsubas() {
     let film = |crop: &str| {
         with_body("").replace(
             "<sensor type=\"perspective\"/>",
@@ -1135,11 +1135,44 @@ fn a_crop_window_sizes_the_image_and_lies_within_its_film() {
             size: (40, 48)
         })
     );
+    // Filters qtrace takes as Mitsuba does, or refuses in one line.
+    let scene = load_text(&film(
+        "<rfilter type=\"lanczos\"><integer name=\"lobes\" value=\"2\"/></rfilter>",
+    ))
+    .unwrap();
+    assert_eq!(scene.filter, PixelFilter::Lanczos { lobes: 2 });
+    for (f, want) in [
+        (
+            "<rfilter type=\"mitchell\"><float name=\"B\" value=\"0.5\"/></rfilter>",
+            "mem/s.xml:2: mitchell B 0.5: qtrace has the default B and C (1/3) only",
+        ),
+        (
+            "<rfilter type=\"lanczos\"><integer name=\"lobes\" value=\"0\"/></rfilter>",
+            "mem/s.xml:2: lanczos lobes 0 must lie in 1..=16",
+        ),
+    ] {
+        assert_eq!(load_text(&film(f)).err().as_deref(), Some(want));
+    }
     let err = load_text(&film("<integer name=\"crop_offset_y\" value=\"10\"/><integer name=\"crop_height\" value=\"40\"/>")).err();
     assert_eq!(
         err.as_deref(),
         Some("mem/s.xml:2: the film's crop window (64x40 at 0, 10) must lie within its 64x48")
     );
+}
+
+#[test]
+fn filters_with_negative_lobes_agree_with_mitsuba() {
+    // Mitchell-Netravali, Catmull-Rom and Lanczos: signed sample weights,
+    // cut at the image's border as Mitsuba's splatting cuts them.
+    let scene = common::repo("tests/fixtures/mitsuba/rfilters.xml");
+    for f in ["mitchell", "catmullrom", "lanczos"] {
+        check(
+            &format!("rfilters-{f}"),
+            &scene,
+            &[("res", "64"), ("filter", f)],
+            method(Method::PT, true, 1024),
+        );
+    }
 }
 
 #[test]

@@ -214,6 +214,8 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         PixelFilter::Box => 0.0,
         PixelFilter::Tent { radius } => radius,
         PixelFilter::Gaussian { stddev } => stddev,
+        PixelFilter::Mitchell | PixelFilter::CatmullRom => 2.0,
+        PixelFilter::Lanczos { lobes } => lobes as f32,
     };
     let mut flags = 0;
     if s.nee {
@@ -491,6 +493,9 @@ impl Renderer {
             PixelFilter::Box => shaders::FILTER_BOX,
             PixelFilter::Tent { .. } => shaders::FILTER_TENT,
             PixelFilter::Gaussian { .. } => shaders::FILTER_GAUSSIAN,
+            PixelFilter::Mitchell => shaders::FILTER_MITCHELL,
+            PixelFilter::CatmullRom => shaders::FILTER_CATMULL_ROM,
+            PixelFilter::Lanczos { .. } => shaders::FILTER_LANCZOS,
         });
         constants.push(scene.material_features());
         constants.push(!scene.delta_lights.is_empty() as u32);

@@ -404,6 +404,15 @@ pub enum PixelFilter {
     Gaussian {
         stddev: f32,
     },
+    /// Mitchell and Netravali's cubic of B = C = 1/3 (radius 2), Catmull
+    /// and Rom's (B = 0, C = 1/2), and Lanczos's windowed sinc of `lobes`
+    /// lobes: filters with negative lobes, whose samples carry signed
+    /// weights.
+    Mitchell,
+    CatmullRom,
+    Lanczos {
+        lobes: u32,
+    },
 }
 
 /// Pinhole camera. A TOML scene's follows the right-handed look-at

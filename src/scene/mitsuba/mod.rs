@@ -663,9 +663,27 @@ impl Builder<'_, '_> {
                 "gaussian" => PixelFilter::Gaussian {
                     stddev: positive(f, "stddev", fp.float_or("stddev", 0.5)?)?,
                 },
+                "mitchell" => {
+                    for k in ["B", "C"] {
+                        let v = fp.float_or(k, 1.0 / 3.0)?;
+                        if (v - 1.0 / 3.0).abs() > 1e-6 {
+                            return Err(f.error(format!(
+                                "mitchell {k} {v}: qtrace has the default B and C (1/3) only"
+                            )));
+                        }
+                    }
+                    PixelFilter::Mitchell
+                }
+                "catmullrom" => PixelFilter::CatmullRom,
+                "lanczos" => match fp.integer("lobes")?.unwrap_or(3) {
+                    lobes @ 1..=16 => PixelFilter::Lanczos {
+                        lobes: lobes as u32,
+                    },
+                    other => return Err(f.error(format!("lanczos lobes {other} must lie in 1..=16"))),
+                },
                 other => {
                     return Err(f.error(format!(
-                        "rfilter '{other}' is not supported; qtrace has box, tent and gaussian"
+                        "rfilter '{other}' is not supported; qtrace has box, tent, gaussian, mitchell, catmullrom and lanczos"
                     )))
                 }
             };
