@@ -100,20 +100,31 @@ pub enum Weight {
     Texture(u32),
 }
 
-impl Choice {
-    /// The probability of its second material, where a weight chooses.
-    fn weight(&self) -> Option<Weight> {
-        match self.kind {
+impl ChoiceKind {
+    /// The probability of the second material, where a weight chooses.
+    fn weight(self) -> Option<Weight> {
+        match self {
             ChoiceKind::Mask { opacity: w } | ChoiceKind::Blend { weight: w } => Some(w),
             ChoiceKind::Sides => None,
         }
     }
 
-    fn texture(&self) -> Option<u32> {
+    /// The texture that weight reads, if any.
+    pub(crate) fn texture(self) -> Option<u32> {
         match self.weight() {
             Some(Weight::Texture(t)) => Some(t),
             _ => None,
         }
+    }
+}
+
+impl Choice {
+    fn weight(&self) -> Option<Weight> {
+        self.kind.weight()
+    }
+
+    fn texture(&self) -> Option<u32> {
+        self.kind.texture()
     }
 
     /// What users call it.

@@ -778,15 +778,7 @@ impl Builder<'_, '_> {
     /// from it.
     fn attribute_read(&self, desc: &BsdfDesc) -> Vec<(String, bool)> {
         fn walk(desc: &BsdfDesc, textures: &[Texture], out: &mut Vec<(String, bool)>) {
-            let weight = desc.choice.as_ref().and_then(|c| match c.kind {
-                ChoiceKind::Mask {
-                    opacity: Weight::Texture(t),
-                }
-                | ChoiceKind::Blend {
-                    weight: Weight::Texture(t),
-                } => Some(t),
-                _ => None,
-            });
+            let weight = desc.choice.as_ref().and_then(|c| c.kind.texture());
             for t in desc.textures.iter().flatten().chain(weight.as_ref()) {
                 if let Pattern::Attribute { name, number, .. } = &textures[*t as usize].pattern {
                     match out.iter_mut().find(|(n, _)| n == name) {
