@@ -306,6 +306,87 @@ fn spectra_turn_into_mitsubas_rgb() {
     assert!(close(albedo, [0.219942, 0.493022, 0.626373]), "{albedo}");
 }
 
+/// Spectrum plugins that are one colour in Mitsuba's RGB variants
+/// (`uniform`, `d65`, `srgb`: values from `mi.traverse`, Mitsuba 3.9.1), and
+/// those its RGB variants cannot evaluate (`irregular`, `regular`,
+/// `blackbody`) as their wavelength:value pairs; a blackbody light as
+/// Mitsuba's `scalar_spectral` renders it (8 x 1024 spp of a sky seen
+/// directly: 733.76, 349.93, 112.79 at 3000 K, standard errors under 0.2).
+#[test]
+fn spectrum_plugins_turn_into_mitsubas_rgb() {
+    let case = |reflectance: &str, radiance: &str| {
+        let body = format!(
+            "<shape type=\"cube\"><bsdf type=\"diffuse\">{}</bsdf>\
+             <emitter type=\"area\">{}</emitter></shape>",
+            reflectance.replace("NAME", "reflectance"),
+            radiance.replace("NAME", "radiance")
+        );
+        let scene = load_text(&with_body(&body)).unwrap();
+        let m = scene.materials.last().unwrap();
+        let qtrace::bsdf::Surface::Diffuse { albedo } = m.surface else {
+            panic!("{:?}", m.surface)
+        };
+        (albedo, m.emission)
+    };
+    let close = |a: Vec3, b: [f32; 3], tolerance: f32| {
+        (a - Vec3::from(b)).abs().max_element() <= tolerance * Vec3::from(b).max_element()
+    };
+    let uniform =
+        "<spectrum name=\"NAME\" type=\"uniform\"><float name=\"value\" value=\"0.3\"/></spectrum>";
+    let (a, e) = case(uniform, uniform);
+    assert!(
+        close(a, [0.3; 3], 1e-6) && close(e, [0.3; 3], 1e-6),
+        "{a} {e}"
+    );
+    let d65 = "<spectrum name=\"NAME\" type=\"d65\"><rgb name=\"color\" value=\"0.5, 0.2, 0.1\"/><float name=\"scale\" value=\"1.5\"/></spectrum>";
+    let srgb = "<texture name=\"NAME\" type=\"srgb\"><rgb name=\"color\" value=\"0.5, 0.2, 0.1\"/></texture>";
+    let (a, e) = case(srgb, d65);
+    assert!(
+        close(a, [0.5, 0.2, 0.1], 1e-6) && close(e, [0.75, 0.3, 0.15], 1e-6),
+        "{a} {e}"
+    );
+    let (_, e) = case("", "<spectrum name=\"NAME\" type=\"d65\"/>");
+    assert!(close(e, [1.0; 3], 1e-6), "{e}");
+    // The same spectrum three ways.
+    let pairs = "<spectrum name=\"NAME\" value=\"400:0.1, 500:0.5, 600:0.9, 700:0.2\"/>";
+    let irregular = "<spectrum name=\"NAME\" type=\"irregular\"><string name=\"wavelengths\" value=\"400, 500, 600, 700\"/><string name=\"values\" value=\"0.1, 0.5, 0.9, 0.2\"/></spectrum>";
+    let regular = "<spectrum name=\"NAME\" type=\"regular\"><float name=\"wavelength_min\" value=\"400\"/><float name=\"wavelength_max\" value=\"700\"/><string name=\"values\" value=\"0.1 0.5 0.9 0.2\"/></spectrum>";
+    let want = case(pairs, pairs);
+    assert!(
+        close(want.0, [0.833828, 0.68912, 0.265243], 2e-4),
+        "{want:?}"
+    );
+    assert_eq!(case(irregular, irregular), want);
+    assert_eq!(case(regular, regular), want);
+    let blackbody = "<spectrum name=\"NAME\" type=\"blackbody\"><float name=\"temperature\" value=\"3000\"/></spectrum>";
+    let (_, e) = case("", blackbody);
+    assert!(close(e, [733.76, 349.93, 112.79], 2e-3), "{e}");
+    // A top-level one, named by a <ref>.
+    let scene = load_text(&with_body(
+        "<texture type=\"srgb\" id=\"c\"><rgb name=\"color\" value=\"0.2, 0.4, 0.6\"/></texture>\
+         <shape type=\"cube\"><bsdf type=\"diffuse\"><ref name=\"reflectance\" id=\"c\"/></bsdf></shape>",
+    ))
+    .unwrap();
+    let qtrace::bsdf::Surface::Diffuse { albedo } = scene.materials.last().unwrap().surface else {
+        panic!("not diffuse")
+    };
+    assert!(close(albedo, [0.2, 0.4, 0.6], 1e-6), "{albedo}");
+    // What Mitsuba refuses, qtrace refuses.
+    for (body, want) in [
+        ("<texture name=\"reflectance\" type=\"srgb\"><rgb name=\"color\" value=\"1.5, 0.2, 0.1\"/></texture>", "lies outside [0, 1]"),
+        ("<spectrum name=\"reflectance\" type=\"uniform\"/>", "needs the property 'value'"),
+        ("<spectrum name=\"reflectance\" type=\"irregular\"><string name=\"wavelengths\" value=\"400, 500\"/><string name=\"values\" value=\"0.1\"/></spectrum>", "2 wavelengths and 1 values"),
+        ("<spectrum name=\"reflectance\" type=\"d65\"><float name=\"gamma\" value=\"2\"/></spectrum>", "'gamma', which qtrace does not support"),
+    ] {
+        let Err(e) = load_text(&with_body(&format!(
+            "<shape type=\"cube\"><bsdf type=\"diffuse\">{body}</bsdf></shape>"
+        ))) else {
+            panic!("{body} loaded")
+        };
+        assert!(e.contains(want) && e.contains(":5:"), "{body}: {e}");
+    }
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

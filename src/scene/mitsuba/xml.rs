@@ -84,7 +84,38 @@ pub fn read_scene(
         params: &mut params,
         fixed: &fixed,
     };
-    reader.document(path, 0)
+    let mut top = reader.document(path, 0)?;
+    // A top-level spectrum plugin that is one colour (see `plain_spectrum`)
+    // stands wherever a `<ref>` names it.
+    let (constants, mut top): (Vec<Element>, Vec<Element>) = top
+        .drain(..)
+        .partition(|e| matches!(e.tag.as_str(), "rgb" | "spectrum") && e.attr("id").is_some());
+    if !constants.is_empty() {
+        top.iter_mut().for_each(|e| inline_constants(e, &constants));
+    }
+    Ok(top)
+}
+
+/// Each `<ref name id>` under `el` that names one of `constants`, replaced
+/// by that colour under the ref's name.
+fn inline_constants(el: &mut Element, constants: &[Element]) {
+    for c in &mut el.children {
+        if c.tag == "ref" {
+            let Some(k) = constants.iter().find(|k| k.attr("id") == c.attr("id")) else {
+                continue;
+            };
+            let mut attrs: Vec<(String, String)> = k
+                .attrs
+                .iter()
+                .filter(|(n, _)| n != "id" && n != "name")
+                .cloned()
+                .collect();
+            attrs.extend(c.attrs.iter().filter(|(n, _)| n == "name").cloned());
+            *c = Element { attrs, ..k.clone() };
+        } else {
+            inline_constants(c, constants);
+        }
+    }
 }
 
 struct Reader<'a, 'l> {
@@ -233,13 +264,14 @@ impl Reader<'_, '_> {
         for c in node.children().filter(|n| n.is_element()) {
             children.push(self.element(doc, c, file)?);
         }
-        Ok(Element {
+        let el = Element {
             tag: node.tag_name().name().to_string(),
             attrs,
             children,
             file: file.clone(),
             line,
-        })
+        };
+        plain_spectrum(el)
     }
 
     /// `value` with each `$name` replaced by its parameter's value.
@@ -273,6 +305,183 @@ impl Reader<'_, '_> {
         out.push_str(rest);
         Ok(out)
     }
+}
+
+/// A spectrum plugin (`<spectrum type=...>`, or the same as a `<texture>`)
+/// that is one constant colour in Mitsuba's RGB variants, as the `<rgb>` or
+/// `<spectrum value=...>` it amounts to, so that every reader of a colour
+/// takes it; other elements as they are. `irregular`, `regular` and
+/// `blackbody`, which Mitsuba's RGB variants load but cannot evaluate, become
+/// their wavelength:value pairs, turned into RGB as Mitsuba turns such pairs.
+fn plain_spectrum(el: Element) -> Result<Element, SceneError> {
+    if !matches!(el.tag.as_str(), "spectrum" | "texture") {
+        return Ok(el);
+    }
+    let Some(kind) = el.attr("type") else {
+        return Ok(el);
+    };
+    if !matches!(
+        kind,
+        "uniform" | "d65" | "srgb" | "irregular" | "regular" | "blackbody"
+    ) {
+        return Ok(el);
+    }
+    let what = plugin_name(&el);
+    let mut used = vec![false; el.children.len()];
+    // The child property `name` of one of `tags`, its `value`.
+    let mut take = |name: &str, tags: &[&str]| -> Result<Option<(usize, &str)>, SceneError> {
+        let Some(i) = el
+            .children
+            .iter()
+            .position(|c| c.attr("name") == Some(name))
+        else {
+            return Ok(None);
+        };
+        let c = &el.children[i];
+        if !tags.contains(&c.tag.as_str()) {
+            return Err(c.error(format!(
+                "{what}: '{name}' must be <{}>",
+                tags.join("> or <")
+            )));
+        }
+        used[i] = true;
+        c.required("value").map(|v| Some((i, v)))
+    };
+    let number = |i: usize, v: &str| -> Result<f32, SceneError> {
+        let c = &el.children[i];
+        match numbers(c, v)?[..] {
+            [x] => Ok(x),
+            _ => Err(c.error(format!("{what}: '{v}' is not one number"))),
+        }
+    };
+    let list = |i: usize, v: &str| numbers(&el.children[i], v);
+    let missing = |name: &str| el.error(format!("{what} needs the property '{name}'"));
+    let (tag, value) = match kind {
+        "uniform" => {
+            let (i, v) = take("value", &["float", "integer"])?.ok_or_else(|| missing("value"))?;
+            ("rgb", number(i, v)?.to_string())
+        }
+        "d65" | "srgb" => {
+            let color = match take("color", &["rgb"])? {
+                Some((i, v)) => match list(i, v)?[..] {
+                    [x] => Vec3::splat(x),
+                    [r, g, b] => Vec3::new(r, g, b),
+                    _ => {
+                        return Err(
+                            el.children[i].error(format!("{what}: 'color' needs three numbers"))
+                        )
+                    }
+                },
+                None if kind == "d65" => Vec3::ONE,
+                None => return Err(missing("color")),
+            };
+            let scale = match take("scale", &["float", "integer"])? {
+                Some((i, v)) if kind == "d65" => number(i, v)?,
+                _ => 1.0,
+            };
+            if kind == "srgb" {
+                let unbounded = match take("unbounded", &["boolean"])? {
+                    Some((_, v)) => v.trim() == "true",
+                    None => false,
+                };
+                if !unbounded && (color.min_element() < 0.0 || color.max_element() > 1.0) {
+                    return Err(el.error(format!(
+                        "{what}: the color {color} lies outside [0, 1] (Mitsuba refuses it too; set 'unbounded' to true)"
+                    )));
+                }
+            }
+            let c = color * scale;
+            ("rgb", format!("{}, {}, {}", c.x, c.y, c.z))
+        }
+        "irregular" => {
+            let (i, w) = take("wavelengths", &["string"])?.ok_or_else(|| missing("wavelengths"))?;
+            let (j, v) = take("values", &["string"])?.ok_or_else(|| missing("values"))?;
+            let (w, v) = (list(i, w)?, list(j, v)?);
+            if w.len() != v.len() {
+                return Err(el.error(format!(
+                    "{what} has {} wavelengths and {} values",
+                    w.len(),
+                    v.len()
+                )));
+            }
+            ("spectrum", pairs(w.into_iter().zip(v)))
+        }
+        "regular" => {
+            let (i, lo) = take("wavelength_min", &["float", "integer"])?
+                .ok_or_else(|| missing("wavelength_min"))?;
+            let (j, hi) = take("wavelength_max", &["float", "integer"])?
+                .ok_or_else(|| missing("wavelength_max"))?;
+            let (k, v) = take("values", &["string"])?.ok_or_else(|| missing("values"))?;
+            let (lo, hi, v) = (number(i, lo)?, number(j, hi)?, list(k, v)?);
+            if v.len() < 2 || hi <= lo {
+                return Err(el.error(format!(
+                    "{what} needs two values or more over wavelength_min < wavelength_max"
+                )));
+            }
+            let step = (hi - lo) / (v.len() - 1) as f32;
+            (
+                "spectrum",
+                pairs(
+                    v.into_iter()
+                        .enumerate()
+                        .map(|(n, y)| (lo + n as f32 * step, y)),
+                ),
+            )
+        }
+        _ => {
+            let (i, t) = take("temperature", &["float", "integer"])?
+                .ok_or_else(|| missing("temperature"))?;
+            let t = number(i, t)?;
+            if t <= 0.0 {
+                return Err(el.error(format!("{what}: the temperature must be positive, not {t}")));
+            }
+            let (lo, hi) = (super::cie::FIRST_NM as u32, super::cie::LAST_NM as u32);
+            (
+                "spectrum",
+                pairs((lo..=hi).map(|nm| (nm as f32, blackbody(nm as f64, t as f64) as f32))),
+            )
+        }
+    };
+    if let Some(i) = used.iter().position(|u| !u) {
+        let c = &el.children[i];
+        return Err(c.error(format!(
+            "{what} has {}, which qtrace does not support",
+            c.attr("name")
+                .map_or_else(|| format!("<{}>", c.tag), |n| format!("'{n}'"))
+        )));
+    }
+    let mut attrs: Vec<(String, String)> = el
+        .attrs
+        .iter()
+        .filter(|(k, _)| k != "type")
+        .cloned()
+        .collect();
+    attrs.push(("value".into(), value));
+    Ok(Element {
+        tag: tag.into(),
+        attrs,
+        children: Vec::new(),
+        file: el.file,
+        line: el.line,
+    })
+}
+
+/// `wavelength:value, ...`
+fn pairs(points: impl Iterator<Item = (f32, f32)>) -> String {
+    points
+        .map(|(w, v)| format!("{w}:{v}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Planck's law at `nm` nanometres and `kelvin`, in W m⁻² sr⁻¹ nm⁻¹, with
+/// Mitsuba 3's constants.
+fn blackbody(nm: f64, kelvin: f64) -> f64 {
+    let (c, h, k) = (2.997_924_58e8, 6.626_070_04e-34, 1.380_648_52e-23);
+    let l = nm * 1e-9;
+    let p1 = 2.0 * h * c * c / l.powi(5);
+    let p2 = ((h * c) / (k * l * kelvin)).exp() - 1.0;
+    p1 / p2 * 1e-9
 }
 
 /// Property tags, as opposed to nested plugins.
