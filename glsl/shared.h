@@ -356,13 +356,13 @@ struct Triangle {
 #define FILTER_BOX 0
 #define FILTER_TENT 1
 #define FILTER_GAUSSIAN 2
-// Filters with negative lobes (Mitsuba's mitchell with B = C = 1/3,
-// catmullrom, lanczos of PassParams.cam_forward.w lobes): a sample's point
-// is drawn from the filter's magnitude, and its radiance carries the sign
-// and the normalization (trace.comp, signed_filter_point).
-#define FILTER_MITCHELL 3
-#define FILTER_CATMULL_ROM 4
-#define FILTER_LANCZOS 5
+// Filters with negative lobes (Mitsuba's mitchell and catmullrom, cubics of
+// B and C in PassParams.environment.yz, and lanczos of cam_forward.w
+// lobes): a sample's point is drawn from the filter's magnitude, and its
+// radiance carries the sign and the normalization (trace.comp,
+// signed_filter_axis).
+#define FILTER_CUBIC 3
+#define FILTER_LANCZOS 4
 // Specialization constant of the kernels that shade: the MATERIAL_BECKMANN,
 // MATERIAL_FRESNEL and MATERIAL_NONLINEAR flags some material of the scene
 // has, and FEATURE_PLASTIC (all, where not given), so that a scene without
@@ -483,7 +483,7 @@ struct PassParams {
     vec4 cam_right;    // r * tan(horizontal fov / 2), w = a thin lens's radius (0: a pinhole)
     vec4 cam_up;       // u * tan(vertical fov / 2), w = the lens's focus distance
     vec4 cam_forward;  // f, w = the pixel filter's radius or deviation
-    vec4 environment;  // x: the probability NEE picks the environment
+    vec4 environment;  // x: the probability NEE picks the environment; y, z: a cubic filter's B and C, w: its magnitude's bound
     uint width;
     uint height;
     uint pass_index;

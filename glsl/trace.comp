@@ -194,8 +194,8 @@ float signed_filter(float x) {
         float x2 = x1 / r;
         return x < 1e-6 ? 1.0 : x > r ? 0.0 : sin(x1) * sin(x2) / (x1 * x2);
     }
-    float b = PIXEL_FILTER == FILTER_MITCHELL ? 1.0 / 3.0 : 0.0;
-    float c = PIXEL_FILTER == FILTER_MITCHELL ? 1.0 / 3.0 : 0.5;
+    float b = params.environment.y;
+    float c = params.environment.z;
     float x2 = x * x;
     float x3 = x2 * x;
     float v = x < 1.0 ? (12.0 - 9.0 * b - 6.0 * c) * x3 + (-18.0 + 12.0 * b + 6.0 * c) * x2 + (6.0 - 2.0 * b)
@@ -205,7 +205,7 @@ float signed_filter(float x) {
 
 // One axis of a signed filter's point for a pixel whose offsets inside the
 // image lie in [lo, hi): drawn in proportion to the filter's magnitude
-// there (by rejection: its magnitude peaks at 0, at 1), with weight
+// there (by rejection under params.environment.w), with weight
 // sign x (integral of |f| / integral of f) over [lo, hi), as a renderer that
 // splats with the filter weighs the samples it gathers (midpoint sums of
 // 64 steps).
@@ -220,7 +220,7 @@ float signed_filter_axis(float lo, float hi, inout uint rng, inout float weight)
         float v = rng_next(rng);
         float t = mix(lo, hi, u);
         float f = signed_filter(t);
-        if (v * (PIXEL_FILTER == FILTER_MITCHELL ? 8.0 / 9.0 : 1.0) < abs(f)) {
+        if (v * params.environment.w < abs(f)) {
             x = t;
             fx = f;
             break;
@@ -243,7 +243,7 @@ float signed_filter_axis(float lo, float hi, inout uint rng, inout float weight)
 // is cut at the border: draws that land outside are drawn again (a box
 // filter's never do).
 vec2 image_point(uvec2 pixel, inout uint rng, inout float weight) {
-    if (PIXEL_FILTER >= FILTER_MITCHELL) {
+    if (PIXEL_FILTER >= FILTER_CUBIC) {
         // Offsets from the pixel's centre that stay inside the image.
         vec2 c = vec2(pixel) + 0.5;
         float x = signed_filter_axis(-c.x, float(params.width) - c.x, rng, weight);
@@ -1015,7 +1015,7 @@ void main() {
                 samples[out_slot].td_sq_sum = path.td_sq_sum;
                 lengths |= PATH_LEARNED;
             }
-            samples[out_slot].radiance = PIXEL_FILTER >= FILTER_MITCHELL ? path.radiance * path.filter_weight : path.radiance;
+            samples[out_slot].radiance = PIXEL_FILTER >= FILTER_CUBIC ? path.radiance * path.filter_weight : path.radiance;
             samples[out_slot].lengths = lengths;
             if (learn) {
                 learn_share_samples(trail, path);

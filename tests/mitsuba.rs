@@ -1224,8 +1224,8 @@ fn a_films_crop_window_and_filter_read_as_mitsubas() {
     assert_eq!(scene.filter, PixelFilter::Lanczos { lobes: 2 });
     for (f, want) in [
         (
-            "<rfilter type=\"mitchell\"><float name=\"B\" value=\"0.5\"/></rfilter>",
-            "mem/s.xml:2: mitchell B 0.5: qtrace has the default B and C (1/3) only",
+            "<rfilter type=\"mitchell\"><float name=\"B\" value=\"5\"/></rfilter>",
+            "mem/s.xml:2: mitchell B 5, C 0.33333334: qtrace takes B and C within [-4, 4]",
         ),
         (
             "<rfilter type=\"lanczos\"><integer name=\"lobes\" value=\"0\"/></rfilter>",
@@ -1253,6 +1253,63 @@ fn filters_with_negative_lobes_agree_with_mitsuba() {
             &[("res", "64"), ("filter", f)],
             method(Method::PT, true, 1024),
         );
+    }
+}
+
+/// A light's straight edge down the middle of a 16x2 image, seen through
+/// cubic filters (Mitsuba's default mitchell, catmullrom and a mitchell of
+/// other B and C): each column converges to the filter's integral over the
+/// lit side within the image, over its integral within the image, times
+/// what the kernels' midpoint sums of 64 steps make of that ratio.
+#[test]
+fn cubic_filters_see_an_edge_as_their_integral() {
+    let integral = |b: f32, c: f32, lo: f64, hi: f64, steps: usize| -> (f64, f64) {
+        let dx = (hi - lo) / steps as f64;
+        (0..steps).fold((0.0, 0.0), |(t, m), k| {
+            let f = PixelFilter::cubic(b, c, (lo + (k as f64 + 0.5) * dx) as f32) as f64 * dx;
+            (t + f, m + f.abs())
+        })
+    };
+    // E[weight x lit] along one axis: sampled from |f| (exact integral M),
+    // weighed by sign x the midpoint sums' M / T.
+    let axis = |b: f32, c: f32, centre: f64, size: f64, lit: f64| -> f64 {
+        let (lo, hi) = ((-centre).max(-2.0), (size - centre).min(2.0));
+        let (t64, m64) = integral(b, c, lo, hi, 64);
+        let (_, m) = integral(b, c, lo, hi, 200_000);
+        let (t_lit, _) = integral(b, c, lo, (lit - centre).clamp(lo, hi), 200_000);
+        m64 / t64 / m * t_lit
+    };
+    for (rfilter, (b, c)) in [
+        ("<rfilter type=\"mitchell\"/>", (1.0 / 3.0, 1.0 / 3.0)),
+        ("<rfilter type=\"catmullrom\"/>", (0.0, 0.5)),
+        (
+            "<rfilter type=\"mitchell\"><float name=\"B\" value=\"0\"/><float name=\"C\" value=\"1\"/></rfilter>",
+            (0.0, 1.0),
+        ),
+    ] {
+        let scene = load_text(&format!(
+            "<scene version=\"3.0.0\">\n\
+             <sensor type=\"perspective\"><float name=\"fov\" value=\"60\"/>\
+             <transform name=\"to_world\"><lookat origin=\"0, 0, 0\" target=\"0, 0, -1\" up=\"0, 1, 0\"/></transform>\
+             <film type=\"hdrfilm\"><integer name=\"width\" value=\"16\"/><integer name=\"height\" value=\"2\"/>{rfilter}</film></sensor>\n\
+             <shape type=\"rectangle\"><transform name=\"to_world\"><scale x=\"50\" y=\"50\"/><translate x=\"-50\" z=\"-1\"/></transform>\
+             <emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape>\n</scene>"
+        ))
+        .unwrap();
+        assert_eq!(scene.filter, PixelFilter::Cubic { b, c }, "{rfilter}");
+        let out = common::render_with(&common::gpu(), &scene, method(Method::PT, false, 16384));
+        // World -x is the image's left (Mitsuba's look-at): columns 0-7 lit.
+        let rows = axis(b, c, 0.5, 2.0, 2.0) + axis(b, c, 1.5, 2.0, 2.0);
+        for x in 0..16 {
+            let want = axis(b, c, x as f64 + 0.5, 16.0, 8.0) * rows / 2.0;
+            let (mut got, mut var) = (0.0, 0.0);
+            for y in 0..2 {
+                got += out.image.pixels[y * 16 + x][1] as f64 / 2.0;
+                var += out.variance.pixels[y * 16 + x][1] as f64 / 4.0 / 16384.0;
+            }
+            let z = (got - want) / var.sqrt().max(1e-4);
+            assert!(z.abs() < 5.0, "{rfilter} column {x}: {got} against {want} ({z:.1} sigma)");
+        }
     }
 }
 

@@ -214,7 +214,7 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         PixelFilter::Box => 0.0,
         PixelFilter::Tent { radius } => radius,
         PixelFilter::Gaussian { stddev } => stddev,
-        PixelFilter::Mitchell | PixelFilter::CatmullRom => 2.0,
+        PixelFilter::Cubic { .. } => 2.0,
         PixelFilter::Lanczos { lobes } => lobes as f32,
     };
     let mut flags = 0;
@@ -229,7 +229,13 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
         cam_right: (c.right * tx).extend(c.aperture_radius).into(),
         cam_up: (c.up * ty).extend(c.focus_distance).into(),
         cam_forward: c.centre_ray(tx, ty).extend(filter_size).into(),
-        environment: [scene.environment_pick(), 0.0, 0.0, 0.0],
+        environment: {
+            let [b, c, bound] = match scene.filter {
+                PixelFilter::Cubic { b, c } => [b, c, PixelFilter::cubic_bound(b, c)],
+                _ => [0.0, 0.0, 1.0],
+            };
+            [scene.environment_pick(), b, c, bound]
+        },
         width: s.width,
         height: s.height,
         pass_index: 0,
@@ -493,8 +499,7 @@ impl Renderer {
             PixelFilter::Box => shaders::FILTER_BOX,
             PixelFilter::Tent { .. } => shaders::FILTER_TENT,
             PixelFilter::Gaussian { .. } => shaders::FILTER_GAUSSIAN,
-            PixelFilter::Mitchell => shaders::FILTER_MITCHELL,
-            PixelFilter::CatmullRom => shaders::FILTER_CATMULL_ROM,
+            PixelFilter::Cubic { .. } => shaders::FILTER_CUBIC,
             PixelFilter::Lanczos { .. } => shaders::FILTER_LANCZOS,
         });
         constants.push(scene.material_features());

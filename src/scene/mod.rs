@@ -415,15 +415,51 @@ pub enum PixelFilter {
     Gaussian {
         stddev: f32,
     },
-    /// Mitchell and Netravali's cubic of B = C = 1/3 (radius 2), Catmull
-    /// and Rom's (B = 0, C = 1/2), and Lanczos's windowed sinc of `lobes`
-    /// lobes: filters with negative lobes, whose samples carry signed
-    /// weights.
-    Mitchell,
-    CatmullRom,
+    /// Mitchell and Netravali's cubics of parameters `b` and `c` (radius
+    /// 2; Catmull and Rom's is B = 0, C = 1/2), and Lanczos's windowed sinc
+    /// of `lobes` lobes: filters with negative lobes, whose samples carry
+    /// signed weights.
+    Cubic {
+        b: f32,
+        c: f32,
+    },
     Lanczos {
         lobes: u32,
     },
+}
+
+impl PixelFilter {
+    /// Mitchell and Netravali's cubic of `b` and `c` at offset `x`, as
+    /// Mitsuba 3 evaluates it (trace.comp's `signed_filter`).
+    pub fn cubic(b: f32, c: f32, x: f32) -> f32 {
+        let x = x.abs();
+        let (x2, x3) = (x * x, x * x * x);
+        let v = if x < 1.0 {
+            (12.0 - 9.0 * b - 6.0 * c) * x3 + (-18.0 + 12.0 * b + 6.0 * c) * x2 + (6.0 - 2.0 * b)
+        } else {
+            (-b - 6.0 * c) * x3
+                + (6.0 * b + 30.0 * c) * x2
+                + (-12.0 * b - 48.0 * c) * x
+                + (8.0 * b + 24.0 * c)
+        };
+        if x < 2.0 {
+            v / 6.0
+        } else {
+            0.0
+        }
+    }
+
+    /// A bound on the cubic's magnitude, under which the kernels draw its
+    /// points by rejection: its largest over 4,096 steps, with room for
+    /// what lies between them (its slope is at most 12 + 9|b| + 40|c|).
+    pub fn cubic_bound(b: f32, c: f32) -> f32 {
+        let steps = 4096;
+        let most = (0..=steps)
+            .map(|i| Self::cubic(b, c, 2.0 * i as f32 / steps as f32).abs())
+            .fold(0.0f32, f32::max);
+        let slope = 12.0 + 9.0 * b.abs() + 40.0 * c.abs();
+        most + slope / steps as f32
+    }
 }
 
 /// Pinhole camera. A TOML scene's follows the right-handed look-at

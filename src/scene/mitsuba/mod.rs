@@ -664,17 +664,17 @@ impl Builder<'_, '_> {
                     stddev: positive(f, "stddev", fp.float_or("stddev", 0.5)?)?,
                 },
                 "mitchell" => {
-                    for k in ["B", "C"] {
-                        let v = fp.float_or(k, 1.0 / 3.0)?;
-                        if (v - 1.0 / 3.0).abs() > 1e-6 {
-                            return Err(f.error(format!(
-                                "mitchell {k} {v}: qtrace has the default B and C (1/3) only"
-                            )));
-                        }
+                    let (b, c) = (fp.float_or("B", 1.0 / 3.0)?, fp.float_or("C", 1.0 / 3.0)?);
+                    // Every B and C keeps the cubic's integral at 1, but a
+                    // render's weights grow as its value at 0 falls.
+                    if !(b.abs() <= 4.0 && c.abs() <= 4.0) {
+                        return Err(f.error(format!(
+                            "mitchell B {b}, C {c}: qtrace takes B and C within [-4, 4]"
+                        )));
                     }
-                    PixelFilter::Mitchell
+                    PixelFilter::Cubic { b, c }
                 }
-                "catmullrom" => PixelFilter::CatmullRom,
+                "catmullrom" => PixelFilter::Cubic { b: 0.0, c: 0.5 },
                 "lanczos" => match fp.integer("lobes")?.unwrap_or(3) {
                     lobes @ 1..=16 => PixelFilter::Lanczos {
                         lobes: lobes as u32,
