@@ -349,8 +349,13 @@ impl Builder<'_, '_> {
                     .to_cols_array()
                     .iter()
                     .all(|v| v.abs() < 1e-4);
-                if !orthonormal || rotation.determinant() < 0.0 {
-                    return Err(el.error("an envmap's to_world must be a rotation"));
+                // A mirror turns the sky over as Mitsuba does; a scale would
+                // leave Mitsuba looking the map up by an unnormalized
+                // direction.
+                if !orthonormal {
+                    return Err(el.error(
+                        "an envmap's to_world must be a rotation, or a rotation and a mirror (Mitsuba looks the map up by a direction a scale would stretch)",
+                    ));
                 }
                 use crate::scene::texture::{Filter, Wrap};
                 let pattern = textures::read_image(
