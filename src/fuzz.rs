@@ -268,6 +268,8 @@ const LINES: &[&str] = &[
     "<shape type=\"ply\"><string name=\"filename\" value=\"torus.ply\"/></shape>",
     "<shape type=\"serialized\"><string name=\"filename\" value=\"shapes.serialized\"/><integer name=\"shape_index\" value=\"7\"/></shape>",
     "<include filename=\"scene.xml\"/>",
+    "<path value=\"..\"/>",
+    "<path value=\"/\"/>",
     "<include filename=\"materials.xml\"/>",
     "<default name=\"res\" value=\"$res\"/>",
     "<bsdf type=\"twosided\" id=\"x\"><bsdf type=\"twosided\"/></bsdf>",

@@ -408,6 +408,60 @@ fn a_mirrored_envmap_turns_the_sky_over() {
     assert!(env("<scale value=\"2\"/>").is_err());
 }
 
+/// Files are looked for as Mitsuba's resolver looks: in each `<path>`
+/// directory (relative to the file that names it, the latest first), then
+/// the main scene's directory, which is also where an included file in a
+/// subdirectory finds its meshes; qtrace also looks beside the including
+/// file, where Mitsuba would not.
+#[test]
+fn files_are_found_where_mitsuba_looks() {
+    let dir = common::scratch("mitsuba-path");
+    let fixture = |name: &str| common::repo(&format!("tests/fixtures/textures/{name}"));
+    for d in ["assets", "more", "inc"] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    // t.png beside the scene is small.png, under assets/ tiles.png.
+    std::fs::copy(fixture("small.png"), dir.join("t.png")).unwrap();
+    std::fs::copy(fixture("tiles.png"), dir.join("assets/t.png")).unwrap();
+    std::fs::write(dir.join("m.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(dir.join("more/s.spd"), "400 0.5\n700 0.5\n").unwrap();
+    std::fs::write(
+        dir.join("inc/shapes.xml"),
+        "<scene version=\"3.0.0\"><shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/>\
+         <bsdf type=\"diffuse\"><spectrum name=\"reflectance\" filename=\"s.spd\"/></bsdf></shape></scene>",
+    )
+    .unwrap();
+    let scene = |paths: &str| {
+        std::fs::write(
+            dir.join("s.xml"),
+            format!(
+                "<scene version=\"3.0.0\">{paths}<sensor type=\"perspective\"/>\
+                 <shape type=\"rectangle\"><bsdf type=\"diffuse\"><texture type=\"bitmap\" name=\"reflectance\">\
+                 <string name=\"filename\" value=\"t.png\"/></texture></bsdf>\
+                 <emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape>\
+                 <include filename=\"inc/shapes.xml\"/></scene>"
+            ),
+        )
+        .unwrap();
+        Scene::load(dir.join("s.xml"))
+    };
+    let texture_width = |s: &Scene| match &s.textures[0].pattern {
+        qtrace::scene::texture::Pattern::Bitmap { width, .. } => *width,
+        p => panic!("{p:?}"),
+    };
+    let tiles = image::open(fixture("tiles.png")).unwrap().width() as usize;
+    let smallw = image::open(fixture("small.png")).unwrap().width() as usize;
+    assert_ne!(tiles, smallw);
+    // Without <path>, the spectrum file under more/ is not found.
+    let err = scene("").err().unwrap().to_string();
+    assert!(err.contains("s.spd"), "{err}");
+    let s = scene("<path value=\"more\"/>").unwrap();
+    assert_eq!(texture_width(&s), smallw);
+    let s = scene("<path value=\"more\"/><path value=\"assets\"/>").unwrap();
+    assert_eq!(texture_width(&s), tiles);
+    assert_eq!(s.triangles.len(), 3);
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

@@ -1100,10 +1100,8 @@ impl Builder<'_, '_> {
 impl Builder<'_, '_> {
     /// A file a mesh shape names, and its path.
     fn mesh_file(&self, el: &Element, name: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
-        let path = el.file.parent().unwrap_or(Path::new(".")).join(name);
-        let bytes = (self.loader.read)(&path)
-            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))?;
-        Ok((path, bytes))
+        el.read_file(self.loader, name)
+            .map_err(|e| el.error(format!("cannot read the mesh '{name}': {e}")))
     }
 
     /// How many more triangles the scene may take.

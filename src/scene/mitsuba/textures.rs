@@ -234,13 +234,10 @@ pub fn read_image(
     wrap: Wrap,
     raw: bool,
 ) -> Result<Pattern, SceneError> {
-    let path = el
-        .file
-        .parent()
-        .unwrap_or(std::path::Path::new("."))
-        .join(file);
     let unreadable = |e: String| el.error(format!("cannot read the {what} '{file}': {e}"));
-    let bytes = (loader.read)(&path).map_err(|e| unreadable(e.to_string()))?;
+    let (path, bytes) = el
+        .read_file(loader, file)
+        .map_err(|e| unreadable(e.to_string()))?;
     Texture::bitmap_from_bytes(&path, &bytes, filter, wrap, raw).map_err(unreadable)
 }
 

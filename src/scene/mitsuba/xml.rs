@@ -21,7 +21,15 @@ pub struct Element {
     pub children: Vec<Element>,
     pub file: Rc<PathBuf>,
     pub line: u32,
+    /// Where the scene's files are looked for (see [`Element::read_file`]).
+    pub search: Search,
 }
+
+/// The directories a scene's relative file names are looked up in, as
+/// Mitsuba's file resolver does: each `<path>`'s, the latest first, then the
+/// main scene file's. Shared by every element, as Mitsuba resolves names
+/// once the whole document is read.
+pub type Search = Rc<std::cell::RefCell<Vec<PathBuf>>>;
 
 /// An error at an element: "file:line: message", on one line whatever
 /// the file's text put into the message.
@@ -67,6 +75,35 @@ impl Element {
     pub fn plugin(&self) -> Result<&str, SceneError> {
         self.required("type")
     }
+
+    /// The file a property names, and its bytes: an absolute name as it
+    /// is, a relative one from the first of the scene's search directories
+    /// that has it, else beside this element's own file (an included
+    /// file's neighbours, which Mitsuba would not find).
+    pub fn read_file(
+        &self,
+        loader: &Loader<'_>,
+        name: &str,
+    ) -> std::io::Result<(PathBuf, Vec<u8>)> {
+        let own = self.file.parent().unwrap_or(Path::new(".")).join(name);
+        let mut candidates: Vec<PathBuf> =
+            self.search.borrow().iter().map(|d| d.join(name)).collect();
+        if Path::new(name).is_absolute() {
+            candidates.clear();
+        }
+        candidates.push(own);
+        candidates.dedup();
+        let mut first = None;
+        for path in candidates {
+            match (loader.read)(&path) {
+                Ok(bytes) => return Ok((path, bytes)),
+                Err(e) => {
+                    first.get_or_insert(e);
+                }
+            }
+        }
+        Err(first.expect("one candidate at least"))
+    }
 }
 
 /// The `<scene>` of `path` as a list of top-level elements, includes
@@ -79,10 +116,15 @@ pub fn read_scene(
 ) -> Result<Vec<Element>, SceneError> {
     let mut params: HashMap<String, String> = defines.iter().cloned().collect();
     let fixed: Vec<String> = defines.iter().map(|(k, _)| k.clone()).collect();
+    let search: Search = Rc::new(std::cell::RefCell::new(vec![path
+        .parent()
+        .unwrap_or(Path::new("."))
+        .to_path_buf()]));
     let mut reader = Reader {
         loader,
         params: &mut params,
         fixed: &fixed,
+        search: search.clone(),
     };
     let mut top = reader.document(path, 0)?;
     // A top-level spectrum plugin that is one colour (see `plain_spectrum`)
@@ -123,6 +165,7 @@ struct Reader<'a, 'l> {
     params: &'a mut HashMap<String, String>,
     /// Names set on the command line, which `<default>` does not change.
     fixed: &'a [String],
+    search: Search,
 }
 
 impl Reader<'_, '_> {
@@ -188,7 +231,7 @@ impl Reader<'_, '_> {
                             format!("includes nest deeper than {MAX_INCLUDE_DEPTH} (a cycle?)"),
                         ));
                     }
-                    let included = path.parent().unwrap_or(Path::new(".")).join(&name);
+                    let included = self.locate(path, &name);
                     out.extend(self.document(&included, depth + 1).map_err(|e| match e {
                         SceneError::Read { source, .. } => at(
                             path,
@@ -198,6 +241,16 @@ impl Reader<'_, '_> {
                         e => e,
                     })?);
                 }
+                // Mitsuba's <path>: a directory to look for files in first,
+                // relative to this file's.
+                "path" => {
+                    let value = node
+                        .attribute("value")
+                        .ok_or_else(|| at(path, ln, "<path> needs a 'value'"))?;
+                    let value = self.substitute(path, ln, value)?;
+                    let dir = path.parent().unwrap_or(Path::new(".")).join(value);
+                    self.search.borrow_mut().insert(0, dir);
+                }
                 _ => out.push(self.element(&doc, node, &file)?),
             }
         }
@@ -206,8 +259,25 @@ impl Reader<'_, '_> {
 
     /// Spectrum file `name` (beside `file`, named at `line`) as
     /// `wavelength:value` pairs.
+    /// Where small file `name`, named in `file`, is: where Mitsuba looks
+    /// (each `<path>` so far, the main file's directory), else beside
+    /// `file` (see [`Element::read_file`]).
+    fn locate(&self, file: &Path, name: &str) -> PathBuf {
+        let own = file.parent().unwrap_or(Path::new(".")).join(name);
+        if Path::new(name).is_absolute() {
+            return own;
+        }
+        let found = self
+            .search
+            .borrow()
+            .iter()
+            .map(|d| d.join(name))
+            .find(|p| (self.loader.read)(p).is_ok());
+        found.unwrap_or(own)
+    }
+
     fn spectrum_file(&self, file: &Path, line: u32, name: &str) -> Result<String, SceneError> {
-        let path = file.parent().unwrap_or(Path::new(".")).join(name);
+        let path = self.locate(file, name);
         let text = self.loader.text(&path).map_err(|e| {
             at(
                 file,
@@ -270,6 +340,7 @@ impl Reader<'_, '_> {
             children,
             file: file.clone(),
             line,
+            search: self.search.clone(),
         };
         plain_spectrum(el)
     }
@@ -463,6 +534,7 @@ fn plain_spectrum(el: Element) -> Result<Element, SceneError> {
         children: Vec::new(),
         file: el.file,
         line: el.line,
+        search: el.search,
     })
 }
 
