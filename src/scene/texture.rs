@@ -187,6 +187,9 @@ impl Texture {
             let img = crate::image::Image::exr_from_bytes(bytes)?;
             let texels = img.pixels.iter().map(|p| Vec3::from(*p)).collect();
             (img.width, img.height, Texels::Floats(texels))
+        } else if bytes.starts_with(b"PF") || bytes.starts_with(b"Pf") {
+            let (width, height, texels) = pfm_from_bytes(bytes)?;
+            (width, height, Texels::Floats(texels))
         } else {
             // A Targa file has no magic number to tell it by.
             let img = if ext == "tga" {
@@ -600,8 +603,112 @@ pub struct TextureTooLarge {
     pub limit: u64,
 }
 
+/// A Portable Float Map (`PF` colour, `Pf` grey), as Mitsuba reads one:
+/// little-endian where its scale is negative, rows from the bottom up, and
+/// every value times the scale's magnitude.
+fn pfm_from_bytes(bytes: &[u8]) -> Result<(usize, usize, Vec<Vec3>), String> {
+    let bad = || "not a PFM file (header: PF or Pf, width, height, scale)".to_string();
+    // Three whitespace-separated tokens after the magic, then one byte of
+    // whitespace and the floats.
+    let mut at = 2;
+    let mut tokens = Vec::new();
+    while tokens.len() < 3 {
+        while bytes.get(at).is_some_and(u8::is_ascii_whitespace) {
+            at += 1;
+        }
+        let start = at;
+        while bytes.get(at).is_some_and(|b| !b.is_ascii_whitespace()) {
+            at += 1;
+        }
+        if start == at || at >= bytes.len() {
+            return Err(bad());
+        }
+        tokens.push(std::str::from_utf8(&bytes[start..at]).map_err(|_| bad())?);
+    }
+    let data = &bytes[at + 1..];
+    let (w, h, scale): (usize, usize, f32) =
+        match (tokens[0].parse(), tokens[1].parse(), tokens[2].parse()) {
+            (Ok(w), Ok(h), Ok(s)) => (w, h, s),
+            _ => return Err(bad()),
+        };
+    if !scale.is_finite() || scale == 0.0 {
+        return Err(format!(
+            "the PFM scale {} must be finite and not zero",
+            tokens[2]
+        ));
+    }
+    let channels = if bytes[1] == b'F' { 3 } else { 1 };
+    w.checked_mul(h)
+        .and_then(|n| n.checked_mul(channels * 4))
+        .filter(|&n| n <= data.len())
+        .ok_or_else(|| format!("the PFM file holds less than its {w}x{h} pixels"))?;
+    let word = |i: usize| {
+        let b: [u8; 4] = data[4 * i..4 * i + 4].try_into().expect("four bytes");
+        let v = if scale < 0.0 {
+            f32::from_le_bytes(b)
+        } else {
+            f32::from_be_bytes(b)
+        };
+        v * scale.abs()
+    };
+    let mut texels = Vec::with_capacity(w * h);
+    for y in (0..h).rev() {
+        for x in 0..w {
+            let i = (y * w + x) * channels;
+            texels.push(if channels == 3 {
+                Vec3::new(word(i), word(i + 1), word(i + 2))
+            } else {
+                Vec3::splat(word(i))
+            });
+        }
+    }
+    Ok((w, h, texels))
+}
+
 #[cfg(test)]
 mod tests {
+
+    /// PFM as Mitsuba reads it: byte order by the scale's sign, the bottom
+    /// row first, values times |scale|, grey spread over the channels.
+    #[test]
+    fn pfm_files_read_as_mitsuba_reads_them() {
+        let file = |magic: &str, scale: &str, values: &[f32], le: bool| {
+            let mut b = format!("{magic}\n2 2\n{scale}\n").into_bytes();
+            for v in values {
+                b.extend(if le { v.to_le_bytes() } else { v.to_be_bytes() });
+            }
+            Texture::bitmap_from_bytes(Path::new("t.pfm"), &b, Filter::Nearest, Wrap::Repeat, false)
+        };
+        let grey = [1.0, 2.0, 3.0, 4.0];
+        for (scale, le, k) in [("-1", true, 1.0), ("1.0", false, 1.0), ("-2.5", true, 2.5)] {
+            let Ok(Pattern::Bitmap {
+                width: 2,
+                height: 2,
+                texels: Texels::Floats(t),
+                ..
+            }) = file("Pf", scale, &grey, le)
+            else {
+                panic!("{scale}")
+            };
+            // The file's first row is the image's bottom one.
+            let want = [3.0, 4.0, 1.0, 2.0].map(|v| Vec3::splat(v * k));
+            assert_eq!(t, want, "{scale}");
+        }
+        let rgb: Vec<f32> = (0..12).map(|i| i as f32).collect();
+        let Ok(Pattern::Bitmap {
+            texels: Texels::Floats(t),
+            ..
+        }) = file("PF", "-1", &rgb, true)
+        else {
+            panic!("PF")
+        };
+        assert_eq!(t[0], Vec3::new(6.0, 7.0, 8.0));
+        assert_eq!(t[3], Vec3::new(3.0, 4.0, 5.0));
+        assert!(file("PF", "-1", &grey, true).is_err(), "too short");
+        assert!(file("PF", "0", &rgb, true).is_err(), "scale 0");
+        assert!(file("Pf", "x", &grey, true).is_err(), "no scale");
+    }
+
     use super::*;
 
     const UVS: [(f32, f32); 5] = [
