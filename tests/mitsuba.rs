@@ -462,6 +462,26 @@ fn files_are_found_where_mitsuba_looks() {
     assert_eq!(s.triangles.len(), 3);
 }
 
+/// Of several sensors, the first is rendered, as Mitsuba renders by
+/// default, with a warning.
+#[test]
+fn the_first_of_several_sensors_is_rendered() {
+    let sensor = |x: f32, width: u32| {
+        format!(
+            "<sensor type=\"perspective\"><transform name=\"to_world\"><lookat origin=\"{x}, 0, 5\" target=\"0, 0, 0\"/></transform>\
+             <film type=\"hdrfilm\"><integer name=\"width\" value=\"{width}\"/></film></sensor>"
+        )
+    };
+    let scene = load_text(&format!(
+        "<scene version=\"3.0.0\">{}{}<shape type=\"rectangle\"><emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape></scene>",
+        sensor(1.0, 40),
+        sensor(-3.0, 80)
+    ))
+    .unwrap();
+    assert_eq!(scene.camera.position, Vec3::new(1.0, 0.0, 5.0));
+    assert_eq!(scene.defaults.width, Some(40));
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

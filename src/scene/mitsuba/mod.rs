@@ -438,8 +438,14 @@ impl Builder<'_, '_> {
     }
 
     fn sensor(&mut self, el: &Element) -> Result<(), SceneError> {
+        // Mitsuba renders a scene's first sensor unless told otherwise.
         if self.camera.is_some() {
-            return Err(el.error("a second <sensor>: qtrace renders one camera"));
+            log::warn!(
+                "{}:{}: another <sensor>: qtrace renders the scene's first, as Mitsuba does by default",
+                el.file.display(),
+                el.line
+            );
+            return Ok(());
         }
         let kind = el.plugin()?;
         let (thin_lens, orthographic) = match kind {
