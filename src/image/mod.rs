@@ -212,7 +212,7 @@ impl Image {
     /// MAX_IMAGE_BYTES of RGB floats is an error before anything is
     /// allocated for it (a damaged header can claim any size).
     pub fn exr_from_bytes(bytes: &[u8]) -> Result<Self, String> {
-        use exr::prelude::{read, ReadChannels, ReadLayers};
+        use exr::prelude::{read, ReadChannels, ReadLayers, ReadSpecificChannel};
         let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
             .map_err(|e| e.to_string())?;
         for h in &meta.headers {
@@ -224,7 +224,7 @@ impl Image {
                 ));
             }
         }
-        let image = read()
+        let rgb = read()
             .no_deep_data()
             .largest_resolution_level()
             .rgba_channels(
@@ -236,9 +236,31 @@ impl Image {
             )
             .first_valid_layer()
             .all_attributes()
-            .from_buffered(std::io::Cursor::new(bytes))
-            .map_err(|e| e.to_string())?;
-        Ok(image.layer_data.channel_data.pixels)
+            .from_buffered(std::io::Cursor::new(bytes));
+        let rgb_error = match rgb {
+            Ok(image) => return Ok(image.layer_data.channel_data.pixels),
+            Err(e) => e.to_string(),
+        };
+        // A luminance image (a Y channel, as Mitsuba writes grey ones).
+        let grey = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .specific_channels()
+            .required("Y")
+            .collect_pixels(
+                |size, _| Image::new(size.width(), size.height()),
+                |img: &mut Image, pos, (y,): (f32,)| {
+                    let w = img.width;
+                    img.pixels[pos.y() * w + pos.x()] = [y; 3];
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(std::io::Cursor::new(bytes));
+        match grey {
+            Ok(image) => Ok(image.layer_data.channel_data.pixels),
+            Err(_) => Err(format!("{rgb_error} (qtrace reads R, G, B or Y channels)")),
+        }
     }
 
     /// Mean over pixels and channels.

@@ -191,9 +191,18 @@ impl Texture {
             let (width, height, texels) = pfm_from_bytes(bytes)?;
             (width, height, Texels::Floats(texels))
         } else {
-            // A Targa file has no magic number to tell it by.
+            // A Targa file has no magic number to tell it by; a Radiance
+            // file's first line may name another program than RADIANCE
+            // (Mitsuba writes `#?RGBE`), which the decoder refuses.
             let img = if ext == "tga" {
                 image::load_from_memory_with_format(bytes, image::ImageFormat::Tga)
+            } else if bytes.starts_with(b"#?") && !bytes.starts_with(b"#?RADIANCE") {
+                let line = bytes
+                    .iter()
+                    .position(|&b| b == b'\n')
+                    .unwrap_or(bytes.len());
+                let renamed = [b"#?RADIANCE".as_slice(), &bytes[line..]].concat();
+                image::load_from_memory_with_format(&renamed, image::ImageFormat::Hdr)
             } else {
                 image::load_from_memory(bytes)
             }
@@ -667,6 +676,51 @@ fn pfm_from_bytes(bytes: &[u8]) -> Result<(usize, usize, Vec<Vec3>), String> {
 
 #[cfg(test)]
 mod tests {
+
+    /// Grey OpenEXR (a Y channel, as Mitsuba writes one) and Radiance files
+    /// whose first line names another program (Mitsuba's `#?RGBE`) read as
+    /// Mitsuba reads them.
+    #[test]
+    fn grey_exr_and_rgbe_headers_read() {
+        use exr::prelude::*;
+        let dir = std::env::temp_dir().join(format!("qtrace-grey-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("y.exr");
+        let values = [0.25f32, 0.5, 0.75, 2.0];
+        let channels = SpecificChannels::build()
+            .with_channel("Y")
+            .with_pixel_fn(|p: Vec2<usize>| (values[p.y() * 2 + p.x()],));
+        Image::from_channels((2, 2), channels)
+            .write()
+            .to_file(&path)
+            .unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let Ok(Pattern::Bitmap {
+            texels: Texels::Floats(t),
+            ..
+        }) = Texture::bitmap_from_bytes(&path, &bytes, Filter::Nearest, Wrap::Repeat, false)
+        else {
+            panic!("grey EXR")
+        };
+        assert_eq!(t, values.map(Vec3::splat));
+        std::fs::remove_dir_all(&dir).unwrap();
+        // One 1x1 pixel of (1, 0.5, 0.25): mantissas 128, 64, 32, exponent 129.
+        let hdr = |first: &str| {
+            let mut b = format!("{first}\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 1\n").into_bytes();
+            b.extend([128, 64, 32, 129]);
+            Texture::bitmap_from_bytes(Path::new("s.hdr"), &b, Filter::Nearest, Wrap::Repeat, false)
+        };
+        for first in ["#?RADIANCE", "#?RGBE"] {
+            let Ok(Pattern::Bitmap {
+                texels: Texels::Floats(t),
+                ..
+            }) = hdr(first)
+            else {
+                panic!("{first}")
+            };
+            assert_eq!(t, [Vec3::new(1.0, 0.5, 0.25)], "{first}");
+        }
+    }
 
     /// PFM as Mitsuba reads it: byte order by the scale's sign, the bottom
     /// row first, values times |scale|, grey spread over the channels.
