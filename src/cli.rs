@@ -781,8 +781,13 @@ pub fn evaluate(mut plan: EvalPlan, device: &DeviceChoice) -> Result<()> {
         for r in s.runs.iter().filter(|r| r.guide_bytes > 0) {
             let spp = bench::eval::spp_at_time(&r.checkpoints, s.equal_time_seconds);
             if spp < bench::eval::LEARNING_SPP {
+                let longer = if plan.seconds.is_some() {
+                    "more --seconds"
+                } else {
+                    "a longer --spp-list, --seconds"
+                };
                 println!(
-                    "{}: at equal time ({:.3} s) {} had rendered about {spp:.0} spp, most of them passes that learn: equal time measures its guide's start-up here; a longer --spp-list or a larger image measures a render",
+                    "{}: at equal time ({:.3} s) {} had rendered about {spp:.0} spp, most of them passes that learn: equal time measures its guide's start-up here; {longer} or a larger image measures a render",
                     s.name, s.equal_time_seconds, r.config
                 );
             }

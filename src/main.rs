@@ -230,6 +230,11 @@ enum Command {
         /// Random seed of the methods' renders.
         #[arg(long, default_value_t = 1)]
         seed: u32,
+        /// Render each method for this many seconds (of its own render
+        /// time) instead of to the largest --spp-list count, and compare
+        /// errors there: equal time that means a render on a fast device.
+        #[arg(long, conflicts_with = "speed")]
+        seconds: Option<f64>,
         /// Only the speed table: each method at --spp, fastest of --repeats runs.
         #[arg(long)]
         speed: bool,
@@ -306,6 +311,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
             quick,
             seed,
+            seconds,
             speed,
             spp,
             repeats,
@@ -338,6 +344,7 @@ fn run(cli: Cli) -> Result<()> {
             plan.width = width;
             plan.height = height;
             plan.seed = *seed;
+            plan.seconds = *seconds;
             plan.reference = reference.clone();
             plan.guides = guides.sources();
             plan.defines = define.clone();

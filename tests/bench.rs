@@ -205,6 +205,69 @@ fn quick_bench_writes_the_report() {
     );
 }
 
+/// `--seconds`: each method renders for that long, its last image is one
+/// more checkpoint, and errors are compared there.
+#[test]
+fn a_bench_by_seconds_compares_at_that_time() {
+    let dir = common::scratch("bench-seconds");
+    let out = dir.join("report");
+    let output = common::qtrace()
+        .args([
+            "bench",
+            "scenes/cornell-box.toml",
+            "--quick",
+            "--seconds",
+            "0.5",
+        ])
+        .args(["--methods", "pt,sarsa", "--out"])
+        .arg(&out)
+        .env("QTRACE_CACHE", dir.join("cache"))
+        .current_dir(common::repo("."))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "bench failed: {stderr}");
+    let results = common::read_json(out.join("results.json"));
+    let scene = &results["scenes"][0];
+    let equal = scene["equal_time_seconds"].as_f64().unwrap();
+    assert!((0.5..0.75).contains(&equal), "equal time {equal}");
+    for run in scene["runs"].as_array().unwrap() {
+        let rows = run["checkpoints"].as_array().unwrap();
+        let last = rows.last().unwrap();
+        let (spp, seconds) = (
+            last["spp"].as_u64().unwrap(),
+            last["seconds"].as_f64().unwrap(),
+        );
+        // Past the last power of two: the render's own end.
+        assert!(!spp.is_power_of_two() && seconds >= 0.5, "{run}");
+        assert!(out.join(last["png"].as_str().unwrap()).exists(), "{last}");
+        let at_time = run["error_at_equal_time"]["rel_mse"].as_f64().unwrap();
+        assert!(
+            at_time > 0.0 && !run["equal_time_extrapolated"].as_bool().unwrap(),
+            "{run}"
+        );
+    }
+    for bad in ["0", "-1", "nan"] {
+        let output = common::qtrace()
+            .args([
+                "bench",
+                "scenes/cornell-box.toml",
+                "--quick",
+                &format!("--seconds={bad}"),
+            ])
+            .arg("--out")
+            .arg(dir.join("bad"))
+            .current_dir(common::repo("."))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(
+            !output.status.success() && stderr.contains("--seconds"),
+            "{bad}: {stderr}"
+        );
+    }
+}
+
 #[test]
 fn bench_rejects_a_reference_for_several_scenes() {
     let output = common::qtrace()

@@ -33,6 +33,9 @@ pub struct EvalPlan {
     pub guides: GuideSources,
     /// XML scenes' `-D name=value` parameters.
     pub defines: Vec<(String, String)>,
+    /// Each method renders for this many seconds of its own render time,
+    /// instead of to the largest of `spp_list`.
+    pub seconds: Option<f64>,
 }
 
 impl EvalPlan {
@@ -51,6 +54,7 @@ impl EvalPlan {
             cache_dir: default_cache_dir(),
             guides: GuideSources::default(),
             defines: Vec::new(),
+            seconds: None,
         }
     }
 
@@ -74,6 +78,13 @@ impl EvalPlan {
         }
         if self.reference_spp == 0 {
             return Err("--reference-spp must be at least 1".into());
+        }
+        let most = crate::render::settings::MAX_SECONDS;
+        if let Some(t) = self
+            .seconds
+            .filter(|t| !(t.is_finite() && *t > 0.0 && *t <= most))
+        {
+            return Err(format!("--seconds {t} must be positive and at most {most}"));
         }
         Ok(())
     }
@@ -199,6 +210,8 @@ struct Stepped {
     run: Run,
     rows: Vec<CheckpointRow>,
     kept: Vec<Image>,
+    /// Progress counted so far: passes, or with a time budget milliseconds.
+    units: u64,
 }
 
 /// FNV-1a, stable across runs and builds (unlike std's hasher).
@@ -341,17 +354,19 @@ pub fn t_extrapolated(rows: &[CheckpointRow], t: f64) -> bool {
 }
 
 /// The time `rows` took for their later half of samples (from N/2 to N spp,
-/// N the last checkpoint's) over the time `base` took for the same: what a
-/// pass costs once a guide's learning has thinned out, against plain path
-/// tracing's. None without both checkpoints in both.
+/// N the largest checkpoint both have with its half) over the time `base`
+/// took for the same: what a pass costs once a guide's learning has thinned
+/// out, against plain path tracing's. None without such checkpoints.
 pub fn later_half_cost(rows: &[CheckpointRow], base: &[CheckpointRow]) -> Option<f64> {
-    let n = rows.last()?.spp;
-    let span = |rows: &[CheckpointRow]| {
-        let at = |spp: u32| rows.iter().find(|r| r.spp == spp).map(|r| r.seconds);
-        Some(at(n)? - at(n / 2)?)
-    };
-    let (run, plain) = (span(rows)?, span(base)?);
-    (n >= 2 && plain > 0.0).then(|| run / plain)
+    let at =
+        |rows: &[CheckpointRow], spp: u32| rows.iter().find(|r| r.spp == spp).map(|r| r.seconds);
+    let span = |rows: &[CheckpointRow], n: u32| Some(at(rows, n)? - at(rows, n / 2)?);
+    let (run, plain) = rows
+        .iter()
+        .rev()
+        .filter(|r| r.spp >= 2)
+        .find_map(|r| Some((span(rows, r.spp)?, span(base, r.spp)?)))?;
+    (plain > 0.0).then(|| run / plain)
 }
 
 /// The relMSE of `rows` at the time `plain` took for all its samples, over
@@ -423,7 +438,7 @@ fn render_settings(
     scene: &Scene,
     plan: &EvalPlan,
     config: &Config,
-    spp: u32,
+    (spp, time): (Option<u32>, Option<f64>),
     seed: u32,
 ) -> Result<RenderSettings, BenchError> {
     let guide = plan
@@ -432,7 +447,8 @@ fn render_settings(
         .map_err(|e| BenchError::Render(SettingsError(e).into()))?;
     let o = Overrides {
         method: Some(config.method),
-        spp: Some(spp),
+        spp,
+        time,
         width: Some(plan.width),
         height: Some(plan.height),
         nee: config.nee,
@@ -500,7 +516,11 @@ fn render_configs(
         let run_dir = dir.join(&label);
         std::fs::create_dir_all(&run_dir)
             .map_err(|e| BenchError::Io(run_dir.clone(), e.to_string()))?;
-        let settings = render_settings(scene, plan, config, max_spp, plan.seed)?;
+        let budget = match plan.seconds {
+            Some(t) => (None, Some(t)),
+            None => (Some(max_spp), None),
+        };
+        let settings = render_settings(scene, plan, config, budget, plan.seed)?;
         let mut renderer = Renderer::new(ctx, scene, settings)?;
         let run = renderer.start();
         renders.push(Stepped {
@@ -511,6 +531,7 @@ fn render_configs(
             run,
             rows: Vec::new(),
             kept: Vec::new(),
+            units: 0,
         });
     }
     let control = Control {
@@ -520,12 +541,18 @@ fn render_configs(
     while renders.iter().any(|r| !r.run.finished()) {
         for r in renders.iter_mut().filter(|r| !r.run.finished()) {
             let mut failure: Option<BenchError> = None;
-            let (rows, kept, run_dir) = (&mut r.rows, &mut r.kept, &r.run_dir);
-            let before = r.run.passes_done();
+            let (rows, kept, run_dir, units) = (&mut r.rows, &mut r.kept, &r.run_dir, &mut r.units);
+            let timed = plan.seconds.is_some();
             r.renderer.step(
                 &mut r.run,
                 &mut |pr| {
-                    *done += (pr.passes_done - before) as u64;
+                    let now = if timed {
+                        (pr.elapsed * 1e3) as u64
+                    } else {
+                        pr.passes_done as u64
+                    };
+                    *done += now.saturating_sub(*units);
+                    *units = now;
                     progress(&EvalProgress {
                         message: &r.message,
                         done: *done,
@@ -639,7 +666,7 @@ fn refine_reference(
                 scene,
                 plan,
                 &pt,
-                more,
+                (Some(more), None),
                 plan.seed.wrapping_add(7919).wrapping_add(spp),
             )?;
             let message = format!("{name}: refining the reference to {} spp", spp + more);
@@ -792,7 +819,7 @@ fn scene_reference(
         scene,
         plan,
         &pt,
-        plan.reference_spp,
+        (Some(plan.reference_spp), None),
         plan.seed.wrapping_add(7919),
     )?;
     let reference_passes = plan.reference_spp as u64;
@@ -865,8 +892,13 @@ pub fn evaluate(
 ) -> Result<Report, BenchError> {
     let max_spp = *plan.spp_list.iter().max().unwrap_or(&1);
     let mut checkpoints: Vec<u32> = plan.spp_list.clone();
+    // With a time budget, every power of two until time runs out.
+    let last = match plan.seconds {
+        Some(_) => crate::render::settings::MAX_SPP,
+        None => max_spp,
+    };
     let mut p = 1;
-    while p <= max_spp {
+    while p <= last {
         checkpoints.push(p);
         p *= 2;
     }
@@ -879,8 +911,9 @@ pub fn evaluate(
     } else {
         plan.reference_spp as u64
     };
-    let total =
-        plan.scenes.len() as u64 * (reference_passes + plan.configs.len() as u64 * max_spp as u64);
+    // Progress: passes, and with a time budget each method's milliseconds.
+    let per_run = plan.seconds.map_or(max_spp as u64, |t| (t * 1e3) as u64);
+    let total = plan.scenes.len() as u64 * (reference_passes + plan.configs.len() as u64 * per_run);
     let mut done = 0u64;
     let mut scenes = Vec::new();
     let mut names: Vec<String> = Vec::new();
@@ -938,11 +971,31 @@ pub fn evaluate(
                 run_dir,
                 mut renderer,
                 run,
-                rows,
-                kept,
+                mut rows,
+                mut kept,
                 ..
             } = r;
+            let seconds = run.seconds();
             let out = renderer.finish(run, &control)?;
+            // A time budget's render ends between checkpoints: its last
+            // image is one more.
+            if plan.seconds.is_some() && rows.last().is_none_or(|c| c.spp < out.stats.spp) {
+                let (png, exr) = write_image(
+                    &out.image,
+                    &run_dir,
+                    &format!("spp-{:04}", out.stats.spp),
+                    &plan.out,
+                )?;
+                rows.push(CheckpointRow {
+                    spp: out.stats.spp,
+                    seconds,
+                    error: image::compare(&out.image, &reference.image)?,
+                    zero_contribution_fraction: out.stats.zero_contribution_fraction,
+                    png: Some(png),
+                    exr: Some(exr),
+                });
+                kept.push(out.image.clone());
+            }
             if runs.is_empty() {
                 crop_centre = worst_block(&out.image, &reference.image);
             }
@@ -1096,6 +1149,10 @@ mod tests {
         assert_eq!(later_half_cost(&plain, &plain), Some(1.0));
         // Without the half-way checkpoint there is nothing to tell.
         assert_eq!(later_half_cost(&guided[2..], &plain), None);
-        assert_eq!(later_half_cost(&guided, &plain[..2]), None);
+        // Runs of one time budget end at different counts: the largest
+        // both reached, with its half, tells.
+        assert_eq!(later_half_cost(&guided, &plain[..2]), Some(1.5));
+        let timed = [row(64, 3.0, 0.0), row(128, 4.5, 0.0), row(200, 5.0, 0.0)];
+        assert_eq!(later_half_cost(&timed, &plain), Some(1.5));
     }
 }

@@ -1145,6 +1145,11 @@ impl Run {
     pub fn passes_done(&self) -> u32 {
         self.tally.done
     }
+
+    /// Render seconds so far (see [`Run`]).
+    pub fn seconds(&self) -> f64 {
+        self.seconds
+    }
 }
 
 /// When a render hands out what it has so far, and when it stops early.
