@@ -482,6 +482,26 @@ fn the_first_of_several_sensors_is_rendered() {
     assert_eq!(scene.defaults.width, Some(40));
 }
 
+/// Booleans in any case, as Mitsuba reads them ("True", as Python writes).
+#[test]
+fn booleans_read_in_any_case() {
+    let normal = |v: &str| {
+        let scene = load_text(&with_body(&format!(
+            "<shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><boolean name=\"flip_normals\" value=\"{v}\"/></shape>"
+        )))
+        .unwrap();
+        let t = scene.triangles.last().unwrap();
+        Vec3::from(t.e1).cross(Vec3::from(t.e2)).z
+    };
+    assert!(normal("true") < 0.0 && normal("false") > 0.0);
+    assert_eq!(normal("True"), normal("true"));
+    assert_eq!(normal("FALSE"), normal("false"));
+    assert!(load_text(&with_body(
+        "<shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><boolean name=\"flip_normals\" value=\"1\"/></shape>"
+    ))
+    .is_err());
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

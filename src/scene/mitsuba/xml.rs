@@ -452,7 +452,7 @@ fn plain_spectrum(el: Element) -> Result<Element, SceneError> {
             };
             if kind == "srgb" {
                 let unbounded = match take("unbounded", &["boolean"])? {
-                    Some((_, v)) => v.trim() == "true",
+                    Some((_, v)) => v.trim().eq_ignore_ascii_case("true"),
                     None => false,
                 };
                 if !unbounded && (color.min_element() < 0.0 || color.max_element() > 1.0) {
@@ -687,7 +687,8 @@ impl<'e> Props<'e> {
         let Some(el) = self.typed(name, &["boolean"])? else {
             return Ok(None);
         };
-        match el.required("value")?.trim() {
+        // Mitsuba takes either in any case ("True", as Python writes it).
+        match el.required("value")?.trim().to_ascii_lowercase().as_str() {
             "true" => Ok(Some(true)),
             "false" => Ok(Some(false)),
             v => Err(el.error(format!("'{v}' is not true or false (property '{name}')"))),
