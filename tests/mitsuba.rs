@@ -502,6 +502,56 @@ fn booleans_read_in_any_case() {
     .is_err());
 }
 
+/// A Mitsuba 0.x scene is read as Mitsuba 3 upgrades it: camelCase
+/// names, `<lookAt>`, a diffuse BSDF's `diffuseReflectance`, a texture's
+/// `uoffset`/`uscale`, ids that begin with `_`.
+#[test]
+fn mitsuba_0_scenes_are_upgraded_as_mitsuba_3_upgrades_them() {
+    let scene = |version: &str, body: &str| {
+        load_text(&format!(
+            "<scene version=\"{version}\">\n{body}\n<shape type=\"rectangle\"><emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape></scene>"
+        ))
+    };
+    let old = scene(
+        "0.5.0",
+        "<integrator type=\"path\"><integer name=\"maxDepth\" value=\"7\"/><boolean name=\"hideEmitters\" value=\"true\"/></integrator>\
+         <sensor type=\"perspective\"><string name=\"fovAxis\" value=\"x\"/><transform name=\"toWorld\"><lookAt origin=\"1, 2, 3\" target=\"0, 0, 0\" up=\"0, 1, 0\"/></transform></sensor>\
+         <bsdf type=\"diffuse\" id=\"_wall\"><rgb name=\"diffuseReflectance\" value=\"0.2, 0.3, 0.4\"/></bsdf>\
+         <shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><ref id=\"_wall\"/></shape>\
+         <shape type=\"obj\"><string name=\"filename\" value=\"qt.obj\"/><bsdf type=\"roughplastic\"><float name=\"intIOR\" value=\"1.6\"/>\
+         <texture type=\"checkerboard\" name=\"diffuseReflectance\"><float name=\"uscale\" value=\"2\"/><float name=\"uoffset\" value=\"0.25\"/><float name=\"voffset\" value=\"0.25\"/></texture></bsdf></shape>",
+    )
+    .unwrap();
+    let new = scene(
+        "3.0.0",
+        "<integrator type=\"path\"><integer name=\"max_depth\" value=\"7\"/><boolean name=\"hide_emitters\" value=\"true\"/></integrator>\
+         <sensor type=\"perspective\"><string name=\"fov_axis\" value=\"x\"/><transform name=\"to_world\"><lookat origin=\"1, 2, 3\" target=\"0, 0, 0\" up=\"0, 1, 0\"/></transform></sensor>\
+         <bsdf type=\"diffuse\" id=\"wall\"><rgb name=\"reflectance\" value=\"0.2, 0.3, 0.4\"/></bsdf>\
+         <shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><ref id=\"wall\"/></shape>\
+         <shape type=\"obj\"><string name=\"filename\" value=\"qt.obj\"/><bsdf type=\"roughplastic\"><float name=\"int_ior\" value=\"1.6\"/>\
+         <texture type=\"checkerboard\" name=\"diffuse_reflectance\"><transform name=\"to_uv\"><translate x=\"0.25\" y=\"0.25\"/><scale x=\"2\" y=\"1\"/></transform></texture></bsdf></shape>",
+    )
+    .unwrap();
+    assert_eq!(old.camera.position, new.camera.position);
+    assert_eq!(old.camera.fov_axis, new.camera.fov_axis);
+    assert_eq!(old.defaults.max_depth, new.defaults.max_depth);
+    assert!(old.defaults.hide_emitters);
+    let looks = |s: &Scene| -> Vec<String> {
+        s.materials
+            .iter()
+            .map(|m| format!("{:?} {:?} {:?}", m.surface, m.emission, m.textures))
+            .collect()
+    };
+    assert_eq!(looks(&old), looks(&new));
+    assert_eq!(old.materials[0].name, "ID_wall__UPGR");
+    assert_eq!(old.textures[0].to_uv, new.textures[0].to_uv);
+    // Mitsuba 3.9.1's to_uv of uscale 2, uoffset 0.25: u' = 2u + 0.5.
+    assert_eq!(old.textures[0].to_uv.z_axis.x, 0.5);
+    // Not a version qtrace reads.
+    let err = scene("4.0.0", "").err().unwrap();
+    assert!(err.contains("scene version 4.0.0"), "{err}");
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

@@ -191,19 +191,28 @@ impl Reader<'_, '_> {
                 ),
             ));
         }
-        match root.attribute("version") {
+        // Mitsuba 0.x scenes (camelCase names) are upgraded as Mitsuba 3
+        // upgrades them when it loads one.
+        let old = match root.attribute("version") {
             None => {
                 return Err(at(path, line(root), "<scene> needs a version (3.0.0)"));
             }
-            Some(v) if !v.starts_with("3.") && !v.starts_with("2.") => {
-                return Err(at(
-                    path,
-                    line(root),
-                    format!("scene version {v}: qtrace reads Mitsuba 3's format (version 3.x)"),
-                ));
-            }
-            Some(_) => {}
-        }
+            Some(v) => match v
+                .split('.')
+                .next()
+                .and_then(|m| m.trim().parse::<u32>().ok())
+            {
+                Some(0 | 1) => true,
+                Some(2 | 3) => false,
+                _ => {
+                    return Err(at(
+                        path,
+                        line(root),
+                        format!("scene version {v}: qtrace reads Mitsuba's formats 0.x to 3.x"),
+                    ))
+                }
+            },
+        };
         let mut out = Vec::new();
         for node in root.children().filter(|n| n.is_element()) {
             let ln = line(node);
@@ -251,7 +260,13 @@ impl Reader<'_, '_> {
                     let dir = path.parent().unwrap_or(Path::new(".")).join(value);
                     self.search.borrow_mut().insert(0, dir);
                 }
-                _ => out.push(self.element(&doc, node, &file)?),
+                _ => {
+                    let mut el = self.element(&doc, node, &file)?;
+                    if old {
+                        upgrade(&mut el);
+                    }
+                    out.push(el);
+                }
             }
         }
         Ok(out)
@@ -376,6 +391,97 @@ impl Reader<'_, '_> {
         out.push_str(rest);
         Ok(out)
     }
+}
+
+/// A Mitsuba 0.x element as Mitsuba 3 upgrades it: property names from
+/// camelCase to snake_case (`toWorld` to `to_world`, `intIOR` to
+/// `int_ior`), `<lookAt>` to `<lookat>`, ids that begin with `_` renamed,
+/// a diffuse BSDF's `diffuse_reflectance` to `reflectance`, and a
+/// texture's `uoffset`, `voffset`, `uscale`, `vscale` to its `to_uv`.
+fn upgrade(el: &mut Element) {
+    if let Some(name) = el.attrs.iter_mut().find(|(k, _)| k == "name") {
+        name.1 = snake_case(&name.1);
+    }
+    if let Some(id) = el.attrs.iter_mut().find(|(k, _)| k == "id") {
+        if id.1.starts_with('_') {
+            id.1 = format!("ID{}__UPGR", id.1);
+        }
+    }
+    if el.tag == "lookAt" {
+        el.tag = "lookat".into();
+    }
+    el.children.iter_mut().for_each(upgrade);
+    if el.tag == "bsdf" && el.attr("type") == Some("diffuse") {
+        for c in &mut el.children {
+            if let Some(name) = c
+                .attrs
+                .iter_mut()
+                .find(|(k, v)| k == "name" && v == "diffuse_reflectance")
+            {
+                name.1 = "reflectance".into();
+            }
+        }
+    }
+    let uv = ["uoffset", "voffset", "uscale", "vscale"];
+    let value = |el: &Element, name: &str| {
+        el.children
+            .iter()
+            .find(|c| c.tag == "float" && c.attr("name") == Some(name))
+            .and_then(|c| c.attr("value"))
+            .map(str::to_string)
+    };
+    let [uo, vo, us, vs] = uv.map(|n| value(el, n));
+    if uo.is_some() || vo.is_some() || us.is_some() || vs.is_some() {
+        el.children
+            .retain(|c| !(c.tag == "float" && c.attr("name").is_some_and(|n| uv.contains(&n))));
+        let op = |tag: &str, x: Option<String>, y: Option<String>, default: &str| Element {
+            tag: tag.into(),
+            attrs: vec![
+                ("x".into(), x.unwrap_or_else(|| default.into())),
+                ("y".into(), y.unwrap_or_else(|| default.into())),
+            ],
+            children: Vec::new(),
+            file: el.file.clone(),
+            line: el.line,
+            search: el.search.clone(),
+        };
+        // As Mitsuba writes it: the translation first, then the scale.
+        let mut ops = Vec::new();
+        if uo.is_some() || vo.is_some() {
+            ops.push(op("translate", uo, vo, "0"));
+        }
+        if us.is_some() || vs.is_some() {
+            ops.push(op("scale", us, vs, "1"));
+        }
+        el.children.push(Element {
+            tag: "transform".into(),
+            attrs: vec![("name".into(), "to_uv".into())],
+            children: ops,
+            file: el.file.clone(),
+            line: el.line,
+            search: el.search.clone(),
+        });
+    }
+}
+
+/// `camelCase` as Mitsuba 3's upgrade writes it: an underscore before each
+/// run of capitals that follows a small letter, the run lowered.
+fn snake_case(name: &str) -> String {
+    let mut s: Vec<u8> = name.as_bytes().to_vec();
+    let mut i = 0;
+    while i + 1 < s.len() {
+        if s[i].is_ascii_lowercase() && s[i + 1].is_ascii_uppercase() {
+            s.insert(i + 1, b'_');
+            i += 2;
+            while i < s.len() && s[i].is_ascii_uppercase() {
+                s[i] = s[i].to_ascii_lowercase();
+                i += 1;
+            }
+            continue;
+        }
+        i += 1;
+    }
+    String::from_utf8(s).unwrap_or_else(|_| name.to_string())
 }
 
 /// A spectrum plugin (`<spectrum type=...>`, or the same as a `<texture>`)
@@ -1026,4 +1132,30 @@ pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> Option<Mat4> {
         dir.extend(0.0),
         origin.extend(1.0),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    /// Names as Mitsuba 3.9.1's upgrade of 0.x scenes writes them (read
+    /// from its messages on unknown properties: `aBcD` as `a_bc_d`, `xYZw`
+    /// as `x_yzw`).
+    #[test]
+    fn camel_case_becomes_snake_case_as_in_mitsuba() {
+        for (old, new) in [
+            ("toWorld", "to_world"),
+            ("intIOR", "int_ior"),
+            ("specularReflectance", "specular_reflectance"),
+            ("alphaU", "alpha_u"),
+            ("sampleCount", "sample_count"),
+            ("filename", "filename"),
+            ("to_world", "to_world"),
+            ("aBcD", "a_bc_d"),
+            ("xYZw", "x_yzw"),
+            ("aB1cD", "a_b1c_d"),
+            ("AbC", "Ab_c"),
+            ("", ""),
+        ] {
+            assert_eq!(super::snake_case(old), new, "{old}");
+        }
+    }
 }
