@@ -552,6 +552,31 @@ fn mitsuba_0_scenes_are_upgraded_as_mitsuba_3_upgrades_them() {
     assert!(err.contains("scene version 4.0.0"), "{err}");
 }
 
+/// Blender 4's exporter writes principled's tints as colours; Mitsuba
+/// reads every principled weight from a texture by the mean of its
+/// channels (its `eval` with `<rgb name="spec_tint" value="0.2, 0.5, 0.8"/>`
+/// equals that with `<float ... value="0.5"/>`, 2026-12-06).
+#[test]
+fn principled_weights_given_as_colours_read_as_their_mean() {
+    let params = |tints: &str| {
+        let scene = load_text(&with_body(&format!(
+            "<shape type=\"cube\"><bsdf type=\"principled\"><float name=\"sheen\" value=\"0.5\"/>{tints}</bsdf></shape>"
+        )))
+        .unwrap();
+        match scene.materials.last().unwrap().surface {
+            qtrace::bsdf::Surface::Principled { params, .. } => params,
+            ref s => panic!("{s:?}"),
+        }
+    };
+    let colours = params(
+        "<rgb name=\"spec_tint\" value=\"0.2, 0.5, 0.8\"/><rgb name=\"sheen_tint\" value=\"1, 1, 1\"/><spectrum name=\"clearcoat\" value=\"0.25\"/>",
+    );
+    let numbers = params(
+        "<float name=\"spec_tint\" value=\"0.5\"/><float name=\"sheen_tint\" value=\"1\"/><float name=\"clearcoat\" value=\"0.25\"/>",
+    );
+    assert_eq!(format!("{colours:?}"), format!("{numbers:?}"));
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

@@ -1634,8 +1634,9 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
 
 /// A `principled` as Mitsuba reads it (each weight in [0, 1]).
 fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
+    // Mitsuba reads each as a texture's eval_1: a colour by its mean.
     let weight = |name: &str, default: f32| -> Result<f32, SceneError> {
-        let v = p.float(name)?.unwrap_or(default);
+        let v = p.mean_number(name)?.unwrap_or(default);
         if !(0.0..=1.0).contains(&v) {
             return Err(el.error(format!("principled {name} {v} must lie in [0, 1]")));
         }

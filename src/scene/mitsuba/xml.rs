@@ -761,6 +761,19 @@ impl<'e> Props<'e> {
         self.number(el, el.required("value")?).map(Some)
     }
 
+    /// A number a BSDF reads from a texture (Mitsuba's `eval_1`): a
+    /// `<float>`, or the mean of an `<rgb>`'s or `<spectrum>`'s channels
+    /// (Blender 4's exporter writes principled's tints as colours).
+    pub fn mean_number(&self, name: &str) -> Result<Option<f32>, SceneError> {
+        let colour = self
+            .find(name)
+            .is_some_and(|el| matches!(el.tag.as_str(), "rgb" | "spectrum"));
+        if colour {
+            return Ok(self.color(name)?.map(|c| (c.x + c.y + c.z) / 3.0));
+        }
+        self.float(name)
+    }
+
     pub fn float_or(&self, name: &str, default: f32) -> Result<f32, SceneError> {
         Ok(self.float(name)?.unwrap_or(default))
     }
