@@ -277,6 +277,8 @@ const LINES: &[&str] = &[
     "<default name=\"res\" value=\"$res\"/>",
     "<bsdf type=\"twosided\" id=\"x\"><bsdf type=\"twosided\"/></bsdf>",
     "<ref id=\"x\"/>",
+    "<alias id=\"x\" as=\"y\"/>",
+    "<bsdf type=\"twosided\" id=\"y\"><ref id=\"y\"/></bsdf>",
     "<bsdf type=\"roughdielectric\"><float name=\"alpha\" value=\"1e-30\"/></bsdf>",
     "<bsdf type=\"roughplastic\"><float name=\"int_ior\" value=\"1e30\"/></bsdf>",
     "<transform name=\"to_world\"><scale value=\"0\"/></transform>",

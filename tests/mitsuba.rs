@@ -577,6 +577,43 @@ fn principled_weights_given_as_colours_read_as_their_mean() {
     assert_eq!(format!("{colours:?}"), format!("{numbers:?}"));
 }
 
+/// A BSDF nested in another (twosided, mask, blendbsdf) may be a `<ref>` to
+/// one defined at the top level, and `<alias>` gives an object a second
+/// id, as in Mitsuba.
+#[test]
+fn nested_bsdfs_may_be_references_and_ids_aliases() {
+    let looks = |body: &str| -> Vec<String> {
+        let scene = load_text(&with_body(body)).unwrap_or_else(|e| panic!("{body}: {e}"));
+        scene
+            .materials
+            .iter()
+            .map(|m| format!("{:?} {:?} {:?}", m.surface, m.one_sided, m.choice))
+            .collect()
+    };
+    let red = "<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0.6, 0.1, 0.1\"/></bsdf>";
+    let grey = "<bsdf type=\"roughconductor\"/>";
+    let by_ref = looks(
+        "<bsdf type=\"diffuse\" id=\"red\"><rgb name=\"reflectance\" value=\"0.6, 0.1, 0.1\"/></bsdf>\
+         <bsdf type=\"roughconductor\" id=\"metal\"/>\
+         <alias id=\"metal\" as=\"steel\"/>\
+         <bsdf type=\"twosided\" id=\"both\"><ref id=\"red\"/></bsdf>\
+         <shape type=\"cube\"><ref id=\"both\"/></shape>\
+         <shape type=\"cube\"><bsdf type=\"blendbsdf\"><float name=\"weight\" value=\"0.3\"/><ref id=\"both\"/><ref name=\"bsdf_1\" id=\"steel\"/></bsdf></shape>",
+    );
+    let inline = looks(&format!(
+        "<shape type=\"cube\"><bsdf type=\"twosided\">{red}</bsdf></shape>\
+         <shape type=\"cube\"><bsdf type=\"blendbsdf\"><float name=\"weight\" value=\"0.3\"/><bsdf type=\"twosided\">{red}</bsdf>{grey}</bsdf></shape>"
+    ));
+    assert_eq!(by_ref, inline);
+    let Err(e) = load_text(&with_body("<alias id=\"nothing\" as=\"x\"/>")) else {
+        panic!("an alias of nothing loaded")
+    };
+    assert!(
+        e.contains(":5:") && e.contains("no object has the id 'nothing'"),
+        "{e}"
+    );
+}
+
 #[test]
 fn triangles_of_zero_area_in_a_mesh_are_left_out() {
     let with = |file: &str| {

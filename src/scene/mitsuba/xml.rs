@@ -127,15 +127,67 @@ pub fn read_scene(
         search: search.clone(),
     };
     let mut top = reader.document(path, 0)?;
+    // Mitsuba's <alias id as>: the object under a second id.
+    let mut i = 0;
+    while i < top.len() {
+        if top[i].tag == "alias" {
+            let a = top.remove(i);
+            let (id, name) = (a.required("id")?, a.required("as")?);
+            let Some(target) = top.iter().find(|e| e.attr("id") == Some(id)) else {
+                return Err(a.error(format!("<alias>: no object has the id '{id}'")));
+            };
+            let mut copy = target.clone();
+            copy.attrs.retain(|(k, _)| k != "id");
+            copy.attrs.push(("id".into(), name.into()));
+            top.insert(i, copy);
+        }
+        i += 1;
+    }
     // A top-level spectrum plugin that is one colour (see `plain_spectrum`)
-    // stands wherever a `<ref>` names it.
+    // stands wherever a `<ref>` names it, and a top-level BSDF wherever one
+    // names it inside another BSDF (twosided, mask, blendbsdf, a normal or
+    // bump map), as Mitsuba allows.
     let (constants, mut top): (Vec<Element>, Vec<Element>) = top
         .drain(..)
         .partition(|e| matches!(e.tag.as_str(), "rgb" | "spectrum") && e.attr("id").is_some());
     if !constants.is_empty() {
         top.iter_mut().for_each(|e| inline_constants(e, &constants));
     }
+    let bsdfs: Vec<Element> = top
+        .iter()
+        .filter(|e| e.tag == "bsdf" && e.attr("id").is_some())
+        .cloned()
+        .collect();
+    if !bsdfs.is_empty() {
+        top.iter_mut().for_each(|e| inline_bsdfs(e, &bsdfs, 0));
+    }
     Ok(top)
+}
+
+/// Each `<ref id>` inside a BSDF under `el` that names one of `bsdfs`,
+/// replaced by a copy of that BSDF (itself so treated, to a depth that a
+/// cycle of references cannot pass). A shape's own `<ref>` stays: the
+/// shapes that name one BSDF share it.
+fn inline_bsdfs(el: &mut Element, bsdfs: &[Element], depth: usize) {
+    if depth > MAX_INCLUDE_DEPTH {
+        return;
+    }
+    let inside = el.tag == "bsdf";
+    for c in &mut el.children {
+        if c.tag == "ref" && inside {
+            let Some(b) = bsdfs.iter().find(|b| b.attr("id") == c.attr("id")) else {
+                continue;
+            };
+            let mut copy = b.clone();
+            copy.attrs.retain(|(k, _)| k != "id" && k != "name");
+            copy.attrs
+                .extend(c.attrs.iter().filter(|(k, _)| k == "name").cloned());
+            *c = copy;
+            inline_bsdfs(c, bsdfs, depth + 1);
+        } else {
+            inline_bsdfs(c, bsdfs, depth + 1);
+        }
+    }
 }
 
 /// Each `<ref name id>` under `el` that names one of `constants`, replaced
