@@ -159,6 +159,12 @@ fn integrators_that_path_tracing_equals_keep_their_depth() {
         ("<integrator type=\"volpathmis\"><integer name=\"max_depth\" value=\"3\"/><integer name=\"rr_depth\" value=\"9\"/></integrator>", Some(2)),
         ("<integrator type=\"direct\"><integer name=\"emitter_samples\" value=\"4\"/></integrator>", Some(1)),
         ("<integrator type=\"aov\"/>", None),
+        // The differentiable and wrapping integrators estimate path's image.
+        ("<integrator type=\"prb\"><integer name=\"max_depth\" value=\"4\"/></integrator>", Some(3)),
+        ("<integrator type=\"prb_projective\"><integer name=\"max_depth\" value=\"6\"/><integer name=\"sppc\" value=\"8\"/></integrator>", Some(5)),
+        ("<integrator type=\"direct_projective\"><integer name=\"max_depth\" value=\"6\"/></integrator>", Some(1)),
+        ("<integrator type=\"aov\"><string name=\"aovs\" value=\"dd.y:depth\"/><integrator type=\"path\"><integer name=\"max_depth\" value=\"3\"/></integrator></integrator>", Some(2)),
+        ("<integrator type=\"moment\"><integrator type=\"prb_basic\"><integer name=\"max_depth\" value=\"2\"/></integrator></integrator>", Some(1)),
     ] {
         let scene = load_text(&with_body(integrator)).unwrap();
         assert_eq!(scene.defaults.max_depth, want, "{integrator}");

@@ -396,10 +396,27 @@ impl Builder<'_, '_> {
 
     fn integrator(&mut self, el: &Element) -> Result<(), SceneError> {
         let kind = el.plugin()?;
+        // aov and moment render their nested integrator's image (and more
+        // channels, which qtrace does not write).
+        if matches!(kind, "aov" | "moment") {
+            let p = Props::new(el);
+            p.ignore("aovs");
+            let nested = p.nested("integrator");
+            p.finish()?;
+            if let Some(inner) = nested.first() {
+                return self.integrator(inner);
+            }
+        }
         // Without media (qtrace has none) volpath and volpathmis converge to
-        // path's image; direct is path with one bounce (its sample counts
-        // change noise only).
-        if !matches!(kind, "path" | "volpath" | "volpathmis" | "direct") {
+        // path's image, as Mitsuba's differentiable prb, prb_basic and
+        // prb_projective do; direct (and direct_projective) is path with one
+        // bounce (their sample counts change noise only).
+        let path_like = matches!(
+            kind,
+            "path" | "volpath" | "volpathmis" | "prb" | "prb_basic" | "prb_projective"
+        );
+        let direct = matches!(kind, "direct" | "direct_projective");
+        if !(path_like || direct) {
             log::warn!(
                 "{}:{}: integrator '{kind}': qtrace renders the scene with its own method (--method) instead",
                 el.file.display(),
@@ -408,13 +425,31 @@ impl Builder<'_, '_> {
             return Ok(());
         }
         let p = Props::new(el);
-        if kind == "direct" {
+        // How the projective integrators sample their boundary terms: noise.
+        for n in [
+            "sppc",
+            "sppp",
+            "sppi",
+            "guiding",
+            "guiding_rounds",
+            "guiding_proj",
+            "proj_seed_spp",
+        ] {
+            p.ignore(n);
+        }
+        if direct {
             self.max_depth = Some(1);
-            for n in ["emitter_samples", "bsdf_samples", "shading_samples"] {
+            // direct_projective keeps one bounce whatever it is told.
+            for n in [
+                "emitter_samples",
+                "bsdf_samples",
+                "shading_samples",
+                "max_depth",
+            ] {
                 p.ignore(n);
             }
         }
-        let max_depth = if kind == "direct" {
+        let max_depth = if direct {
             None
         } else {
             p.integer("max_depth")?
