@@ -92,6 +92,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-p.xml",
         "tests/fixtures/mitsuba/coverage-q.xml",
         "tests/fixtures/mitsuba/coverage-r.xml",
+        "tests/fixtures/mitsuba/coverage-s.xml",
         "tests/fixtures/mitsuba/crop.xml",
         "tests/fixtures/mitsuba/rfilters.xml",
         "tests/fixtures/mitsuba/choices.xml",

@@ -1547,6 +1547,22 @@ fn cubic_filters_see_an_edge_as_their_integral() {
 }
 
 #[test]
+fn a_mitsuba_0_6_scene_with_what_scenes_carry_agrees_with_mitsuba() {
+    // Mitsuba 0.6's names, a <path>, a mirrored sky, spectrum plugins,
+    // colour tints, nested references and an alias, a mitchell of other B
+    // and C, the prb integrator.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-s.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-s",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn principled_materials_agree_with_mitsuba() {
     // Textured base colour and roughness, metallic with tint and clearcoat,
     // sheen with flatness, a bitmap's metallic weight, a one-sided sphere.
