@@ -155,6 +155,9 @@
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128
+// The film samples beyond its border (Mitsuba's sample_border): a pixel's
+// filter is not cut at the image's edge.
+#define FLAG_SAMPLE_BORDER 256
 // Scenes with several lights (src/guide/sarsa.rs, guided_light_power) of
 // at most this many emitting triangles get it.
 #define MAX_GUIDED_LIGHTS 16

@@ -243,15 +243,17 @@ float signed_filter_axis(float lo, float hi, inout uint rng, inout float weight)
 // is cut at the border: draws that land outside are drawn again (a box
 // filter's never do).
 vec2 image_point(uvec2 pixel, inout uint rng, inout float weight) {
+    bool border = (params.flags & FLAG_SAMPLE_BORDER) != 0u;
     if (PIXEL_FILTER >= FILTER_CUBIC) {
-        // Offsets from the pixel's centre that stay inside the image.
-        vec2 c = vec2(pixel) + 0.5;
-        float x = signed_filter_axis(-c.x, float(params.width) - c.x, rng, weight);
-        float y = signed_filter_axis(-c.y, float(params.height) - c.y, rng, weight);
-        return c + vec2(x, y);
+        // Offsets from the pixel's centre that stay inside the image, or
+        // with the border sampled, the filter's whole support.
+        vec2 c = border ? vec2(1e9) : vec2(pixel) + 0.5;
+        float x = signed_filter_axis(-c.x, (border ? 2e9 : float(params.width)) - c.x, rng, weight);
+        float y = signed_filter_axis(-c.y, (border ? 2e9 : float(params.height)) - c.y, rng, weight);
+        return vec2(pixel) + 0.5 + vec2(x, y);
     }
     vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
-    if (PIXEL_FILTER == FILTER_BOX) {
+    if (PIXEL_FILTER == FILTER_BOX || border) {
         return p;
     }
     vec2 size = vec2(float(params.width), float(params.height));

@@ -1493,7 +1493,10 @@ fn filters_with_negative_lobes_agree_with_mitsuba() {
 /// cubic filters (Mitsuba's default mitchell, catmullrom and a mitchell of
 /// other B and C): each column converges to the filter's integral over the
 /// lit side within the image, over its integral within the image, times
-/// what the kernels' midpoint sums of 64 steps make of that ratio.
+/// what the kernels' midpoint sums of 64 steps make of that ratio; with
+/// the film's `sample_border`, over the filter's whole support (the light
+/// goes on beyond the image's left edge). Mitsuba's own columns agree with
+/// both within 0.006 at 65,536 spp (2026-12-06).
 #[test]
 fn cubic_filters_see_an_edge_as_their_integral() {
     let integral = |b: f32, c: f32, lo: f64, hi: f64, steps: usize| -> (f64, f64) {
@@ -1505,43 +1508,66 @@ fn cubic_filters_see_an_edge_as_their_integral() {
     };
     // E[weight x lit] along one axis: sampled from |f| (exact integral M),
     // weighed by sign x the midpoint sums' M / T.
-    let axis = |b: f32, c: f32, centre: f64, size: f64, lit: f64| -> f64 {
-        let (lo, hi) = ((-centre).max(-2.0), (size - centre).min(2.0));
+    let axis = |(b, c, border): (f32, f32, bool), centre: f64, size: f64, lit: f64| -> f64 {
+        let (lo, hi) = if border {
+            (-2.0, 2.0)
+        } else {
+            ((-centre).max(-2.0), (size - centre).min(2.0))
+        };
         let (t64, m64) = integral(b, c, lo, hi, 64);
         let (_, m) = integral(b, c, lo, hi, 200_000);
         let (t_lit, _) = integral(b, c, lo, (lit - centre).clamp(lo, hi), 200_000);
         m64 / t64 / m * t_lit
     };
-    for (rfilter, (b, c)) in [
-        ("<rfilter type=\"mitchell\"/>", (1.0 / 3.0, 1.0 / 3.0)),
-        ("<rfilter type=\"catmullrom\"/>", (0.0, 0.5)),
+    let cubic = "<rfilter type=\"mitchell\"><float name=\"B\" value=\"0\"/><float name=\"C\" value=\"1\"/></rfilter>";
+    let border = "<boolean name=\"sample_border\" value=\"true\"/>";
+    // The edge down the middle, or at the image's right edge (the light
+    // ending there), which the filter crosses only with the border sampled.
+    for (rfilter, (b, c, sampled), edge) in [
         (
-            "<rfilter type=\"mitchell\"><float name=\"B\" value=\"0\"/><float name=\"C\" value=\"1\"/></rfilter>",
-            (0.0, 1.0),
+            "<rfilter type=\"mitchell\"/>".to_string(),
+            (1.0 / 3.0, 1.0 / 3.0, false),
+            8.0,
         ),
+        (
+            "<rfilter type=\"catmullrom\"/>".to_string(),
+            (0.0, 0.5, false),
+            8.0,
+        ),
+        (cubic.to_string(), (0.0, 1.0, false), 8.0),
+        (cubic.to_string(), (0.0, 1.0, false), 16.0),
+        (format!("{cubic}{border}"), (0.0, 1.0, true), 16.0),
     ] {
+        // Image column `edge` is world x = (2 edge / 16 - 1) tan 30°.
+        let x = -50.0 + (2.0 * edge / 16.0 - 1.0) * 30f64.to_radians().tan();
         let scene = load_text(&format!(
             "<scene version=\"3.0.0\">\n\
              <sensor type=\"perspective\"><float name=\"fov\" value=\"60\"/>\
              <transform name=\"to_world\"><lookat origin=\"0, 0, 0\" target=\"0, 0, -1\" up=\"0, 1, 0\"/></transform>\
              <film type=\"hdrfilm\"><integer name=\"width\" value=\"16\"/><integer name=\"height\" value=\"2\"/>{rfilter}</film></sensor>\n\
-             <shape type=\"rectangle\"><transform name=\"to_world\"><scale x=\"50\" y=\"50\"/><translate x=\"-50\" z=\"-1\"/></transform>\
+             <shape type=\"rectangle\"><transform name=\"to_world\"><scale x=\"50\" y=\"50\"/><translate x=\"{x}\" z=\"-1\"/></transform>\
              <emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape>\n</scene>"
         ))
         .unwrap();
         assert_eq!(scene.filter, PixelFilter::Cubic { b, c }, "{rfilter}");
+        assert_eq!(scene.defaults.sample_border, sampled);
+        let f = (b, c, sampled);
         let out = common::render_with(&common::gpu(), &scene, method(Method::PT, false, 16384));
-        // World -x is the image's left (Mitsuba's look-at): columns 0-7 lit.
-        let rows = axis(b, c, 0.5, 2.0, 2.0) + axis(b, c, 1.5, 2.0, 2.0);
+        // World -x is the image's left (Mitsuba's look-at): columns left of
+        // the edge lit.
+        let rows = axis(f, 0.5, 2.0, 2.0) + axis(f, 1.5, 2.0, 2.0);
         for x in 0..16 {
-            let want = axis(b, c, x as f64 + 0.5, 16.0, 8.0) * rows / 2.0;
+            let want = axis(f, x as f64 + 0.5, 16.0, edge) * rows / 2.0;
             let (mut got, mut var) = (0.0, 0.0);
             for y in 0..2 {
                 got += out.image.pixels[y * 16 + x][1] as f64 / 2.0;
                 var += out.variance.pixels[y * 16 + x][1] as f64 / 4.0 / 16384.0;
             }
             let z = (got - want) / var.sqrt().max(1e-4);
-            assert!(z.abs() < 5.0, "{rfilter} column {x}: {got} against {want} ({z:.1} sigma)");
+            assert!(
+                z.abs() < 5.0,
+                "{rfilter}, edge {edge}, column {x}: {got} against {want} ({z:.1} sigma)"
+            );
         }
     }
 }

@@ -224,6 +224,9 @@ pub fn pass_params(scene: &Scene, s: &RenderSettings) -> PassParams {
     if s.sampling == Sampling::Uniform {
         flags |= shaders::FLAG_UNIFORM;
     }
+    if scene.defaults.sample_border {
+        flags |= shaders::FLAG_SAMPLE_BORDER;
+    }
     PassParams {
         cam_pos: c.origin().extend(scene.ray_offset()).into(),
         cam_right: (c.right * tx).extend(c.aperture_radius).into(),

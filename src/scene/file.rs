@@ -124,6 +124,11 @@ pub struct RenderDefaults {
     /// and the sky is black where it is seen straight on.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub hide_emitters: bool,
+    /// Mitsuba's film `sample_border`: pixels at the image's border take
+    /// their filter's whole footprint, samples beyond the border included,
+    /// rather than the part inside the image. XML scenes only.
+    #[serde(skip)]
+    pub sample_border: bool,
 }
 
 /// Deterministically generated geometry, for scenes too large to commit.

@@ -694,11 +694,11 @@ impl Builder<'_, '_> {
             "pixel_format",
             "component_format",
             "banner",
-            "sample_border",
             "compensate",
         ] {
             p.ignore(k);
         }
+        self.defaults.sample_border = p.boolean("sample_border")?.unwrap_or(false);
         for f in p.nested("rfilter") {
             let fp = Props::new(f);
             self.filter = match f.plugin()? {
