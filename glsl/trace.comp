@@ -247,10 +247,12 @@ vec2 image_point(uvec2 pixel, inout uint rng, inout float weight) {
     if (PIXEL_FILTER >= FILTER_CUBIC) {
         // Offsets from the pixel's centre that stay inside the image, or
         // with the border sampled, the filter's whole support.
-        vec2 c = border ? vec2(1e9) : vec2(pixel) + 0.5;
-        float x = signed_filter_axis(-c.x, (border ? 2e9 : float(params.width)) - c.x, rng, weight);
-        float y = signed_filter_axis(-c.y, (border ? 2e9 : float(params.height)) - c.y, rng, weight);
-        return vec2(pixel) + 0.5 + vec2(x, y);
+        vec2 c = vec2(pixel) + 0.5;
+        vec2 lo = border ? vec2(-1e9) : -c;
+        vec2 hi = border ? vec2(1e9) : vec2(float(params.width), float(params.height)) - c;
+        float x = signed_filter_axis(lo.x, hi.x, rng, weight);
+        float y = signed_filter_axis(lo.y, hi.y, rng, weight);
+        return c + vec2(x, y);
     }
     vec2 p = vec2(pixel) + filter_offset(rng_next2(rng));
     if (PIXEL_FILTER == FILTER_BOX || border) {

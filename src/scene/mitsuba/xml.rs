@@ -76,34 +76,44 @@ impl Element {
         self.required("type")
     }
 
-    /// The file a property names, and its bytes: an absolute name as it
-    /// is, a relative one from the first of the scene's search directories
-    /// that has it, else beside this element's own file (an included
-    /// file's neighbours, which Mitsuba would not find).
+    /// The file a property of this element names, and its bytes (see
+    /// [`find_file`]).
     pub fn read_file(
         &self,
         loader: &Loader<'_>,
         name: &str,
     ) -> std::io::Result<(PathBuf, Vec<u8>)> {
-        let own = self.file.parent().unwrap_or(Path::new(".")).join(name);
-        let mut candidates: Vec<PathBuf> =
-            self.search.borrow().iter().map(|d| d.join(name)).collect();
-        if Path::new(name).is_absolute() {
-            candidates.clear();
-        }
-        candidates.push(own);
-        candidates.dedup();
-        let mut first = None;
-        for path in candidates {
-            match (loader.read)(&path) {
-                Ok(bytes) => return Ok((path, bytes)),
-                Err(e) => {
-                    first.get_or_insert(e);
-                }
+        find_file(&self.search, &self.file, loader, name)
+    }
+}
+
+/// File `name`, named in `file`, and its bytes: an absolute name as it is,
+/// a relative one from the first of `search`'s directories that has it,
+/// else beside `file` (an included file's neighbours, which Mitsuba would
+/// not find).
+fn find_file(
+    search: &Search,
+    file: &Path,
+    loader: &Loader<'_>,
+    name: &str,
+) -> std::io::Result<(PathBuf, Vec<u8>)> {
+    let own = file.parent().unwrap_or(Path::new(".")).join(name);
+    let mut candidates: Vec<PathBuf> = search.borrow().iter().map(|d| d.join(name)).collect();
+    if Path::new(name).is_absolute() {
+        candidates.clear();
+    }
+    candidates.push(own);
+    candidates.dedup();
+    let mut first = None;
+    for path in candidates {
+        match (loader.read)(&path) {
+            Ok(bytes) => return Ok((path, bytes)),
+            Err(e) => {
+                first.get_or_insert(e);
             }
         }
-        Err(first.expect("one candidate at least"))
     }
+    Err(first.expect("one candidate at least"))
 }
 
 /// The `<scene>` of `path` as a list of top-level elements, includes
@@ -178,11 +188,7 @@ fn inline_bsdfs(el: &mut Element, bsdfs: &[Element], depth: usize) {
             let Some(b) = bsdfs.iter().find(|b| b.attr("id") == c.attr("id")) else {
                 continue;
             };
-            let mut copy = b.clone();
-            copy.attrs.retain(|(k, _)| k != "id" && k != "name");
-            copy.attrs
-                .extend(c.attrs.iter().filter(|(k, _)| k == "name").cloned());
-            *c = copy;
+            *c = stand_in(b, c);
             inline_bsdfs(c, bsdfs, depth + 1);
         } else {
             inline_bsdfs(c, bsdfs, depth + 1);
@@ -198,18 +204,21 @@ fn inline_constants(el: &mut Element, constants: &[Element]) {
             let Some(k) = constants.iter().find(|k| k.attr("id") == c.attr("id")) else {
                 continue;
             };
-            let mut attrs: Vec<(String, String)> = k
-                .attrs
-                .iter()
-                .filter(|(n, _)| n != "id" && n != "name")
-                .cloned()
-                .collect();
-            attrs.extend(c.attrs.iter().filter(|(n, _)| n == "name").cloned());
-            *c = Element { attrs, ..k.clone() };
+            *c = stand_in(k, c);
         } else {
             inline_constants(c, constants);
         }
     }
+}
+
+/// A copy of `target` to stand where `reference` (a `<ref>`) named it:
+/// under the reference's name, without the target's id.
+fn stand_in(target: &Element, reference: &Element) -> Element {
+    let mut copy = target.clone();
+    copy.attrs.retain(|(k, _)| k != "id" && k != "name");
+    copy.attrs
+        .extend(reference.attrs.iter().filter(|(k, _)| k == "name").cloned());
+    copy
 }
 
 struct Reader<'a, 'l> {
@@ -324,25 +333,17 @@ impl Reader<'_, '_> {
         Ok(out)
     }
 
-    /// Spectrum file `name` (beside `file`, named at `line`) as
-    /// `wavelength:value` pairs.
-    /// Where small file `name`, named in `file`, is: where Mitsuba looks
-    /// (each `<path>` so far, the main file's directory), else beside
-    /// `file` (see [`Element::read_file`]).
+    /// Where file `name`, named in `file`, is found (see [`find_file`]);
+    /// where it is not, beside `file`, for the reader's message.
     fn locate(&self, file: &Path, name: &str) -> PathBuf {
-        let own = file.parent().unwrap_or(Path::new(".")).join(name);
-        if Path::new(name).is_absolute() {
-            return own;
-        }
-        let found = self
-            .search
-            .borrow()
-            .iter()
-            .map(|d| d.join(name))
-            .find(|p| (self.loader.read)(p).is_ok());
-        found.unwrap_or(own)
+        find_file(&self.search, file, self.loader, name).map_or_else(
+            |_| file.parent().unwrap_or(Path::new(".")).join(name),
+            |(path, _)| path,
+        )
     }
 
+    /// Spectrum file `name` (named in `file` at `line`) as
+    /// `wavelength:value` pairs.
     fn spectrum_file(&self, file: &Path, line: u32, name: &str) -> Result<String, SceneError> {
         let path = self.locate(file, name);
         let text = self.loader.text(&path).map_err(|e| {
