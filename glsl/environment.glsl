@@ -12,12 +12,17 @@ WORDS(environment_texels, B_ENVIRONMENT)
 layout(constant_id = CONSTANT_ENVIRONMENT) const uint SKY = SKY_TEXEL_WORDS;
 const bool ENVIRONMENT = SKY != SKY_NONE;
 
+// World direction d in the map's frame.
+vec3 environment_local(vec3 d) {
+    return vec3(dot(uintBitsToFloat(FETCH(environment_texels, 1).xyz), d),
+                dot(uintBitsToFloat(FETCH(environment_texels, 2).xyz), d),
+                dot(uintBitsToFloat(FETCH(environment_texels, 3).xyz), d));
+}
+
 // Data coordinates of world direction d: columns from texel centres
 // (wrapping), rows from the top row at the map's +y pole to the bottom one.
 vec2 environment_data(vec3 d, uvec4 h) {
-    vec3 l = vec3(dot(uintBitsToFloat(FETCH(environment_texels, 1).xyz), d),
-                  dot(uintBitsToFloat(FETCH(environment_texels, 2).xyz), d),
-                  dot(uintBitsToFloat(FETCH(environment_texels, 3).xyz), d));
+    vec3 l = environment_local(d);
     float u = atan(l.x, -l.z) * (0.5 * INV_PI) - 0.5 / float(h.x);
     // atan rather than acos: Mesa's acos is a short polynomial, ~3e-4 off.
     float v = atan(length(l.xz), l.y) * INV_PI;
@@ -54,8 +59,69 @@ vec3 environment_texel(uint x, uint y, uvec4 h) {
     return uintBitsToFloat(bits);
 }
 
+vec4 sky_word(int i) {
+    return uintBitsToFloat(FETCH(environment_texels, ENVIRONMENT_HEADER_WORDS + i));
+}
+
+// Mitsuba's sunsky at unit direction l of the map's frame (y up): the
+// Hosek-Wilkie sky and the sun's disk, from the words
+// src/scene/mitsuba/sunsky.rs writes (sky_model in
+// src/scene/environment.rs, the CPU twin, says what each holds).
+vec3 sky_model(vec3 l) {
+    if (l.y < 0.0) {
+        return vec3(0.0);
+    }
+    vec4 sun = sky_word(0);
+    float cos_gamma = clamp(dot(l, sun.xyz), -1.0, 1.0);
+    float sin_gamma = length(cross(l, sun.xyz));
+    // atan rather than acos: Mesa's acos is a short polynomial.
+    float gamma = atan(sin_gamma, dot(l, sun.xyz));
+    vec3 radiance;
+    for (int c = 0; c < 3; c++) {
+        vec4 a = sky_word(2 + 3 * c);
+        vec4 b = sky_word(3 + 3 * c);
+        vec4 e = sky_word(4 + 3 * c);
+        float c1 = 1.0 + a.x * exp(a.y / (l.y + 0.01));
+        float chi = (1.0 + cos_gamma * cos_gamma) /
+                    pow(1.0 + e.x * e.x - 2.0 * e.x * cos_gamma, 1.5);
+        float c2 = a.z + a.w * exp(b.x * gamma) + b.y * cos_gamma * cos_gamma + b.z * chi +
+                   b.w * sqrt(l.y);
+        radiance[c] = c1 * c2 * e.y;
+    }
+    if (sin_gamma <= sun.w && cos_gamma > 0.0) {
+        vec4 m = sky_word(1);
+        if (m.y == 0.0) {
+            radiance += sky_word(11).rgb;
+        } else {
+            float elevation = atan(l.y, length(l.xz));
+            int segment = min(int(pow(max(2.0 * elevation * INV_PI, 0.0), 1.0 / 3.0) * 45.0), 44);
+            float s = float(segment) / 45.0;
+            float x = elevation - 0.5 * PI * s * s * s;
+            float ratio = sin_gamma / m.x;
+            float cos_psi = sqrt(max(1.0 - ratio * ratio, 0.0));
+            int first = segment * 72;
+            for (int c = 0; c < 3; c++) {
+                float x_k = 1.0;
+                for (int k = 0; k < 4; k++) {
+                    float psi_j = 1.0;
+                    for (int j = 0; j < 6; j++) {
+                        int i = first + (c * 4 + k) * 6 + j;
+                        radiance[c] += x_k * psi_j * sky_word(12 + i / 4)[i % 4];
+                        psi_j *= cos_psi;
+                    }
+                    x_k *= x;
+                }
+            }
+        }
+    }
+    return radiance;
+}
+
 // Radiance arriving from world direction d (a unit vector).
 vec3 environment_eval(vec3 d) {
+    if (SKY == SKY_MODEL) {
+        return sky_model(environment_local(d));
+    }
     uvec4 h = FETCH(environment_texels, 0);
     vec2 p = environment_data(d, h);
     uvec2 c = environment_texel_cell(p, h);

@@ -381,6 +381,10 @@ struct Triangle {
 #define SKY_NONE 0
 #define SKY_TEXEL_WORDS 1
 #define SKY_DENSE 2
+// ... an analytic sky (Mitsuba's sunsky), whose words take the texels'
+// place (sky_model in glsl/environment.glsl); its texels, on the host
+// only, shaped NEE's cells.
+#define SKY_MODEL 3
 // Specialization constant of the trace kernels: Mitsuba's hide_emitters (the
 // camera's ray passes through emitters, and the sky is black to a path whose
 // every bounce so far went straight through a null surface or a thin sheet,

@@ -585,6 +585,59 @@ fn gpu_environment_matches_its_cpu_twin() {
     }
 }
 
+/// Mitsuba's sunsky on the GPU against the CPU twin: the sky model's
+/// radiance all over the sphere and on and around the sun's disk (its
+/// limb darkened and not), NEE's density, and the directions NEE draws.
+#[test]
+fn gpu_sky_model_matches_its_cpu_twin() {
+    let ctx = common::gpu();
+    for limb in ["true", "false"] {
+        let scene = qtrace::scene::Scene::load_defined(
+            common::repo("tests/fixtures/mitsuba/coverage-t.xml"),
+            &[("limb".into(), limb.into())],
+        )
+        .unwrap();
+        let env = scene.environment.as_ref().expect("a sunsky");
+        assert!(env.model.is_some(), "the sky is evaluated, not looked up");
+        // The sun: the brightest direction NEE draws.
+        let mut rng = Lcg(17);
+        let sun = (0..4000)
+            .map(|_| {
+                let u = [rng.next(), rng.next(), rng.next(), rng.next()];
+                env.sample(u).0
+            })
+            .max_by(|a, b| {
+                let l = |d: &Vec3| env.eval(*d).element_sum();
+                l(a).total_cmp(&l(b))
+            })
+            .unwrap();
+        assert!(env.eval(sun).max_element() > 100.0, "no sun found");
+        let queries: Vec<(Vec3, glam::Vec4)> = (0..2000)
+            .map(|i| {
+                let u = glam::Vec4::new(rng.next(), rng.next(), rng.next(), rng.next());
+                // Half of them within about 1.3 of the sun's radii.
+                let d = if i % 2 == 0 {
+                    rng.unit()
+                } else {
+                    (sun + 0.006 * rng.unit()).normalize()
+                };
+                (d, u)
+            })
+            .collect();
+        let on_disk = queries
+            .iter()
+            .filter(|(d, _)| env.eval(*d).max_element() > 100.0)
+            .count();
+        assert!(
+            on_disk > 100,
+            "limb {limb}: only {on_disk} lookups on the sun"
+        );
+        let gpu = probe::environment_lookups(&ctx, &scene, &queries, false).unwrap();
+        common::assert_no_validation_errors(&ctx);
+        check_environment(env, &queries, gpu, false);
+    }
+}
+
 fn check_environment(
     env: &qtrace::scene::environment::Environment,
     queries: &[(Vec3, glam::Vec4)],

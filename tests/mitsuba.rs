@@ -738,6 +738,31 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             5,
             "must be a rotation",
         ),
+        (
+            "<emitter type=\"sunsky\"><vector name=\"sun_direction\" x=\"0\" y=\"1\" z=\"1\"/><float name=\"hour\" value=\"9\"/></emitter>",
+            5,
+            "sunsky takes sun_direction or a place and time ('hour'), not both",
+        ),
+        (
+            "<emitter type=\"sunsky\"><float name=\"turbidity\" value=\"12\"/></emitter>",
+            5,
+            "sunsky turbidity 12 is outside [1, 10]",
+        ),
+        (
+            "<emitter type=\"sunsky\"><rgb name=\"albedo\" value=\"0.5, 1.5, 0.5\"/></emitter>",
+            5,
+            "sunsky albedo",
+        ),
+        (
+            "<emitter type=\"sunsky\"/><emitter type=\"constant\"/>",
+            5,
+            "one environment emitter",
+        ),
+        (
+            "<emitter type=\"sunsky\"><float name=\"sun_aperture\" value=\"0\"/></emitter>",
+            5,
+            "sun_aperture 0 must lie in (0, 180)",
+        ),
         ("<emitter type=\"spot\"><float name=\"beam_width\" value=\"30\"/></emitter>", 5, "beam_width"),
         ("<texture type=\"bitmap\"/>", 5, "a top-level <texture> needs an id"),
         ("<texture type=\"bitmap\" id=\"t\"/>", 5, "bitmap needs a filename"),
@@ -1581,6 +1606,21 @@ fn a_mitsuba_0_6_scene_with_what_scenes_carry_agrees_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-s",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn a_sun_and_sky_agree_with_mitsuba() {
+    // sunsky by place and time, turned to y up, with turbidity, a coloured
+    // ground albedo, limb darkening and both scales.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-t.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-t",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

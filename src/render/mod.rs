@@ -146,14 +146,9 @@ impl GpuScene {
                         ),
                     });
                 }
-                let layout = if dense {
-                    shaders::SKY_DENSE
-                } else {
-                    shaders::SKY_TEXEL_WORDS
-                };
                 (
                     Buffer::gpu_only_with(ctx, "environment", &e.pack(dense))?,
-                    layout,
+                    e.layout(dense),
                 )
             }
             None => (unused("environment")?, shaders::SKY_NONE),

@@ -31,6 +31,9 @@ pub struct Environment {
     pub alias: Vec<(f32, u32)>,
     /// ∫ luminance dω over the sphere (by cells): NEE's weight of the sky.
     pub power: f32,
+    /// An analytic sky (Mitsuba's `sunsky`) that `eval` computes, as
+    /// [`sky_model`] words; the texels then only shape NEE's cells.
+    pub model: Option<Vec<[f32; 4]>>,
 }
 
 /// The most columns of NEE's cells; rows at most half as many.
@@ -63,9 +66,17 @@ impl Environment {
             density: Vec::new(),
             alias: Vec::new(),
             power: 0.0,
+            model: None,
         };
         env.build_sampling();
         env
+    }
+
+    /// The map as NEE's shape of an analytic sky that `words` describe
+    /// ([`sky_model`]).
+    pub fn with_model(mut self, words: Vec<[f32; 4]>) -> Self {
+        self.model = Some(words);
+        self
     }
 
     /// The map at about half its width and height: each new texel the mean
@@ -97,7 +108,9 @@ impl Environment {
                 );
             }
         }
-        Self::new(self.name.clone(), nw, nh, texels, self.to_local.inverse())
+        let mut halved = Self::new(self.name.clone(), nw, nh, texels, self.to_local.inverse());
+        halved.model.clone_from(&self.model);
+        halved
     }
 
     /// One radiance from every direction: Mitsuba's `constant`.
@@ -230,6 +243,9 @@ impl Environment {
 
     /// Radiance arriving from world direction `d` (unit).
     pub fn eval(&self, d: Vec3) -> Vec3 {
+        if let Some(words) = &self.model {
+            return sky_model(words, self.to_local * d);
+        }
         let p = self.data(self.uv(d));
         let (i, j) = self.texel_cell(p);
         let f = p - Vec2::new(i as f32, j as f32);
@@ -266,9 +282,22 @@ impl Environment {
         (self.to_local.transpose() * local, self.density[c])
     }
 
+    /// The layout glsl/environment.glsl reads the buffer by (SKY_*).
+    pub fn layout(&self, dense: bool) -> u32 {
+        if self.model.is_some() {
+            shaders::SKY_MODEL
+        } else if dense {
+            shaders::SKY_DENSE
+        } else {
+            shaders::SKY_TEXEL_WORDS
+        }
+    }
+
     /// Words (16 bytes each) of the buffer [`Environment::pack`] makes.
     pub fn words(&self, dense: bool) -> usize {
-        let texel_words = if dense {
+        let texel_words = if let Some(words) = &self.model {
+            words.len()
+        } else if dense {
             (3 * self.texels.len()).div_ceil(4) + 1
         } else {
             self.texels.len()
@@ -302,7 +331,9 @@ impl Environment {
             ]);
         }
         let bits = |t: &Vec3| t.to_array().map(f32::to_bits);
-        if dense {
+        if let Some(words) = &self.model {
+            out.extend(words.iter().map(|w| w.map(f32::to_bits)));
+        } else if dense {
             let mut floats: Vec<u32> = self.texels.iter().flat_map(bits).collect();
             floats.resize(4 * texel_words, 0);
             out.extend(floats.chunks_exact(4).map(|w| [w[0], w[1], w[2], w[3]]));
@@ -320,6 +351,63 @@ impl Environment {
         );
         out
     }
+}
+
+/// Mitsuba's `sunsky` at unit direction `l` of the map's frame (y up), from
+/// the words src/scene/mitsuba/sunsky.rs writes: (the sun's direction,
+/// the sine of its disk's radius), (the sine of that radius, whether
+/// the sun's limb darkens), three words per channel of the sky's nine
+/// parameters and its radiance, the sun's radiance, then where the limb
+/// darkens the sun per elevation segment 3 channels x 4 powers of the
+/// elevation x 6 of the limb's cosine. The twin of glsl/environment.glsl's
+/// sky_model, in the same single precision.
+pub fn sky_model(words: &[[f32; 4]], l: Vec3) -> Vec3 {
+    if l.y < 0.0 {
+        return Vec3::ZERO;
+    }
+    let sun = Vec3::from_slice(&words[0]);
+    let cos_gamma = l.dot(sun).clamp(-1.0, 1.0);
+    let sin_gamma = l.cross(sun).length();
+    let gamma = sin_gamma.atan2(l.dot(sun));
+    let mut radiance = Vec3::ZERO;
+    for c in 0..3 {
+        let (a, b, e) = (words[2 + 3 * c], words[3 + 3 * c], words[4 + 3 * c]);
+        let c1 = 1.0 + a[0] * (a[1] / (l.y + 0.01)).exp();
+        let chi =
+            (1.0 + cos_gamma * cos_gamma) / (1.0 + e[0] * e[0] - 2.0 * e[0] * cos_gamma).powf(1.5);
+        let c2 = a[2]
+            + a[3] * (b[0] * gamma).exp()
+            + b[1] * cos_gamma * cos_gamma
+            + b[2] * chi
+            + b[3] * l.y.sqrt();
+        radiance[c] = c1 * c2 * e[1];
+    }
+    if sin_gamma <= words[0][3] && cos_gamma > 0.0 {
+        let [sin_half, limb, ..] = words[1];
+        if limb == 0.0 {
+            radiance += Vec3::from_slice(&words[11]);
+        } else {
+            let elevation = l.y.atan2(Vec2::new(l.x, l.z).length());
+            let segment =
+                (((2.0 * elevation / PI).max(0.0).powf(1.0 / 3.0) * 45.0) as usize).min(44);
+            let x = elevation - 0.5 * PI * (segment as f32 / 45.0).powi(3);
+            let ratio = sin_gamma / sin_half;
+            let cos_psi = (1.0 - ratio * ratio).max(0.0).sqrt();
+            let float = |i: usize| words[12 + (segment * 72 + i) / 4][(segment * 72 + i) % 4];
+            for c in 0..3 {
+                let mut x_k = 1.0;
+                for k in 0..4 {
+                    let mut psi_j = 1.0;
+                    for j in 0..6 {
+                        radiance[c] += x_k * psi_j * float((c * 4 + k) * 6 + j);
+                        psi_j *= cos_psi;
+                    }
+                    x_k *= x;
+                }
+            }
+        }
+    }
+    radiance
 }
 
 #[cfg(test)]

@@ -366,11 +366,7 @@ pub fn environment_lookups(
     let mut params = pass_params(scene, &settings);
     params.selector = shaders::PROBE_ENVIRONMENT;
     let mut constants = vec![0; shaders::CONSTANT_ENVIRONMENT as usize + 1];
-    constants[shaders::CONSTANT_ENVIRONMENT as usize] = if dense {
-        shaders::SKY_DENSE
-    } else {
-        shaders::SKY_TEXEL_WORDS
-    };
+    constants[shaders::CONSTANT_ENVIRONMENT as usize] = env.layout(dense);
     let push = size_of::<PassParams>() as u32;
     let pipeline = ComputePipeline::specialized(ctx, "probe", spirv::PROBE, push, &constants)?;
     let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;

@@ -6,6 +6,7 @@
 
 mod cie;
 mod shapes;
+mod sunsky;
 mod textures;
 mod xml;
 
@@ -81,9 +82,7 @@ pub(super) fn read(
         })
         .collect();
     let environment = match (b.envmap, b.environment) {
-        (Some((name, w, h, texels, rotation)), _) => Some(super::environment::Environment::new(
-            name, w, h, texels, rotation,
-        )),
+        (Some(env), _) => Some(env),
         (None, Some(radiance)) if radiance.max_element() > 0.0 => {
             Some(super::environment::Environment::constant(radiance))
         }
@@ -235,8 +234,8 @@ struct Builder<'a, 'l> {
     instance_to_world: Mat4,
     /// A `constant` emitter's radiance.
     environment: Option<Vec3>,
-    /// An `envmap`: its file, size, linear texels (scaled) and rotation.
-    envmap: Option<(String, usize, usize, Vec<Vec3>, glam::Mat3)>,
+    /// An `envmap` or a `sunsky`.
+    envmap: Option<crate::scene::environment::Environment>,
     /// The film's crop window, if it has one.
     crop: Option<crate::scene::Crop>,
 }
@@ -319,10 +318,34 @@ impl Builder<'_, '_> {
                 light.intensity = irradiance.extend(0.0).into();
                 luminance(irradiance)
             }
-            "constant" | "envmap" if self.environment.is_some() || self.envmap.is_some() => {
+            "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.envmap.is_some() => {
                 return Err(el.error(
-                    "a scene has one environment emitter (constant or envmap), as in Mitsuba",
+                    "a scene has one environment emitter (constant, envmap or sunsky) here",
                 ))
+            }
+            "sunsky" => {
+                let rotation = sky_rotation(el, to_world)?;
+                let settings = sunsky_settings(&p, rotation)?;
+                p.finish()?;
+                let sky = sunsky::Sunsky::new(&settings);
+                if !sky.is_day() {
+                    log::warn!(
+                        "{}:{}: the sun is below the horizon: Mitsuba's sunsky is black then",
+                        el.file.display(),
+                        el.line
+                    );
+                    return Ok(());
+                }
+                let (w, h, texels) = sky.bake(sunsky::BAKED_WIDTH);
+                let env = crate::scene::environment::Environment::new(
+                    "sunsky".into(),
+                    w,
+                    h,
+                    texels,
+                    rotation * sunsky::envmap_frame(),
+                );
+                self.envmap = Some(env.with_model(sky.words()));
+                return Ok(());
             }
             "constant" => {
                 // Light from every direction, uniformly.
@@ -344,19 +367,7 @@ impl Builder<'_, '_> {
                 }
                 // How Mitsuba weighs its sampling: noise, not the image.
                 p.ignore("mis_compensation");
-                let rotation = glam::Mat3::from_mat4(to_world);
-                let orthonormal = (rotation * rotation.transpose() - glam::Mat3::IDENTITY)
-                    .to_cols_array()
-                    .iter()
-                    .all(|v| v.abs() < 1e-4);
-                // A mirror turns the sky over as Mitsuba does; a scale would
-                // leave Mitsuba looking the map up by an unnormalized
-                // direction.
-                if !orthonormal {
-                    return Err(el.error(
-                        "an envmap's to_world must be a rotation, or a rotation and a mirror (Mitsuba looks the map up by a direction a scale would stretch)",
-                    ));
-                }
+                let rotation = sky_rotation(el, to_world)?;
                 use crate::scene::texture::{Filter, Wrap};
                 let pattern = textures::read_image(
                     el,
@@ -377,12 +388,18 @@ impl Builder<'_, '_> {
                     return Err(el.error(format!("the envmap '{file}' has negative or non-finite texels")));
                 }
                 p.finish()?;
-                self.envmap = Some((file.to_string(), width, height, texels, rotation));
+                self.envmap = Some(crate::scene::environment::Environment::new(
+                    file.to_string(),
+                    width,
+                    height,
+                    texels,
+                    rotation,
+                ));
                 return Ok(());
             }
             other => {
                 return Err(el.error(format!(
-                    "emitter '{other}' is not supported; qtrace has area (on shapes), point, spot and directional"
+                    "emitter '{other}' is not supported; qtrace has area (on shapes), point, spot, directional, constant, envmap and sunsky"
                 )))
             }
         };
@@ -1969,4 +1986,109 @@ fn bsdf(
         desc.textures = given.map(|g| g.map(|(i, _)| i));
     }
     Ok(desc)
+}
+
+/// An environment's to_world as a rotation: a mirror turns the sky over as
+/// Mitsuba does; a scale would leave Mitsuba looking the sky up by an
+/// unnormalized direction.
+fn sky_rotation(el: &Element, to_world: Mat4) -> Result<glam::Mat3, SceneError> {
+    let rotation = glam::Mat3::from_mat4(to_world);
+    let orthonormal = (rotation * rotation.transpose() - glam::Mat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .all(|v| v.abs() < 1e-4);
+    if !orthonormal {
+        return Err(el.error(format!(
+            "{}'s to_world must be a rotation, or a rotation and a mirror (Mitsuba looks the sky up by a direction a scale would stretch)",
+            plugin_name(el)
+        )));
+    }
+    Ok(rotation)
+}
+
+/// A `sunsky` element's parameters, with Mitsuba's defaults and checks.
+fn sunsky_settings(p: &Props, rotation: glam::Mat3) -> Result<sunsky::Settings, SceneError> {
+    let el = p.el;
+    const WHEN: [&str; 9] = [
+        "latitude",
+        "longitude",
+        "timezone",
+        "year",
+        "month",
+        "day",
+        "hour",
+        "minute",
+        "second",
+    ];
+    let sun = match p.point("sun_direction")? {
+        Some(d) => {
+            if let Some(name) = WHEN
+                .iter()
+                .find(|n| el.children.iter().any(|c| c.attr("name") == Some(**n)))
+            {
+                return Err(el.error(format!(
+                    "sunsky takes sun_direction or a place and time ('{name}'), not both, as in Mitsuba"
+                )));
+            }
+            // Given in the world; the model works in the emitter's frame.
+            let local = rotation.inverse() * d;
+            local
+                .try_normalize()
+                .ok_or_else(|| el.error("sunsky's sun_direction is zero"))?
+                .as_dvec3()
+        }
+        None => {
+            let d = sunsky::When::default();
+            let int = |name: &str, default: i64| -> Result<i64, SceneError> {
+                Ok(p.integer(name)?.unwrap_or(default))
+            };
+            let when = sunsky::When {
+                latitude: p.float_or("latitude", d.latitude as f32)? as f64,
+                longitude: p.float_or("longitude", d.longitude as f32)? as f64,
+                timezone: p.float_or("timezone", d.timezone)?,
+                year: int("year", d.year)?,
+                month: int("month", d.month)?,
+                day: int("day", d.day)?,
+                hour: p.float_or("hour", d.hour)?,
+                minute: p.float_or("minute", d.minute)?,
+                second: p.float_or("second", d.second)?,
+            };
+            when.sun()
+        }
+    };
+    let turbidity = p.float_or("turbidity", 3.0)?;
+    if !(1.0..=10.0).contains(&turbidity) {
+        return Err(el.error(format!(
+            "sunsky turbidity {turbidity} is outside [1, 10], as in Mitsuba"
+        )));
+    }
+    let albedo = p.color("albedo")?.unwrap_or(Vec3::splat(0.3));
+    if albedo.min_element() < 0.0 || albedo.max_element() > 1.0 {
+        return Err(el.error(format!(
+            "sunsky albedo {albedo} is outside [0, 1], as in Mitsuba"
+        )));
+    }
+    let scale = |name: &str| -> Result<f64, SceneError> {
+        let v = p.float_or(name, 1.0)?;
+        if !(v >= 0.0 && v.is_finite()) {
+            return Err(el.error(format!("sunsky {name} {v} must be finite and non-negative")));
+        }
+        Ok(v as f64)
+    };
+    let (sun_scale, sky_scale) = (scale("sun_scale")?, scale("sky_scale")?);
+    let sun_aperture = p.float_or("sun_aperture", 0.5358)?;
+    if !(sun_aperture > 0.0 && sun_aperture < 180.0) {
+        return Err(el.error(format!(
+            "sunsky sun_aperture {sun_aperture} must lie in (0, 180) degrees"
+        )));
+    }
+    Ok(sunsky::Settings {
+        sun,
+        turbidity: turbidity as f64,
+        albedo: albedo.as_dvec3().to_array(),
+        sun_scale,
+        sky_scale,
+        sun_aperture,
+        complex_sun: p.boolean("complex_sun")?.unwrap_or(false),
+    })
 }

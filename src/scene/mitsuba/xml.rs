@@ -1036,11 +1036,7 @@ pub fn spectrum_to_rgb(el: &Element, text: &str, bounded: bool) -> Result<Vec3, 
         xyz += glam::DVec3::new(cx as f64, cy as f64, cz as f64) * weight;
     }
     xyz *= (hi - lo) as f64 / STEPS as f64 * CIE_Y_NORMALIZATION;
-    let rgb = glam::DMat3::from_cols_array(&[
-        3.240479, -0.969256, 0.055648, -1.537150, 1.875991, -0.204043, -0.498535, 0.041556,
-        1.057311,
-    ]) * xyz;
-    let rgb = rgb.as_vec3();
+    let rgb = (XYZ_TO_SRGB * xyz).as_vec3();
     let clamped = if bounded {
         rgb.clamp(Vec3::ZERO, Vec3::ONE)
     } else {
@@ -1061,8 +1057,13 @@ pub fn spectrum_to_rgb(el: &Element, text: &str, bounded: bool) -> Result<Vec3, 
 /// name="radiance" value="1"/>`).
 const EQUAL_ENERGY_RGB: Vec3 = Vec3::new(1.204_794, 0.948_291, 0.908_916);
 
+/// CIE XYZ to linear sRGB, as Mitsuba 3 converts.
+pub const XYZ_TO_SRGB: glam::DMat3 = glam::DMat3::from_cols_array(&[
+    3.240479, -0.969256, 0.055648, -1.537150, 1.875991, -0.204043, -0.498535, 0.041556, 1.057311,
+]);
+
 /// 1 / the integral of the CIE 1931 ȳ over 360-830 nm, as Mitsuba 3 has it.
-const CIE_Y_NORMALIZATION: f64 = 1.0 / 106.750_259_399_414_06;
+pub const CIE_Y_NORMALIZATION: f64 = 1.0 / 106.750_259_399_414_06;
 
 /// "bsdf 'roughconductor'", say.
 pub fn plugin_name(el: &Element) -> String {
