@@ -2039,8 +2039,13 @@ fn sunsky_settings(p: &Props, rotation: glam::Mat3) -> Result<sunsky::Settings, 
         }
         None => {
             let d = sunsky::When::default();
+            // Mitsuba's are 32-bit integers.
             let int = |name: &str, default: i64| -> Result<i64, SceneError> {
-                Ok(p.integer(name)?.unwrap_or(default))
+                let v = p.integer(name)?.unwrap_or(default);
+                if i32::try_from(v).is_err() {
+                    return Err(el.error(format!("sunsky {name} {v} is not a 32-bit integer")));
+                }
+                Ok(v)
             };
             let when = sunsky::When {
                 latitude: p.float_or("latitude", d.latitude as f32)? as f64,
