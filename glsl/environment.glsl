@@ -82,8 +82,8 @@ vec3 sky_model(vec3 l) {
         vec4 b = sky_word(3 + 3 * c);
         vec4 e = sky_word(4 + 3 * c);
         float c1 = 1.0 + a.x * exp(a.y / (l.y + 0.01));
-        float chi = (1.0 + cos_gamma * cos_gamma) /
-                    pow(1.0 + e.x * e.x - 2.0 * e.x * cos_gamma, 1.5);
+        float q = 1.0 + e.x * e.x - 2.0 * e.x * cos_gamma;
+        float chi = (1.0 + cos_gamma * cos_gamma) / (q * sqrt(q));
         float c2 = a.z + a.w * exp(b.x * gamma) + b.y * cos_gamma * cos_gamma + b.z * chi +
                    b.w * sqrt(l.y);
         radiance[c] = c1 * c2 * e.y;

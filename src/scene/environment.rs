@@ -373,8 +373,8 @@ pub fn sky_model(words: &[[f32; 4]], l: Vec3) -> Vec3 {
     for c in 0..3 {
         let (a, b, e) = (words[2 + 3 * c], words[3 + 3 * c], words[4 + 3 * c]);
         let c1 = 1.0 + a[0] * (a[1] / (l.y + 0.01)).exp();
-        let chi =
-            (1.0 + cos_gamma * cos_gamma) / (1.0 + e[0] * e[0] - 2.0 * e[0] * cos_gamma).powf(1.5);
+        let q = 1.0 + e[0] * e[0] - 2.0 * e[0] * cos_gamma;
+        let chi = (1.0 + cos_gamma * cos_gamma) / (q * q.sqrt());
         let c2 = a[2]
             + a[3] * (b[0] * gamma).exp()
             + b[1] * cos_gamma * cos_gamma
