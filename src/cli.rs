@@ -516,6 +516,13 @@ pub fn inspect_summary(scene: &Scene) -> String {
             match &scene.environment {
                 None => "none".to_string(),
                 Some(e) if e.name == "constant" => format!("constant {:?}", e.texels[0].to_array()),
+                Some(e) if e.model.is_some() => format!(
+                    "{} (its model evaluated; NEE draws from a {}x{} map of it), NEE picks it with probability {:.3}",
+                    e.name,
+                    e.width,
+                    e.height,
+                    scene.environment_pick()
+                ),
                 Some(e) => format!(
                     "{} ({}x{}), NEE picks it with probability {:.3}",
                     e.name,
