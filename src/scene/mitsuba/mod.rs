@@ -320,7 +320,7 @@ impl Builder<'_, '_> {
             }
             "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.envmap.is_some() => {
                 return Err(el.error(
-                    "a scene has one environment emitter (constant, envmap or sunsky) here",
+                    "a scene has one environment emitter (constant, envmap or sunsky), as in Mitsuba",
                 ))
             }
             "sunsky" => {
@@ -1999,8 +1999,8 @@ fn sky_rotation(el: &Element, to_world: Mat4) -> Result<glam::Mat3, SceneError> 
         .all(|v| v.abs() < 1e-4);
     if !orthonormal {
         return Err(el.error(format!(
-            "{}'s to_world must be a rotation, or a rotation and a mirror (Mitsuba looks the sky up by a direction a scale would stretch)",
-            plugin_name(el)
+            "the {}'s to_world must be a rotation, or a rotation and a mirror (Mitsuba looks the sky up by a direction a scale would stretch)",
+            el.attr("type").unwrap_or("sky")
         )));
     }
     Ok(rotation)
