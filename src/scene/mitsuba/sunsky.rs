@@ -1,13 +1,12 @@
 //! Mitsuba's `sunsky`: the Hošek–Wilkie sky and sun, as Mitsuba 3's RGB
 //! variants evaluate them (from the tables Mitsuba ships, in
-//! data/sunsky/), baked into a latitude-longitude map that renders as any
-//! `envmap` does: its NEE, MIS and the guides' learning of the sky.
-//!
-//! The map holds each texel's tent-weighted mean of the radiance (the
-//! weights of the bilinear lookup that reads it back), so that the map
-//! integrates to the sky's and the sun's power, and the sun (half a degree
-//! across, a few texels) keeps its irradiance, though not its sharp edge:
-//! shadows' penumbrae widen to about two texels (0.7 degrees).
+//! data/sunsky/). The renderer evaluates the model where a ray leaves the
+//! scene (its words, [`Sunsky::words`], read by glsl/environment.glsl);
+//! NEE draws its directions from a latitude-longitude map baked from the
+//! model ([`Sunsky::bake`]), each texel its tent-weighted mean of the
+//! radiance, so that the map's cells weigh the sun and the sky by their
+//! power. Looking the sky up in the map instead would smooth it by a few
+//! parts in 10⁴ and widen the sun's edge to two texels.
 
 use super::cie;
 use super::xml::{CIE_Y_NORMALIZATION, XYZ_TO_SRGB};
