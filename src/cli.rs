@@ -290,6 +290,12 @@ fn print_summary(s: &render::RenderStats, profile: bool) {
     }
     if profile {
         eprint!("{}", s.profile_table());
+        if let Some(f) = &s.guide_fit {
+            eprintln!(
+                "training: {} steps a pass that trains, sized to this device by the first pass (a step {:.2} ms, a trace pass {:.1} ms)",
+                f.training_steps, f.step_ms, f.pass_ms
+            );
+        }
     }
 }
 

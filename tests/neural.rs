@@ -8,7 +8,9 @@ use common::Lcg;
 use glam::Vec3;
 use qtrace::guide::mlp::{Adam, MlpShape};
 use qtrace::guide::network::Network;
-use qtrace::guide::neural::{encode, scene_vertices, Encoding, Inference, Target, Training};
+use qtrace::guide::neural::{
+    encode, fitted_steps, scene_vertices, Encoding, Inference, Target, Training,
+};
 use qtrace::guide::{
     Common, DeviceGuide, Distribution, GuideSettings, NeuralGuide, NeuralSettings,
 };
@@ -782,4 +784,59 @@ fn tables_learn_their_share_of_bsdf_sampling() {
     );
     let fixed = neural_bsdf_shares("furnace", false);
     assert!(fixed.iter().all(|&s| s == 0.5), "{fixed:?}");
+}
+
+/// With `steps` unset, the first pass trains one step per 4096 pixels (at
+/// least 4) and measures what a step and a trace pass cost on the device;
+/// the passes after it train as many steps as that fits (`fitted_steps`),
+/// which the stats say. Given steps stay as given.
+#[test]
+fn training_steps_are_sized_by_the_first_pass() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let render = |steps: Option<u32>| {
+        common::render_with(
+            &ctx,
+            &scene,
+            Overrides {
+                method: Some(Method::NEURAL),
+                spp: Some(8),
+                width: Some(48),
+                height: Some(48),
+                seed: Some(3),
+                guide: Some(GuideSettings::from(NeuralSettings { steps, ..small() })),
+                ..Default::default()
+            },
+        )
+    };
+    let steps_run = |out: &qtrace::RenderOutput| {
+        out.stats
+            .gpu_passes
+            .iter()
+            .find(|t| t.name == "mlp training")
+            .map_or(0, |t| t.count)
+    };
+    // Passes 0-4 and 6 of 8 train (`train_thin_after` 4).
+    let out = render(None);
+    if ctx.info().timestamps {
+        let fit = out.stats.guide_fit.clone().expect("a fit with timestamps");
+        assert!((4..=64).contains(&fit.training_steps), "{fit:?}");
+        assert!(fit.step_ms > 0.0 && fit.pass_ms > 0.0, "{fit:?}");
+        assert_eq!(
+            fitted_steps(fit.pass_ms, fit.step_ms, 4),
+            Some(fit.training_steps)
+        );
+        assert_eq!(steps_run(&out), 4 + 5 * fit.training_steps as u64);
+    } else {
+        eprintln!(
+            "skipped the fit's checks: {} has no timestamps",
+            ctx.info().name
+        );
+        assert!(out.stats.guide_fit.is_none());
+    }
+    let pinned = render(Some(3));
+    assert!(pinned.stats.guide_fit.is_none());
+    if ctx.info().timestamps {
+        assert_eq!(steps_run(&pinned), 6 * 3);
+    }
 }

@@ -83,6 +83,22 @@ fn resumed_renders_equal_renders_that_ran_through() {
         // Against an independent render (another seed) of all the samples.
         let other = common::render_with(&ctx, &scene, overrides(method, spp, 2));
         common::assert_same_expectation(&name, &resumed, &other);
+        if method == Method::NEURAL && ctx.info().timestamps {
+            // The training steps the first run's first pass fitted to the
+            // device hold on: passes 32 and 48 train.
+            let fit = resumed
+                .stats
+                .guide_fit
+                .clone()
+                .expect("the first run's fit");
+            let steps = resumed
+                .stats
+                .gpu_passes
+                .iter()
+                .find(|t| t.name == "mlp training")
+                .map_or(0, |t| t.count);
+            assert_eq!(steps, 2 * u64::from(fit.training_steps));
+        }
         if method == Method::PT {
             // The same seed gives the same samples: the very same image.
             let through = common::render_with(&ctx, &scene, overrides(method, spp, 1));

@@ -15,7 +15,7 @@ pub mod volumes;
 pub use neural::{NeuralGuide, NeuralSettings};
 pub use sarsa::{SarsaGuide, SarsaSettings};
 
-use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, Recorder};
+use crate::gpu::{self, Buffer, DeviceInfo, GpuContext, PassTiming, Recorder};
 use crate::scene::Scene;
 use crate::shaders::{self, PassParams};
 use serde::{Deserialize, Serialize};
@@ -570,6 +570,14 @@ pub trait DeviceGuide: AsAny + Any {
     /// Records what turns a learning pass's transitions into the guide the
     /// next pass samples from.
     fn record_update(&mut self, rec: &mut Recorder<'_>, params: &PassParams);
+    /// After a render's first pass, given the GPU time of each pass name
+    /// in it: a guide that sizes its work by what the device measured
+    /// sizes it, and says how.
+    fn fit_to_device(&mut self, _timings: &[PassTiming]) -> Option<DeviceFit> {
+        None
+    }
+    /// A resumed render's fit, as `fit_to_device` made it.
+    fn refit(&mut self, _fit: &DeviceFit) {}
     /// Device memory it holds.
     fn bytes(&self) -> u64;
     /// What the guide has learned, as named blobs, to resume from.
@@ -597,6 +605,17 @@ pub trait DeviceGuide: AsAny + Any {
 
 /// A guide on the device.
 pub type Guide = Box<dyn DeviceGuide>;
+
+/// How a guide sized its work to the device in a render's first pass:
+/// Neural-Q's training steps per pass that trains, from what a step and a
+/// trace pass cost there (`neural::fitted_steps`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceFit {
+    pub training_steps: u32,
+    /// GPU milliseconds of one training step, and of the first trace pass.
+    pub step_ms: f64,
+    pub pass_ms: f64,
+}
 
 impl dyn DeviceGuide {
     /// The guide as its own type, if it is `T`.

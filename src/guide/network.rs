@@ -49,6 +49,13 @@ fn groups(items: u32) -> [u32; 3] {
     [items.div_ceil(shaders::LINEAR_GROUP).max(1), 1, 1]
 }
 
+/// The passes of one training step, as the profiler names them.
+const TRAINING: &str = "mlp training";
+const ROWS_BY_SECTOR: &str = "mlp rows by sector";
+const ADAM_HIDDEN: &str = "mlp Adam step (hidden)";
+const ADAM_OUTPUT: &str = "mlp Adam step (output)";
+pub const STEP_PASSES: [&str; 4] = [TRAINING, ROWS_BY_SECTOR, ADAM_HIDDEN, ADAM_OUTPUT];
+
 impl Network {
     /// A network with parameters `params` (see `MlpShape::init`) and a
     /// training batch of `capacity` rows, each with one target or, `dense`,
@@ -214,7 +221,7 @@ impl Network {
             let push = self.push();
             let push = bytemuck::bytes_of(&push);
             rec.dispatch(Pass {
-                name: "mlp training",
+                name: TRAINING,
                 pipeline: &self.train,
                 set: &self.train_set,
                 push,
@@ -222,7 +229,7 @@ impl Network {
             });
             if self.dense.is_none() {
                 rec.dispatch(Pass {
-                    name: "mlp rows by sector",
+                    name: ROWS_BY_SECTOR,
                     pipeline: &self.bucket,
                     set: &self.bucket_set,
                     push,
@@ -234,7 +241,7 @@ impl Network {
             let layers = self.shape.layers();
             let (output, hidden) = layers.split_last().unwrap();
             rec.dispatch(Pass {
-                name: "mlp Adam step (hidden)",
+                name: ADAM_HIDDEN,
                 pipeline: &self.adam_pass,
                 set: &self.adam_set,
                 push,
@@ -246,7 +253,7 @@ impl Network {
                 None => [self.shape.outputs, 1, 1],
             };
             rec.dispatch(Pass {
-                name: "mlp Adam step (output)",
+                name: ADAM_OUTPUT,
                 pipeline: &self.adam_output,
                 set: &self.adam_output_set,
                 push,

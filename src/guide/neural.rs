@@ -6,12 +6,13 @@
 //! network trains on after the pass.
 
 use super::mlp::{Adam, MlpShape};
-use super::network::Network;
+use super::network::{Network, STEP_PASSES};
 use super::sarsa::{self, SarsaGuide, SarsaSettings};
-use super::{Common, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings};
+use super::{Common, DeviceFit, DeviceGuide, Guide, GuideConfig, GuideEntry, GuideSettings};
 use crate::bench::learned;
 use crate::gpu::{
-    self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, Recorder,
+    self, Buffer, ComputePipeline, DescriptorSet, DeviceInfo, GpuContext, Pass, PassTiming,
+    Recorder,
 };
 use crate::render::RenderError;
 use crate::scene::Scene;
@@ -93,7 +94,8 @@ pub struct NeuralSettings {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub batch: Option<u32>,
     /// Training steps in each pass that trains; None: the training mode's
-    /// default (see [`NeuralSettings::steps`]).
+    /// default, which training on the volumes' means sizes by what a step
+    /// and a pass cost on the device (see [`fitted_steps`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub steps: Option<u32>,
     pub target: Target,
@@ -177,6 +179,37 @@ pub const PIXELS_PER_STEP: u64 = 4096;
 pub const MIN_DEFAULT_STEPS: u64 = 4;
 /// Most training steps a pass may take.
 pub const MAX_STEPS: u32 = 64;
+/// With `steps` unset, training on the volumes' means: the GPU time a pass
+/// that trains spends on its steps, as a share of a trace pass's, measured
+/// on the device in the render's first pass (see [`fitted_steps`]). Half:
+/// on an NVIDIA H200 at 1024×1024 a step costs about a whole pass (0.45 ms
+/// against 0.5-0.8), so it trains 4 steps instead of the image's 64, where
+/// 4 measured better (docs/notebook.md, "On a GPU"); on lavapipe at
+/// 256×256 half a pass holds 0.8 to 4.0 times the image's 16 steps on every
+/// shipped scene, with NEE or without, so they keep 16.
+pub const TRAINING_SHARE: f64 = 0.5;
+/// Training steps per pass that trains on a device where a trace pass takes
+/// `pass_ms` of GPU time and a training step `step_ms`, for a render whose
+/// first pass trained `first` (`NeuralSettings::first_steps`): `first`
+/// where TRAINING_SHARE of the pass holds between an eighth of that and
+/// eight times it, else that share to the nearest power of two within
+/// MIN_DEFAULT_STEPS..=MAX_STEPS; None where the times say nothing (no
+/// timestamps, or too coarse ones). The margin keeps a render reproducible
+/// (one image per seed) where the image's count is near enough: one
+/// measurement swings by a third.
+pub fn fitted_steps(pass_ms: f64, step_ms: f64, first: u32) -> Option<u32> {
+    let fits = |ms: f64| ms.is_finite() && ms > 0.0;
+    if !fits(pass_ms) || !fits(step_ms) {
+        return None;
+    }
+    let steps = TRAINING_SHARE * pass_ms / step_ms;
+    if (0.125..=8.0).contains(&(steps / first as f64)) {
+        return Some(first);
+    }
+    let power = steps.max(1.0).log2().round().min(MAX_STEPS.ilog2() as f64);
+    Some((1u32 << power as u32).clamp(MIN_DEFAULT_STEPS as u32, MAX_STEPS))
+}
+
 /// The default batch's bounds, and the batch of a guide made outside a render.
 pub const MIN_DEFAULT_BATCH: u32 = 256;
 pub const DEFAULT_BATCH: u32 = 4096;
@@ -221,14 +254,33 @@ impl NeuralSettings {
     }
 
     /// Training steps per pass that trains: as given, or the mode's default
-    /// (on the volumes' means, one per PIXELS_PER_STEP pixels in a render,
-    /// 8 outside one). On transitions, one step (training is most of such
-    /// a pass).
+    /// outside a render (on the volumes' means 8, which a render sizes: see
+    /// [`NeuralSettings::first_steps`]). On transitions, one step (training
+    /// is most of such a pass).
     pub fn steps(&self) -> u32 {
         self.steps.unwrap_or(match self.training() {
             Training::Volumes => 8,
             Training::Transitions => 1,
         })
+    }
+
+    /// Training steps of a render of `pixels` pixels until the device's
+    /// costs are measured: as given, or on the volumes' means one per
+    /// PIXELS_PER_STEP pixels (a trace pass on lavapipe costs in proportion
+    /// to its pixels, a step does not).
+    pub fn first_steps(&self, pixels: u64) -> u32 {
+        match (self.steps, self.training()) {
+            (None, Training::Volumes) => {
+                (pixels / PIXELS_PER_STEP).clamp(MIN_DEFAULT_STEPS, MAX_STEPS as u64) as u32
+            }
+            _ => self.steps(),
+        }
+    }
+
+    /// Whether a render sizes the training steps by their measured cost:
+    /// `steps` unset, training on the volumes' means.
+    pub fn fits_steps(&self) -> bool {
+        self.steps.is_none() && self.training() == Training::Volumes
     }
 
     /// Adam's learning rate: as given, or the training mode's default (the
@@ -248,9 +300,9 @@ impl NeuralSettings {
         })
     }
 
-    /// These settings for a `width` × `height` image: the default batch and
-    /// steps, and with inference at the volumes their default count, follow
-    /// the image.
+    /// These settings for a `width` × `height` image: the default batch,
+    /// and with inference at the volumes their default count, follow the
+    /// image (the steps follow the device: see [`fitted_steps`]).
     pub fn for_image(&self, width: u32, height: u32) -> Self {
         let mut s = self.clone();
         let pixels = width as u64 * height as u64;
@@ -263,10 +315,6 @@ impl NeuralSettings {
                     .clamp(MIN_DEFAULT_BATCH as u64, DEFAULT_BATCH as u64)
             };
             s.batch = Some(batch as u32);
-        }
-        if s.steps.is_none() && volumes {
-            let steps = (pixels / PIXELS_PER_STEP).clamp(MIN_DEFAULT_STEPS, MAX_STEPS as u64);
-            s.steps = Some(steps as u32);
         }
         if s.inference == Inference::Volumes {
             s.volumes = s.table().for_image(width, height).volumes;
@@ -466,6 +514,9 @@ fn kernel_bindings<'a>(
     b
 }
 
+/// The pass that draws a training step's rows from the volumes' means.
+const GATHER_FROM_VOLUMES: &str = "mlp gather from volumes";
+
 /// With inference at the volumes: the volumes and their tables, and the
 /// pass that fills Q there from the network.
 struct VolumeTable {
@@ -632,14 +683,14 @@ impl DeviceGuide for NeuralGuide {
             let mut p = *params;
             p.volume_count = t.means.volumes.len() as u32;
             let steps = if self.settings.trains_in_pass(params.pass_index) {
-                self.settings.steps()
+                self.steps
             } else {
                 0
             };
             for step in 0..steps {
                 p.selector = step;
                 rec.dispatch(Pass {
-                    name: "mlp gather from volumes",
+                    name: GATHER_FROM_VOLUMES,
                     pipeline: &t.gather,
                     set: &t.gather_set,
                     push: bytemuck::bytes_of(&p),
@@ -659,9 +710,40 @@ impl DeviceGuide for NeuralGuide {
             push: bytemuck::bytes_of(params),
             groups: [1, 1, 1],
         });
-        self.network.record_training(rec, self.settings.steps());
+        self.network.record_training(rec, self.steps);
         if let Some(t) = &self.table {
             t.record_refresh(rec, params);
+        }
+    }
+
+    fn fit_to_device(&mut self, timings: &[PassTiming]) -> Option<DeviceFit> {
+        if !self.settings.fits_steps() {
+            return None;
+        }
+        let total = |names: &[&str]| -> f64 {
+            timings
+                .iter()
+                .filter(|t| names.contains(&t.name.as_str()))
+                .map(|t| t.total_ms)
+                .sum()
+        };
+        let trace = timings.iter().find(|t| t.name == "trace")?;
+        let pass_ms = trace.total_ms / trace.count.max(1) as f64;
+        let mut step_passes = STEP_PASSES.to_vec();
+        step_passes.push(GATHER_FROM_VOLUMES);
+        let step_ms = total(&step_passes) / self.steps as f64;
+        let fit = DeviceFit {
+            training_steps: fitted_steps(pass_ms, step_ms, self.steps)?,
+            step_ms,
+            pass_ms,
+        };
+        self.refit(&fit);
+        Some(fit)
+    }
+
+    fn refit(&mut self, fit: &DeviceFit) {
+        if self.settings.fits_steps() {
+            self.steps = fit.training_steps;
         }
     }
 
@@ -741,6 +823,9 @@ impl VolumeTable {
 pub struct NeuralGuide {
     pub settings: NeuralSettings,
     pub network: Network,
+    /// Training steps per pass that trains: `settings.first_steps`, then
+    /// as fitted to the device (see [`fitted_steps`]).
+    steps: u32,
     bounds: (Vec3, Vec3),
     /// The scene's vertices, for the vertex encoding (empty otherwise).
     vertices: Vec<Vec3>,
@@ -829,7 +914,7 @@ impl NeuralGuide {
                 let means = t.guide.means_twin(ctx)?;
                 let gather = ComputePipeline::specialized(
                     ctx,
-                    "mlp gather from volumes",
+                    GATHER_FROM_VOLUMES,
                     spirv::MLP_GATHER_TABLE,
                     size_of::<PassParams>() as u32,
                     &network.shape.constants(),
@@ -857,6 +942,7 @@ impl NeuralGuide {
         let guide = Self {
             settings: settings.clone(),
             network,
+            steps: settings.first_steps(pixels),
             bounds: (lo, hi),
             vertices,
             vertex_buffer,
@@ -1032,20 +1118,26 @@ mod tests {
         assert_eq!(at(128, 128), (Some(1024), Some(256), None));
         assert_eq!(at(1024, 1024), (Some(DEFAULT_BATCH), Some(16384), None));
         assert_eq!(at(8, 8).0, Some(MIN_DEFAULT_BATCH));
-        // Training on the volumes' means (the default): fixed rows, steps
-        // per image size.
+        // Training on the volumes' means (the default): fixed rows; steps
+        // left to the device, the first pass's per image size.
         let means = NeuralSettings::default().for_image(256, 256);
-        assert_eq!((means.batch, means.steps), (Some(VOLUME_ROWS), Some(16)));
+        assert_eq!((means.batch, means.steps), (Some(VOLUME_ROWS), None));
+        assert!(means.fits_steps());
+        let first = |w: u64, h: u64| NeuralSettings::default().first_steps(w * h);
+        assert_eq!(first(256, 256), 16);
+        assert_eq!(first(512, 512), 64);
+        assert_eq!(first(128, 128), 4);
+        assert_eq!(first(8, 8), 4);
+        assert_eq!(first(4096, 4096), 64);
+        let pinned = NeuralSettings {
+            steps: Some(3),
+            ..Default::default()
+        };
         assert_eq!(
-            NeuralSettings::default().for_image(512, 512).steps,
-            Some(64)
+            (pinned.first_steps(1 << 20), pinned.fits_steps()),
+            (3, false)
         );
-        assert_eq!(NeuralSettings::default().for_image(128, 128).steps, Some(4));
-        assert_eq!(NeuralSettings::default().for_image(8, 8).steps, Some(4));
-        assert_eq!(
-            NeuralSettings::default().for_image(4096, 4096).steps,
-            Some(64)
-        );
+        assert!(!s.fits_steps());
         // Given values stay; inference at every vertex places no volumes.
         let given = NeuralSettings {
             batch: Some(7),
@@ -1054,6 +1146,30 @@ mod tests {
         };
         assert_eq!(given.for_image(256, 256).batch, Some(7));
         assert_eq!(given.for_image(256, 256).volumes, None);
+    }
+
+    #[test]
+    fn training_steps_follow_what_a_step_and_a_pass_cost() {
+        // A step that costs 1/n of TRAINING_SHARE of a pass.
+        let fit = |n: f64, first| fitted_steps(100.0, 100.0 * TRAINING_SHARE / n, first);
+        // Within a factor 8 of the first pass's steps, those.
+        for n in [2.1, 8.0, 16.0, 30.0, 70.0, 127.0] {
+            assert_eq!(fit(n, 16), Some(16), "{n}");
+        }
+        // Beyond, the share to the nearest power of two.
+        assert_eq!(fit(1.9, 16), Some(4));
+        assert_eq!(fit(130.0, 16), Some(64));
+        assert_eq!(fit(33.0, 4), Some(32));
+        assert_eq!(fit(46.0, 4), Some(64));
+        // Within MIN_DEFAULT_STEPS..=MAX_STEPS: an NVIDIA H200 at
+        // 1024x1024, where a step costs about a pass, and a pass a
+        // thousand steps.
+        assert_eq!(fitted_steps(0.6, 0.45, 64), Some(MIN_DEFAULT_STEPS as u32));
+        assert_eq!(fitted_steps(1e6, 1.0, 4), Some(MAX_STEPS));
+        // Times that say nothing leave the steps as they were.
+        assert_eq!(fitted_steps(0.0, 1.0, 16), None);
+        assert_eq!(fitted_steps(1.0, 0.0, 16), None);
+        assert_eq!(fitted_steps(f64::NAN, 1.0, 16), None);
     }
 
     #[test]

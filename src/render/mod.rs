@@ -893,6 +893,9 @@ impl Renderer {
     pub fn start(&mut self) -> Run {
         let tally = self.resumed.take().unwrap_or_default();
         self.stood_back = tally.stood_back;
+        if let (Some(g), Some(fit)) = (self.guide.as_mut(), &tally.fit) {
+            g.refit(fit);
+        }
         Run {
             tally,
             seconds: 0.0,
@@ -968,6 +971,12 @@ impl Renderer {
         let seconds = self.profiler.last_submit_ms().map_or(wall, |ms| ms * 1e-3);
         for s in &batch {
             tally.add(s, self.guide.is_some());
+        }
+        if done == 0 {
+            // The first pass runs alone: its times are the device's costs.
+            if let Some(g) = self.guide.as_mut() {
+                tally.fit = g.fit_to_device(&self.profiler.timings());
+            }
         }
         if lap.is_some() {
             // The passes left: the budget's, or as many as its time holds.
@@ -1075,6 +1084,7 @@ impl Renderer {
             trace_dispatches: self.trace_dispatches,
             guide_stood_back_after: tally.stood_back,
             guide_races: tally.races.clone(),
+            guide_fit: tally.fit.clone(),
         }
     }
 }
@@ -1097,6 +1107,9 @@ pub(crate) struct Tally {
     /// The races run so far (see [`race`]).
     #[serde(default)]
     races: Vec<RaceRecord>,
+    /// How the guide sized its work to the device after the first pass.
+    #[serde(default)]
+    fit: Option<crate::guide::DeviceFit>,
 }
 
 impl Tally {

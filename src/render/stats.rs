@@ -79,6 +79,10 @@ pub struct RenderStats {
     /// `crate::render::race`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub guide_races: Vec<super::RaceRecord>,
+    /// How the guide sized its work to the device (Neural-Q's training
+    /// steps per pass that trains, from the first pass's costs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide_fit: Option<crate::guide::DeviceFit>,
 }
 
 impl RenderStats {
