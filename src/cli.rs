@@ -292,7 +292,7 @@ fn print_summary(s: &render::RenderStats, profile: bool) {
         eprint!("{}", s.profile_table());
         if let Some(f) = &s.guide_fit {
             eprintln!(
-                "training: {} steps a pass that trains, sized to this device by the first pass (a step {:.2} ms, a trace pass {:.1} ms)",
+                "training: {} steps a pass that trains (measured in the first pass on this device: a step {:.2} ms, a trace pass {:.1} ms)",
                 f.training_steps, f.step_ms, f.pass_ms
             );
         }
