@@ -34,7 +34,7 @@ fn table(i: usize) -> f64 {
 /// The sun's half aperture the model's irradiance is for (degrees 0.5358).
 const SUN_HALF_APERTURE: f64 = PI * (0.5 * 0.5358) / 180.0;
 /// Mitsuba's scale from the sun's spectral radiance to RGB.
-const SPECTRAL_TO_RGB_SUN: f64 = 467.069_280_386;
+const SUN_RADIANCE_TO_RGB: f64 = 467.069_280_386;
 /// Columns of the baked map (rows: half as many, plus one).
 pub const BAKED_WIDTH: usize = 1024;
 
@@ -206,7 +206,7 @@ impl Sunsky {
         // Keeps the sun's irradiance whatever its aperture.
         let area_ratio = one_minus_cos_f32(SUN_HALF_APERTURE as f32) / one_minus_cos_f32(half);
         let sun_radiance = if s.complex_sun {
-            let scale = area_ratio * SPECTRAL_TO_RGB_SUN * CIE_Y_NORMALIZATION;
+            let scale = area_ratio * SUN_RADIANCE_TO_RGB * CIE_Y_NORMALIZATION;
             SunRadiance::Limb(
                 (0..45)
                     .map(|segment| {
@@ -237,7 +237,7 @@ impl Sunsky {
             // and multiplies by the area ratio: together, by this one's.
             SunRadiance::Uniform(
                 rgb / (2.0 * PI * one_minus_cos_f32(half))
-                    * SPECTRAL_TO_RGB_SUN
+                    * SUN_RADIANCE_TO_RGB
                     * CIE_Y_NORMALIZATION,
             )
         };
