@@ -58,6 +58,12 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     ("sarsa_probe", "sarsa_probe_cas", &[]),
     ("guide_build", "guide_build_fixed", &["FIXED_ATOMICS"]),
     ("guide_build", "guide_build", &[]),
+    (
+        "guide_build",
+        "guide_build_wide_fixed",
+        &["FIXED_ATOMICS", "WIDE_UPDATE"],
+    ),
+    ("guide_build", "guide_build_wide", &["WIDE_UPDATE"]),
     // Rows with one target (a transition) or one per sector (a volume).
     ("mlp_train", "mlp_train", &[]),
     ("mlp_train", "mlp_train_dense", &["MLP_DENSE"]),

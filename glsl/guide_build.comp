@@ -12,12 +12,17 @@
 // as an alias table in whole units (see SectorEntry), so a sample costs one
 // read instead of a CDF search. With FLAG_GUIDE_LIGHTS it likewise folds
 // NEE's tries of each light and builds the volume's choice of light.
+//
+// Two variants, the same tables bit for bit. One invocation a volume walks
+// its sectors (lavapipe: its SIMD lanes hold eight volumes). With
+// WIDE_UPDATE, one workgroup a volume (GPUs: one invocation a volume leaves
+// most of the device idle and reads each sector on its own): the lanes read,
+// fold and write the sectors side by side, and lane 0 adds up and sweeps the
+// alias table in workgroup memory, in the order one invocation does.
 
 #include "shared.h"
 #include "atomics.glsl"
 #include "sampling.glsl"
-
-layout(local_size_x = LINEAR_GROUP) in;
 
 layout(push_constant) uniform Push { PassParams params; };
 
@@ -26,6 +31,31 @@ layout(push_constant) uniform Push { PassParams params; };
 // and builds no distribution (lavapipe would run the code of a branch no
 // invocation takes, so it is left out when the pipeline is built).
 layout(constant_id = 0) const bool BUILD_TABLE = true;
+
+#ifdef WIDE_UPDATE
+layout(local_size_x = WIDE_UPDATE_GROUP) in;
+// Entries of the largest table a workgroup builds: max(sectors, lights).
+layout(constant_id = 1) const uint WIDE_ENTRIES = 1u;
+// A sector's visits, Q and NEE's share of it, then its Q cos(theta) (in
+// wide_seen) while the sums are taken; the table's weights and columns
+// while it is built.
+shared float wide_seen[WIDE_ENTRIES];
+shared float wide_q[WIDE_ENTRIES];
+shared float wide_qd[WIDE_ENTRIES];
+shared uint wide_weights[WIDE_ENTRIES];
+shared uint wide_columns[WIDE_ENTRIES];
+shared vec3 wide_means;
+// A table under construction: its entries in workgroup memory from 0.
+#define ENTRY_WEIGHTS(i) wide_weights[i]
+#define ENTRY_COLUMN(i) wide_columns[i]
+#define TABLE_START(row) 0u
+#else
+layout(local_size_x = LINEAR_GROUP) in;
+// A table under construction: in place in the sector tables.
+#define ENTRY_WEIGHTS(i) sectors[i].weights
+#define ENTRY_COLUMN(i) sectors[i].column
+#define TABLE_START(row) (row)
+#endif
 
 #include "grid.glsl"
 
@@ -101,11 +131,11 @@ float bsdf_share(uint v) {
 // The working column of sector k while the table is built: units kept
 // (up to W while a column is tall) and alias.
 uint kept(uint i) {
-    return sectors[i].column & 0xffffu;
+    return ENTRY_COLUMN(i) & 0xffffu;
 }
 
 void set_column(uint i, uint units, uint alias) {
-    sectors[i].column = units | (alias << 16);
+    ENTRY_COLUMN(i) = units | (alias << 16);
 }
 
 // A sector's weight in its volume's distribution, from its Q (at least 0),
@@ -142,12 +172,12 @@ void build_alias(uint base, uint n, float total) {
     for (uint k = 0u; k < n; ++k) {
         uint w = c;
         if (total > 0.0) {
-            running += uintBitsToFloat(sectors[base + k].weights);
+            running += uintBitsToFloat(ENTRY_WEIGHTS(base + k));
             uint end = k + 1u == n ? units : min(uint(running * scale), units);
             w = end - start;
             start = end;
         }
-        sectors[base + k].weights = w;
+        ENTRY_WEIGHTS(base + k) = w;
         set_column(base + k, w, k);
     }
 
@@ -176,9 +206,9 @@ void build_alias(uint base, uint n, float total) {
         short_column = s;
     }
     for (uint k = 0u; k < n; ++k) {
-        uint alias = sectors[base + k].column >> 16;
-        uint w = sectors[base + k].weights & 0xffffu;
-        sectors[base + k].weights = w | ((sectors[base + alias].weights & 0xffffu) << 16);
+        uint alias = ENTRY_COLUMN(base + k) >> 16;
+        uint w = ENTRY_WEIGHTS(base + k) & 0xffffu;
+        ENTRY_WEIGHTS(base + k) = w | ((ENTRY_WEIGHTS(base + alias) & 0xffffu) << 16);
     }
 }
 
@@ -221,6 +251,7 @@ void build_light_choice(uint v, bool learned) {
     }
     bool follows = own && tries >= LIGHT_MIN_TRIES && brought > 0.0;
     uint row = light_row(v);
+    uint table = TABLE_START(row);
     float total = 0.0;
     for (uint l = 0u; l < n; ++l) {
         float w = light_power[l];
@@ -228,11 +259,70 @@ void build_light_choice(uint v, bool learned) {
             w = LIGHT_POWER_SHARE * w + (1.0 - LIGHT_POWER_SHARE) * light_mean[base + l] / brought;
         }
         total += w;
-        sectors[row + l].weights = floatBitsToUint(w);
+        ENTRY_WEIGHTS(table + l) = floatBitsToUint(w);
     }
-    build_alias(row, n, total);
+    build_alias(table, n, total);
+#ifdef WIDE_UPDATE
+    for (uint l = 0u; l < n; ++l) {
+        sectors[row + l] = SectorEntry(wide_weights[l], wide_columns[l]);
+    }
+#endif
 }
 
+// Adds sector k's visits (seen), and its Q and NEE's share weighted by
+// them, to sums (precise: both variants add the same bits in sector order).
+void add_visits(inout vec3 sums, float seen, float q, float qd) {
+    precise vec3 s = sums;
+    s.x += seen;
+    s.y += seen * q;
+    s.z += seen * qd;
+    sums = s;
+}
+
+// Volume v's sums of its sectors' visits, Q and NEE's share (add_visits),
+// as the volume's mean of every target it has had (and of NEE's share),
+// which a sector with few visits of its own leans on (Q_PRIOR_VISITS):
+// (visits, mean Q, mean share).
+vec3 volume_means(vec3 sums) {
+    return vec3(sums.x, sums.y / max(sums.x, 1.0), sums.z / max(sums.x, 1.0));
+}
+
+// Sector k's Q blended with its volume's means (Q_PRIOR_VISITS), at least
+// 0, times cos(theta), and its weight in the distribution.
+vec2 sector_weight(uint base, uint k, vec3 means) {
+    precise float q = q_values[base + k];
+    precise float qd = q_direct[base + k];
+    if (means.x > 0.0) {
+        float seen = float(visits_total[base + k]);
+        float m = float(Q_PRIOR_VISITS);
+        q = (q * seen + m * means.y) / (seen + m);
+        qd = (qd * seen + m * means.z) / (seen + m);
+    }
+    float cos_k = sector_cos(k, grid_a(), grid_b());
+    q = max(q, 0.0);
+    precise float qc = q * cos_k;
+    return vec2(qc, distribution_weight(q, qd, cos_k));
+}
+
+// Adds a sector's Q cos(theta) and weight to sums: (sum, max, total).
+void add_weight(inout vec3 sums, vec2 w) {
+    precise vec3 s = sums;
+    s.x += w.x;
+    s.y = max(s.y, w.x);
+    s.z += w.y;
+    sums = s;
+}
+
+// What the trace kernels read of volume v besides its table: the Sarsa
+// target's sum, (2 pi / n) sum_j Q_j cos(theta_j) (with FLAG_MAX_TARGET,
+// which only Neural-Q sets, max_j Q_j cos(theta_j)), the table's total
+// weight and the share of BSDF sampling.
+void write_volume_sums(uint v, vec3 sums) {
+    bool max_target = EXPERIMENT(FLAG_MAX_TARGET);
+    volume_sums[v] = vec4(max_target ? sums.y : sums.x * 2.0 * PI / float(sector_count()), sums.z, bsdf_share(v), 0.0);
+}
+
+#ifndef WIDE_UPDATE
 void main() {
     uint v = gl_GlobalInvocationID.x;
     bool learned = (params.flags & FLAG_LEARN) != 0u;
@@ -242,55 +332,86 @@ void main() {
     if (v >= params.volume_count) {
         return;
     }
-    uint a = grid_a();
-    uint b = grid_b();
     uint n = sector_count();
     uint base = v * n;
-    float weighted = 0.0;
-    float best = 0.0;
-    float total = 0.0;
-    // The volume's mean of every target it has had (and of NEE's share),
-    // which a sector with few visits of its own leans on (Q_PRIOR_VISITS).
-    float seen_all = 0.0;
-    float q_all = 0.0;
-    float qd_all = 0.0;
+    vec3 sums = vec3(0.0);
     for (uint k = 0u; k < n; ++k) {
         float q = q_values[base + k];
         float qd = q_direct[base + k];
         if (learned) {
             fold(base + k, q, qd);
         }
-        float seen = float(visits_total[base + k]);
-        seen_all += seen;
-        q_all += seen * q;
-        qd_all += seen * qd;
+        add_visits(sums, float(visits_total[base + k]), q, qd);
     }
-    q_all /= max(seen_all, 1.0);
-    qd_all /= max(seen_all, 1.0);
-    // Each sector's weight waits in its table entry for the second sweep.
+    vec3 means = volume_means(sums);
+    // Each sector's weight waits in its table entry for the alias sweep.
+    vec3 weights = vec3(0.0);
     for (uint k = 0u; k < n; ++k) {
-        float q = q_values[base + k];
-        float qd = q_direct[base + k];
-        if (seen_all > 0.0) {
-            float seen = float(visits_total[base + k]);
-            float m = float(Q_PRIOR_VISITS);
-            q = (q * seen + m * q_all) / (seen + m);
-            qd = (qd * seen + m * qd_all) / (seen + m);
-        }
-        float cos_k = sector_cos(k, a, b);
-        q = max(q, 0.0);
-        weighted += q * cos_k;
-        best = max(best, q * cos_k);
-        float w = distribution_weight(q, qd, cos_k);
-        total += w;
+        vec2 w = sector_weight(base, k, means);
+        add_weight(weights, w);
         if (BUILD_TABLE) {
-            sectors[base + k].weights = floatBitsToUint(w);
+            sectors[base + k].weights = floatBitsToUint(w.y);
         }
     }
-    bool max_target = EXPERIMENT(FLAG_MAX_TARGET);
-    volume_sums[v] = vec4(max_target ? best : weighted * 2.0 * PI / float(n), total, bsdf_share(v), 0.0);
-    if (!BUILD_TABLE) {
+    write_volume_sums(v, weights);
+    if (BUILD_TABLE) {
+        build_alias(base, n, weights.z);
+    }
+}
+#else
+void main() {
+    // Workgroups past the device's largest x count go on in y.
+    uint v = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    uint lane = gl_LocalInvocationID.x;
+    bool learned = (params.flags & FLAG_LEARN) != 0u;
+    if (lane == 0u && (params.flags & FLAG_GUIDE_LIGHTS) != 0u && v <= params.volume_count) {
+        build_light_choice(v, learned);
+    }
+    // The same for the whole workgroup, so no lane misses a barrier.
+    if (v >= params.volume_count) {
         return;
     }
-    build_alias(base, n, total);
+    uint n = sector_count();
+    uint base = v * n;
+    for (uint k = lane; k < n; k += WIDE_UPDATE_GROUP) {
+        float q = q_values[base + k];
+        float qd = q_direct[base + k];
+        if (learned) {
+            fold(base + k, q, qd);
+        }
+        wide_seen[k] = float(visits_total[base + k]);
+        wide_q[k] = q;
+        wide_qd[k] = qd;
+    }
+    barrier();
+    if (lane == 0u) {
+        vec3 sums = vec3(0.0);
+        for (uint k = 0u; k < n; ++k) {
+            add_visits(sums, wide_seen[k], wide_q[k], wide_qd[k]);
+        }
+        wide_means = volume_means(sums);
+    }
+    barrier();
+    vec3 means = wide_means;
+    for (uint k = lane; k < n; k += WIDE_UPDATE_GROUP) {
+        vec2 w = sector_weight(base, k, means);
+        wide_seen[k] = w.x;
+        wide_weights[k] = floatBitsToUint(w.y);
+    }
+    barrier();
+    if (lane == 0u) {
+        vec3 weights = vec3(0.0);
+        for (uint k = 0u; k < n; ++k) {
+            add_weight(weights, vec2(wide_seen[k], uintBitsToFloat(wide_weights[k])));
+        }
+        write_volume_sums(v, weights);
+        if (BUILD_TABLE) {
+            build_alias(0u, n, weights.z);
+        }
+    }
+    barrier();
+    for (uint k = lane; BUILD_TABLE && k < n; k += WIDE_UPDATE_GROUP) {
+        sectors[base + k] = SectorEntry(wide_weights[k], wide_columns[k]);
+    }
 }
+#endif

@@ -24,6 +24,9 @@
 #define TILE_X 8
 #define TILE_Y 8
 #define LINEAR_GROUP 64
+// Invocations of the guide update's workgroup a volume (guide_build.comp's
+// WIDE_UPDATE): 144 sectors in three rounds.
+#define WIDE_UPDATE_GROUP 64
 // Invocations per workgroup of every kernel that runs the Neural-Q network
 // (the trace tile and LINEAR_GROUP; src/shaders.rs checks): each keeps its
 // vectors in workgroup memory.

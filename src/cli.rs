@@ -296,6 +296,16 @@ fn print_summary(s: &render::RenderStats, profile: bool) {
                 f.training_steps, f.step_ms, f.pass_ms
             );
         }
+        if let Some(u) = s.guide_update {
+            eprintln!(
+                "guide update: one {} a volume",
+                if u == crate::guide::Update::Workgroup {
+                    "workgroup"
+                } else {
+                    "invocation"
+                }
+            );
+        }
     }
 }
 

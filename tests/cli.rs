@@ -417,6 +417,8 @@ fn sarsa_render_reports_its_guide() {
             "sarsa.grid=[6, 6]",
             "--set",
             "sarsa.atomics=cas",
+            "--set",
+            "sarsa.update=workgroup",
             "--validation",
             "-o",
         ])
@@ -432,6 +434,7 @@ fn sarsa_render_reports_its_guide() {
     assert!(stats["guide_bytes"].as_u64().unwrap() > 64 * 36 * 4);
     assert!(stats["passes"][0]["loss"].as_f64().is_some());
     assert!(stats["gpu_ms"]["guide update"].as_f64().is_some());
+    assert_eq!(stats["guide_update"], "workgroup");
 }
 
 #[test]
@@ -486,6 +489,22 @@ fn bad_sarsa_options() {
         &["--method", "sarsa", "--set", "sarsa.volumes=4000000"],
         &[],
         &["fewer volumes"],
+    );
+    // 4096 sectors take 80 KiB of a workgroup's memory: more than any
+    // device lends (Vulkan asks for at least 16 KiB, lavapipe has 32).
+    expect_error(
+        &dir,
+        &scene,
+        &[
+            "--method",
+            "sarsa",
+            "--set",
+            "sarsa.grid=[64, 64]",
+            "--set",
+            "sarsa.update=workgroup",
+        ],
+        &[],
+        &["[sarsa] update = \"workgroup\"", "KiB of workgroup memory"],
     );
 }
 

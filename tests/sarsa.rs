@@ -10,7 +10,7 @@ use qtrace::bsdf::{Bsdf, Sampling, Surface};
 use qtrace::guide::lookup::VolumeLookup;
 use qtrace::guide::sarsa::{self, Atomics, SarsaSettings};
 use qtrace::guide::{volumes, SarsaGuide};
-use qtrace::guide::{Common, GuideSettings};
+use qtrace::guide::{Common, GuideSettings, Update};
 use qtrace::render::probe::{self, SurfacePoint, Transition};
 use qtrace::render::{Method, Overrides, RenderStats};
 use qtrace::sampling;
@@ -339,7 +339,7 @@ fn cpu_update(
     targets
 }
 
-fn check_update(atomics: Atomics) {
+fn check_update(atomics: Atomics, update: Update) {
     let ctx = common::gpu();
     if atomics == Atomics::Fixed && !ctx.info().int64_atomics {
         eprintln!(
@@ -360,6 +360,7 @@ fn check_update(atomics: Atomics) {
         volumes: Some(6),
         common: Common {
             grid: [4, 3],
+            update,
             ..Default::default()
         },
         atomics,
@@ -442,17 +443,90 @@ fn check_update(atomics: Atomics) {
 
 #[test]
 fn gpu_sarsa_update_equals_cpu_reference_with_float_atomics() {
-    check_update(Atomics::Float);
+    check_update(Atomics::Float, Update::Auto);
 }
 
 #[test]
 fn gpu_sarsa_update_equals_cpu_reference_with_cas_fallback() {
-    check_update(Atomics::Cas);
+    check_update(Atomics::Cas, Update::Auto);
 }
 
 #[test]
 fn gpu_sarsa_update_equals_cpu_reference_in_fixed_point() {
-    check_update(Atomics::Fixed);
+    check_update(Atomics::Fixed, Update::Invocation);
+}
+
+#[test]
+fn gpu_sarsa_update_by_workgroup_equals_cpu_reference() {
+    check_update(Atomics::Fixed, Update::Workgroup);
+    check_update(Atomics::Cas, Update::Workgroup);
+}
+
+/// The update's two layouts build the same tables, bit for bit: renders
+/// that learn in every pass give the same image and losses with either,
+/// for Sarsa picking NEE's light among more lights than sectors (the
+/// workgroup's light row the larger table) and a grid of more sectors than
+/// the workgroup's lanes, and for Neural-Q's table of running means.
+#[test]
+fn guide_update_by_workgroup_matches_by_invocation() {
+    let ctx = common::gpu();
+    let render = |scene: &str, guide: GuideSettings, nee: bool| {
+        let out = common::render_with(
+            &ctx,
+            &common::scene(scene),
+            Overrides {
+                method: Some(Method::named(guide.name()).unwrap()),
+                nee,
+                spp: Some(12),
+                width: Some(48),
+                height: Some(48),
+                guide: Some(guide),
+                ..Default::default()
+            },
+        );
+        let losses: Vec<f64> = out
+            .stats
+            .passes
+            .iter()
+            .map(|p| p.loss.unwrap_or(0.0))
+            .collect();
+        (out.image, losses)
+    };
+    let common = |grid, update| Common {
+        grid,
+        thin_after: Some(0),
+        update,
+        ..Default::default()
+    };
+    for (scene, grid, nee) in [
+        ("several-lights", [2, 1], true),
+        ("glossy-room", [9, 11], false),
+    ] {
+        let (a, la) = render(
+            scene,
+            sarsa_with(common(grid, Update::Invocation), None),
+            nee,
+        );
+        let (b, lb) = render(
+            scene,
+            sarsa_with(common(grid, Update::Workgroup), None),
+            nee,
+        );
+        assert!(la.iter().any(|&l| l > 0.0), "{scene}: nothing learned");
+        assert_eq!(la, lb, "{scene}: the passes' losses differ");
+        assert!(a.pixels == b.pixels, "{scene}: the images differ");
+    }
+    let neural = |update| {
+        GuideSettings::from(qtrace::guide::NeuralSettings {
+            common: common([12, 12], update),
+            ..Default::default()
+        })
+    };
+    let (a, la) = render("several-lights", neural(Update::Invocation), true);
+    let (b, lb) = render("several-lights", neural(Update::Workgroup), true);
+    assert_eq!(la, lb, "neural: the passes' losses differ");
+    assert!(a.pixels == b.pixels, "neural: the images differ");
+    common::assert_no_validation_errors(&ctx);
 }
 
 fn unbiased(scene_name: &str, nee: bool, atomics: Atomics, spp: u32, reset_after: Option<u32>) {

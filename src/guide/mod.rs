@@ -34,6 +34,44 @@ pub enum Distribution {
     Qcos,
 }
 
+/// How the guide update between passes spreads its work over the device.
+/// The tables come out the same, bit for bit; only the speed differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Update {
+    /// `workgroup` on a GPU, `invocation` on a CPU device (and where a
+    /// table does not fit a workgroup's memory).
+    #[default]
+    Auto,
+    /// One invocation a volume walks its sectors: lavapipe's SIMD lanes
+    /// hold eight volumes, where a workgroup's lane 0 would run alone.
+    Invocation,
+    /// One workgroup a volume, its lanes reading and writing the sectors
+    /// side by side: one invocation a volume leaves most of a GPU idle.
+    Workgroup,
+}
+
+/// Workgroup memory of the update's workgroup a volume, for tables of up
+/// to `entries` entries (guide_build.comp, WIDE_UPDATE): five words an
+/// entry and the volume's means.
+pub fn workgroup_update_bytes(entries: u32) -> u32 {
+    20 * entries + 16
+}
+
+/// Whether `update` runs a workgroup a volume on a device (`cpu` or not,
+/// with `shared` bytes of workgroup memory) for tables of up to `entries`
+/// entries; `Err` with the bytes needed where `Workgroup` does not fit.
+fn wide_update(update: Update, cpu: bool, shared: u32, entries: u32) -> Result<bool, u32> {
+    let bytes = workgroup_update_bytes(entries);
+    let fits = bytes <= shared;
+    match update {
+        Update::Invocation => Ok(false),
+        Update::Workgroup if !fits => Err(bytes),
+        Update::Workgroup => Ok(true),
+        Update::Auto => Ok(fits && !cpu),
+    }
+}
+
 /// Default share of BSDF sampling where it stays fixed. Measured: 0.5 halved
 /// the error of 0.3 on the door-ajar scene (fewer fireflies: the weight per
 /// bounce is at most albedo / epsilon) and beat it on the Cornell box and the
@@ -87,6 +125,8 @@ pub struct Common {
     /// (see `sarsa::guided_light_power`). None: true.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pick_lights: Option<bool>,
+    /// How the update between passes runs on the device (see [`Update`]).
+    pub update: Update,
 }
 
 impl Default for Common {
@@ -102,6 +142,7 @@ impl Default for Common {
             initial_q: 1e-2,
             stand_back: None,
             pick_lights: None,
+            update: Update::Auto,
         }
     }
 }
@@ -127,6 +168,21 @@ impl Common {
         }
         experiment(self.reset_after.is_some(), "reset_after")?;
         experiment(self.distribution == Distribution::Q, "distribution = \"q\"")
+    }
+
+    /// Whether the update runs a workgroup a volume on `device`, for tables
+    /// of up to `entries` entries; an error where `update = "workgroup"`
+    /// asks for more workgroup memory than the device has.
+    pub fn wide_update(&self, device: &DeviceInfo, entries: u32) -> Result<bool, String> {
+        let cpu = device.kind == "CPU";
+        wide_update(self.update, cpu, device.max_shared_memory, entries).map_err(|bytes| {
+            format!(
+                "update = \"workgroup\": a table of {entries} entries needs {} KiB of workgroup memory; device '{}' has {} KiB: use a smaller grid or update = \"invocation\"",
+                bytes.div_ceil(1024),
+                device.name,
+                device.max_shared_memory / 1024
+            )
+        })
     }
 
     /// Whether volumes learn which light NEE picks, where there are several.
@@ -712,6 +768,20 @@ mod tests {
     }
 
     #[test]
+    fn the_update_runs_a_workgroup_a_volume_on_gpus_where_it_fits() {
+        // 144 sectors take 2,896 bytes; 4096 take 81,936.
+        assert_eq!(wide_update(Update::Auto, false, 49152, 144), Ok(true));
+        assert_eq!(wide_update(Update::Auto, true, 32768, 144), Ok(false));
+        assert_eq!(wide_update(Update::Auto, false, 49152, 4096), Ok(false));
+        assert_eq!(wide_update(Update::Workgroup, true, 32768, 144), Ok(true));
+        assert_eq!(
+            wide_update(Update::Workgroup, false, 49152, 4096),
+            Err(81936)
+        );
+        assert_eq!(wide_update(Update::Invocation, false, 49152, 16), Ok(false));
+    }
+
+    #[test]
     fn settings_round_trip_through_their_tables() {
         let sarsa = GuideSettings::from(SarsaSettings {
             common: Common {
@@ -724,6 +794,7 @@ mod tests {
                 initial_q: 0.5,
                 stand_back: Some(false),
                 pick_lights: Some(false),
+                update: Update::Workgroup,
             },
             volumes: Some(77),
             density: None,

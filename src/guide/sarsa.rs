@@ -201,10 +201,11 @@ impl SarsaSettings {
         device: &DeviceInfo,
         guide: &str,
     ) -> Result<(), String> {
-        let count = self.volume_count(
-            volumes::placement_area(scene),
-            guided_light_power(scene).len() as u32,
-        );
+        let lights = guided_light_power(scene).len() as u32;
+        let count = self.volume_count(volumes::placement_area(scene), lights);
+        self.common
+            .wide_update(device, self.sectors().max(lights))
+            .map_err(|e| format!("[{guide}] {e}"))?;
         // The largest per-sector buffer is the alias table.
         let bytes = count as u64 * self.sectors() as u64 * size_of::<SectorEntry>() as u64;
         let limit = device.max_storage_buffer_range;
@@ -491,6 +492,10 @@ pub struct SarsaGuide {
     lookup_items: Buffer,
     build: ComputePipeline,
     build_set: DescriptorSet,
+    /// Whether the update runs a workgroup a volume, and the most
+    /// workgroups the device takes along x.
+    wide: bool,
+    max_groups_x: u32,
 }
 
 impl SarsaGuide {
@@ -605,17 +610,40 @@ impl SarsaGuide {
             Buffer::gpu_only_with(ctx, "volume lookup triangles", &lookup.triangles)?;
         let lookup_cells = Buffer::gpu_only_with(ctx, "volume lookup cells", &lookup.cells)?;
         let lookup_items = Buffer::gpu_only_with(ctx, "volume lookup lists", &items)?;
-        // The tallies' type decides the variant.
+        // The tallies' type and the update's width decide the variant.
+        let entries = settings.sectors().max(lights);
+        let wide = settings
+            .common
+            .wide_update(ctx.info(), entries)
+            .map_err(|_| gpu::Error::MissingFeature {
+                device: ctx.info().name.clone(),
+                feature: format!(
+                    "the workgroup memory a table of {entries} entries needs with update = \"workgroup\""
+                ),
+            })?;
         let build_spirv = settings.pick(
             ctx.info(),
-            [
-                spirv::GUIDE_BUILD_FIXED,
-                spirv::GUIDE_BUILD,
-                spirv::GUIDE_BUILD,
-            ],
+            if wide {
+                [
+                    spirv::GUIDE_BUILD_WIDE_FIXED,
+                    spirv::GUIDE_BUILD_WIDE,
+                    spirv::GUIDE_BUILD_WIDE,
+                ]
+            } else {
+                [
+                    spirv::GUIDE_BUILD_FIXED,
+                    spirv::GUIDE_BUILD,
+                    spirv::GUIDE_BUILD,
+                ]
+            },
         )?;
-        let build =
-            ComputePipeline::specialized(ctx, "guide update", build_spirv, push, &[table as u32])?;
+        let build = ComputePipeline::specialized(
+            ctx,
+            "guide update",
+            build_spirv,
+            push,
+            &[table as u32, entries],
+        )?;
         let bindings = [
             (shaders::B_Q, &q),
             (shaders::B_SECTORS, &sectors),
@@ -659,6 +687,8 @@ impl SarsaGuide {
             lookup_items,
             build,
             build_set,
+            wide,
+            max_groups_x: ctx.info().max_workgroup_count[0],
         };
         let mut params = PassParams::default();
         guide.set_params(&mut params, false);
@@ -752,6 +782,15 @@ impl SarsaGuide {
         }
     }
 
+    /// How its update runs: `Invocation` or `Workgroup` (a volume each).
+    pub fn update_layout(&self) -> super::Update {
+        if self.wide {
+            super::Update::Workgroup
+        } else {
+            super::Update::Invocation
+        }
+    }
+
     /// Whether the guide picks NEE's light.
     pub fn chooses_lights(&self) -> bool {
         self.lights > 0
@@ -760,17 +799,21 @@ impl SarsaGuide {
     /// Records the guide update: with FLAG_LEARN in `push`, the pass's
     /// targets folded into Q; then every volume's distribution rebuilt.
     fn record_build(&self, rec: &mut Recorder<'_>, push: &[u8]) {
+        // One more for the lights' row by power alone.
+        let rows = self.volumes.len() as u32 + 1;
+        let groups = if self.wide {
+            // A workgroup a row, going on in y past the largest x count.
+            let x = rows.min(self.max_groups_x);
+            [x, rows.div_ceil(x), 1]
+        } else {
+            [rows.div_ceil(shaders::LINEAR_GROUP), 1, 1]
+        };
         rec.dispatch(Pass {
             name: "guide update",
             pipeline: &self.build,
             set: &self.build_set,
             push,
-            // One more for the lights' row by power alone.
-            groups: [
-                (self.volumes.len() as u32 + 1).div_ceil(shaders::LINEAR_GROUP),
-                1,
-                1,
-            ],
+            groups,
         });
     }
 

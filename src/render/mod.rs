@@ -1085,6 +1085,11 @@ impl Renderer {
             guide_stood_back_after: tally.stood_back,
             guide_races: tally.races.clone(),
             guide_fit: tally.fit.clone(),
+            guide_update: self
+                .guide
+                .as_ref()
+                .and_then(|g| g.volume_table())
+                .map(|t| t.update_layout()),
         }
     }
 }

@@ -83,6 +83,10 @@ pub struct RenderStats {
     /// steps per pass that trains, from the first pass's costs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub guide_fit: Option<crate::guide::DeviceFit>,
+    /// How the guide update between passes ran: `invocation` (one a
+    /// volume) or `workgroup` (one a volume).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide_update: Option<crate::guide::Update>,
 }
 
 impl RenderStats {
