@@ -583,6 +583,47 @@ fn principled_weights_given_as_colours_read_as_their_mean() {
     assert_eq!(format!("{colours:?}"), format!("{numbers:?}"));
 }
 
+/// Mitsuba takes a colour or a spectrum wherever it takes a texture, and
+/// reads a number from it (a rough BSDF's alphas, a mask's opacity, a
+/// blend's weight) by the mean of its channels: its `eval` and `pdf` with
+/// `<rgb name="alpha" value="0.1, 0.2, 0.6"/>` or `<spectrum name="alpha"
+/// value="0.3"/>` equal those with `<float ... value="0.3"/>` (3.9.1,
+/// 2026-12-06). qtrace reads them so, where it refused them before.
+#[test]
+fn numbers_given_as_colours_read_as_their_mean() {
+    let looks = |body: &str| -> Vec<String> {
+        let scene = load_text(&with_body(body)).unwrap_or_else(|e| panic!("{body}: {e}"));
+        scene
+            .materials
+            .iter()
+            .map(|m| format!("{:?} {:?}", m.surface, m.choice))
+            .collect()
+    };
+    let inner = "<bsdf type=\"diffuse\"/><bsdf type=\"roughconductor\"/>";
+    for (kind, value, rest) in [
+        ("roughconductor", "alpha", ""),
+        ("roughdielectric", "alpha", ""),
+        (
+            "roughconductor",
+            "alpha_u",
+            "<float name=\"alpha_v\" value=\"0.05\"/>",
+        ),
+        ("mask", "opacity", "<bsdf type=\"diffuse\"/>"),
+        ("blendbsdf", "weight", inner),
+    ] {
+        let shape = |given: &str| {
+            format!("<shape type=\"cube\"><bsdf type=\"{kind}\">{given}{rest}</bsdf></shape>")
+        };
+        let number = looks(&shape(&format!("<float name=\"{value}\" value=\"0.5\"/>")));
+        for colour in [
+            format!("<rgb name=\"{value}\" value=\"0.25, 0.5, 0.75\"/>"),
+            format!("<spectrum name=\"{value}\" value=\"0.5\"/>"),
+        ] {
+            assert_eq!(looks(&shape(&colour)), number, "{kind} {colour}");
+        }
+    }
+}
+
 /// A BSDF nested in another (twosided, mask, blendbsdf) may be a `<ref>` to
 /// one defined at the top level, and `<alias>` gives an object a second
 /// id, as in Mitsuba.

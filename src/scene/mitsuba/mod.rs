@@ -1568,14 +1568,16 @@ fn roughness(el: &Element, p: &Props) -> Result<(f32, Option<f32>, Distribution)
     // Sampling visible normals or all of them changes noise only.
     p.ignore("sample_visible");
     // A roughness given as a texture (roughconductor's) takes the
-    // texture's mean here (Surface::with_means); 0.1 holds its place.
+    // texture's mean here (Surface::with_means); 0.1 holds its place. A
+    // colour or spectrum is a texture to Mitsuba, which reads a roughness
+    // from it as the mean of its channels.
     let textured = |name: &str| {
         el.children
             .iter()
             .any(|c| (c.tag == "texture" || c.tag == "ref") && c.attr("name") == Some(name))
     };
     let value = |name: &str| -> Result<Option<f32>, SceneError> {
-        Ok(p.float(name)?.or(textured(name).then_some(0.1)))
+        Ok(p.mean_number(name)?.or(textured(name).then_some(0.1)))
     };
     let (u, v) = (value("alpha_u")?, value("alpha_v")?);
     let (a, across) = match (value("alpha")?, u, v) {
@@ -1828,7 +1830,7 @@ fn bsdf(
             let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
             let weight = match given[slot].take() {
                 Some((t, _)) => Weight::Texture(t),
-                None => Weight::Constant(p.float(param)?.unwrap_or(default).clamp(0.0, 1.0)),
+                None => Weight::Constant(p.mean_number(param)?.unwrap_or(default).clamp(0.0, 1.0)),
             };
             let inner = p.nested("bsdf");
             match (kind, &inner[..]) {
