@@ -108,11 +108,12 @@ Bsdf bsdf_of(Material m, bool front) {
         return black ? bsdf_diffuse(vec3(0.0)) : principled_bsdf(m, front, color, p, m.eta.x);
     }
     // A rough conductor's or rough glass's alpha across its tangent, where
-    // anisotropic, in k.w.
+    // anisotropic, in k.w (rough glass's texture there is below 0:
+    // bsdf_textured reads it).
     bool across = (MATERIAL_FEATURES & FEATURE_ANISOTROPIC) != 0u && alpha > 0.0 &&
                   (kind == MATERIAL_CONDUCTOR || kind == MATERIAL_DIELECTRIC) && m.k.w > 0.0;
     return Bsdf(kind, color, alpha, eta, code & (MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR),
-                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(m.k.w),
+                kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? specular : m.eta.rgb, m.k.rgb, uint(max(m.k.w, 0.0)),
                 across ? max(m.k.w, MIN_ALPHA) : alpha, vec2(1.0, 0.0));
 }
 

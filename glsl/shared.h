@@ -426,6 +426,9 @@ struct Material {
 #define TEXTURE_SLOT_COLOR 0
 #define TEXTURE_SLOT_SECOND 1
 #define TEXTURE_SLOT_ALPHA 2
+// Rough glass's alpha across its tangent: not among eta.w's bits but in its
+// k.w (which holds that alpha where it is a number), as -(1 + index).
+#define TEXTURE_SLOT_ACROSS 3
 #define TEXTURE_HEADER_WORDS 3
 #define TEXTURE_TABLE_WORDS 64
 #define TEXTURE_FLOATS 0

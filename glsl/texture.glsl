@@ -145,8 +145,9 @@ uint texture_slot(Material m, uint s) {
 // The BSDF of material m (bsdf_of's) with its textures looked up at
 // barycentric coordinates b of triangle i, (u, v) uv there: they
 // replace its colour, its second colour (a rough conductor's: its alpha
-// across its tangent) and its alpha (a principled material's: metallic and
-// roughness). A one-sided material's back stays black.
+// across its tangent), its alpha (a principled material's: metallic and
+// roughness) and rough glass's alpha across its tangent
+// (TEXTURE_SLOT_ACROSS, in k.w). A one-sided material's back stays black.
 Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
     if (!scene_textured() || ((uint(m.color.w) & MATERIAL_ONE_SIDED) != 0u && !front)) {
         return bsdf;
@@ -181,6 +182,9 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
     if (alpha != 0u) {
         bsdf.alpha = max(luminance(texture_at(alpha - 1u, i, b, uv)), MIN_ALPHA);
         bsdf.alpha_v = isotropic && !(conductor && second != 0u) ? bsdf.alpha : bsdf.alpha_v;
+    }
+    if (bsdf_is(bsdf, MATERIAL_DIELECTRIC) && m.k.w < 0.0) {
+        bsdf.alpha_v = max(luminance(texture_at(uint(-m.k.w) - 1u, i, b, uv)), MIN_ALPHA);
     }
     return bsdf;
 }

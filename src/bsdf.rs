@@ -352,9 +352,16 @@ impl Surface {
     }
 
     /// The surface with textures' means in place of its colour, second
-    /// colour and alpha (see [`Bsdf::textured`]): what a textured
-    /// material's lobe weights and the guides' host-side estimates use.
-    pub fn with_means(mut self, color: Option<Vec3>, second: Option<Vec3>, a: Option<f32>) -> Self {
+    /// colour, alpha and rough glass's alpha across its tangent (see
+    /// [`Bsdf::textured`]): what a textured material's lobe weights and the
+    /// guides' host-side estimates use.
+    pub fn with_means(
+        mut self,
+        color: Option<Vec3>,
+        second: Option<Vec3>,
+        a: Option<f32>,
+        across: Option<f32>,
+    ) -> Self {
         match &mut self {
             Surface::Diffuse { albedo } => *albedo = color.unwrap_or(*albedo),
             // A rough conductor's second texture is its alpha across its
@@ -391,11 +398,13 @@ impl Surface {
                 reflectance,
                 transmittance,
                 alpha,
+                alpha_v,
                 ..
             } => {
                 *transmittance = color.unwrap_or(*transmittance);
                 *reflectance = second.unwrap_or(*reflectance);
                 *alpha = a.unwrap_or(*alpha);
+                *alpha_v = across.or(*alpha_v);
             }
             Surface::Plastic {
                 diffuse, specular, ..
@@ -903,14 +912,15 @@ impl Bsdf {
     }
 
     /// The BSDF with a texture's values in place of its colour, its second
-    /// colour (a plastic's specular, a sheet's or rough glass's reflection)
-    /// and its alpha (the CPU twin of `bsdf_textured` in
-    /// glsl/texture.glsl).
+    /// colour (a plastic's specular, a sheet's or rough glass's reflection),
+    /// its alpha and rough glass's alpha across its tangent (the CPU twin of
+    /// `bsdf_textured` in glsl/texture.glsl).
     pub fn textured(
         mut self,
         color: Option<Vec3>,
         second: Option<Vec3>,
         alpha: Option<f32>,
+        across: Option<f32>,
     ) -> Self {
         if let Some(c) = color {
             self.color = c;
@@ -935,15 +945,20 @@ impl Bsdf {
         } = &mut self.lobe
         {
             let isotropic = *alpha_v == *a;
-            let across = second.filter(|_| conductor);
-            if let Some(s) = across {
+            let conductor_across = second.filter(|_| conductor);
+            if let Some(s) = conductor_across {
                 *alpha_v = luminance(s).max(MIN_ALPHA);
             }
             if let Some(t) = alpha {
                 *a = t.max(MIN_ALPHA);
-                if isotropic && across.is_none() {
+                if isotropic && conductor_across.is_none() {
                     *alpha_v = *a;
                 }
+            }
+        }
+        if let Lobe::RoughDielectric { alpha_v, .. } = &mut self.lobe {
+            if let Some(t) = across {
+                *alpha_v = t.max(MIN_ALPHA);
             }
         }
         self
@@ -967,6 +982,16 @@ impl Bsdf {
             Lobe::Conductor { alpha, .. }
             | Lobe::RoughDielectric { alpha, .. }
             | Lobe::RoughPlastic { alpha, .. } => Some(alpha),
+            _ => None,
+        }
+    }
+
+    /// A rough conductor's or rough glass's alpha across its tangent (its
+    /// alpha where isotropic), for probes.
+    pub fn alpha_across(&self) -> Option<f32> {
+        match self.lobe {
+            Lobe::Conductor { alpha, alpha_v, .. } if alpha > 0.0 => Some(alpha_v),
+            Lobe::RoughDielectric { alpha_v, .. } => Some(alpha_v),
             _ => None,
         }
     }

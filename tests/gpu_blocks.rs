@@ -350,7 +350,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                     emission: Vec3::ZERO,
                     // Mitsuba's BSDFs outside `twosided` are black from behind.
                     one_sided: rng.next() < 0.25,
-                    textures: [None; 3],
+                    textures: [None; 4],
                     normal_map: None,
                     choice: None,
                 },
@@ -504,6 +504,14 @@ fn gpu_textures_match_their_cpu_twin() {
             alpha_v: None,
             distribution: Distribution::Ggx,
         },
+        Surface::RoughDielectric {
+            ior: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+            alpha: 0.3,
+            alpha_v: Some(0.05),
+            distribution: Distribution::Beckmann,
+        },
     ];
     let mut queries = Vec::new();
     for _ in 0..400 {
@@ -512,9 +520,13 @@ fn gpu_textures_match_their_cpu_twin() {
             let t = (rng.next() * 7.0) as u32;
             (t < textures.len() as u32).then_some(t)
         };
-        let mut slots = [pick(), pick(), pick()];
+        let mut slots = [pick(), pick(), pick(), pick()];
         if surface.kind() == qtrace::shaders::MATERIAL_PLASTIC {
             slots[2] = None;
+        }
+        // Only rough glass has an alpha across its tangent of its own.
+        if !matches!(surface, Surface::RoughDielectric { .. }) {
+            slots[3] = None;
         }
         queries.push(probe::TextureQuery {
             material: Material {
@@ -533,7 +545,8 @@ fn gpu_textures_match_their_cpu_twin() {
     let gpu = probe::texture_lookups(&ctx, &scene, &textures, &queries).unwrap();
     common::assert_no_validation_errors(&ctx);
     let mut textured = 0;
-    for (q, (color, second, alpha)) in queries.iter().zip(gpu) {
+    let mut across = 0;
+    for (q, (color, second, alpha, alpha_v)) in queries.iter().zip(gpu) {
         let cpu = q
             .material
             .bsdf_at(q.front, q.uv, &textures, Sampling::Cosine);
@@ -557,9 +570,20 @@ fn gpu_textures_match_their_cpu_twin() {
                 "{what}: alpha {alpha} vs CPU {a}"
             );
         }
+        // (A one-sided material's black back is not textured; rough glass
+        // whose alpha across holds a texture has no number there.)
+        let lit = q.front || !q.material.one_sided;
+        if let Some(a) = cpu.alpha_across().filter(|_| lit) {
+            assert!(
+                (alpha_v - a).abs() <= 1e-5,
+                "{what}: alpha across {alpha_v} vs CPU {a}"
+            );
+        }
+        across += usize::from(q.material.textures[3].is_some() && lit);
         textured += usize::from(q.material.textured() && (q.front || !q.material.one_sided));
     }
     assert!(textured > 200, "only {textured} textured lookups");
+    assert!(across > 20, "only {across} textured alphas across");
 }
 
 /// The GPU's environment (glsl/environment.glsl) against the CPU twin:

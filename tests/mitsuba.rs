@@ -1429,6 +1429,22 @@ fn anisotropic_roughness_agrees_with_mitsuba() {
 }
 
 #[test]
+fn textured_anisotropic_rough_glass_agrees_with_mitsuba() {
+    // Rough glass whose alpha_u and alpha_v are both textures, and whose
+    // alpha_v alone is; a rough metal's alpha given as a colour and a
+    // mask's opacity as a spectrum.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-u.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-u",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn mesh_attributes_agree_with_mitsuba() {
     // PLY vertex and face colours and one-channel attributes in diffuse,
     // principled, rough metal (scaled) and a blend's weight, through a

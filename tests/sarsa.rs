@@ -247,7 +247,7 @@ fn guided_sampler_matches_its_pdf() {
             surface,
             emission: Vec3::ZERO,
             one_sided: false,
-            textures: [None; 3],
+            textures: [None; 4],
             normal_map: None,
             choice: None,
         };

@@ -58,9 +58,10 @@ pub struct Material {
     /// BSDFs outside `twosided`); MTL materials reflect on both sides.
     pub one_sided: bool,
     /// The textures (indices into `Scene::textures`) that replace its
-    /// colour, its second colour and its alpha (`TEXTURE_SLOT_*`); the
-    /// surface holds each texture's mean there.
-    pub textures: [Option<u32>; 3],
+    /// colour, its second colour, its alpha and rough glass's alpha across
+    /// its tangent (`TEXTURE_SLOT_*`); the surface holds each texture's
+    /// mean there.
+    pub textures: [Option<u32>; TEXTURE_SLOTS],
     /// Mitsuba's `normalmap`: the normals that turn its shading frame.
     pub normal_map: Option<NormalMap>,
     /// Mitsuba's `mask`, `blendbsdf` or two-sided `twosided`: the material
@@ -158,7 +159,7 @@ impl Material {
             surface: Surface::Diffuse { albedo },
             emission: Vec3::ZERO,
             one_sided: false,
-            textures: [None; 3],
+            textures: [None; TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
         }
@@ -231,6 +232,7 @@ impl Material {
                 look(shaders::TEXTURE_SLOT_COLOR),
                 look(shaders::TEXTURE_SLOT_SECOND),
                 look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
+                None,
             );
             return crate::bsdf::Bsdf::new(surface, front, sampling);
         }
@@ -238,6 +240,7 @@ impl Material {
             look(shaders::TEXTURE_SLOT_COLOR),
             look(shaders::TEXTURE_SLOT_SECOND),
             look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
+            look(shaders::TEXTURE_SLOT_ACROSS).map(luminance),
         )
     }
 
@@ -331,10 +334,15 @@ impl Material {
             eta = Vec3::new(p.metallic, p.specular_tint, p.sheen);
             k = Vec3::new(p.sheen_tint, p.flatness, p.clearcoat);
         }
-        let slots = self.textures.iter().enumerate().fold(0, |acc, (s, t)| {
-            let t = t.map_or(0, |t| t + 1);
-            acc | t << (shaders::TEXTURE_SLOT_BITS * s as u32)
-        });
+        // Three slots in eta.w's bits; rough glass's alpha across its
+        // tangent in k.w.
+        let slots = self.textures[..3]
+            .iter()
+            .enumerate()
+            .fold(0, |acc, (s, t)| {
+                let t = t.map_or(0, |t| t + 1);
+                acc | t << (shaders::TEXTURE_SLOT_BITS * s as u32)
+            });
         let slots = if slots == 0 {
             0.0
         } else {
@@ -350,7 +358,11 @@ impl Material {
             color: color.extend(code as f32).into(),
             emission: emission.extend(parameter).into(),
             eta: eta.extend(slots).into(),
-            k: k.extend(self.surface.alpha_across().unwrap_or(0.0)).into(),
+            k: k.extend(match self.textures[shaders::TEXTURE_SLOT_ACROSS as usize] {
+                Some(t) => -(t as f32 + 1.0),
+                None => self.surface.alpha_across().unwrap_or(0.0),
+            })
+            .into(),
         }
     }
 }
@@ -1494,6 +1506,9 @@ pub struct Loader<'a> {
 /// all but a vanishing share of paths.
 pub const MITSUBA_UNLIMITED_DEPTH: u32 = 1024;
 
+/// Texture slots a material has (`TEXTURE_SLOT_*`).
+pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_ACROSS as usize + 1;
+
 /// Most triangles a scene may have: about 3 GiB of host memory while it
 /// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and
 /// the renderer says so.
@@ -1664,7 +1679,7 @@ fn load_obj(
                 m.emission.unwrap_or([0.0; 3]),
             )?,
             one_sided: false,
-            textures: [None; 3],
+            textures: [None; TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
         };
@@ -1673,7 +1688,9 @@ fn load_obj(
                 path: obj_path.to_path_buf(),
                 message: format!("material '{}': {message}", m.name),
             })?;
-            material.surface = material.surface.with_means(Some(t.mean()), None, None);
+            material.surface = material
+                .surface
+                .with_means(Some(t.mean()), None, None, None);
             material.textures[shaders::TEXTURE_SLOT_COLOR as usize] = Some(textures.len() as u32);
             textures.push(t);
         }
@@ -1784,7 +1801,7 @@ mod tests {
         };
         let scene = load("Kd 0.5\nmap_Kd t.png\n").unwrap();
         let m = &scene.materials[0];
-        assert_eq!(m.textures, [Some(0), None, None]);
+        assert_eq!(m.textures, [Some(0), None, None, None]);
         let mean = scene.textures[0].mean();
         assert_eq!(m.surface, Surface::Diffuse { albedo: mean });
         assert_eq!(
@@ -1809,7 +1826,7 @@ mod tests {
         );
         // Not a diffuse material: ignored with a warning, as Kd is.
         let metal = load("Pm 1\nmap_Kd t.png\n").unwrap();
-        assert_eq!(metal.materials[0].textures, [None; 3]);
+        assert_eq!(metal.materials[0].textures, [None; 4]);
     }
 
     #[test]

@@ -297,14 +297,15 @@ pub struct TextureQuery {
     pub uv: glam::Vec2,
 }
 
-/// The colour, second colour and alpha (`Bsdf.color`, `.ior_eta`, `.alpha`)
-/// of each query's BSDF, textured on the GPU with `textures`.
+/// The colour, second colour, alpha and alpha across the tangent
+/// (`Bsdf.color`, `.ior_eta`, `.alpha`, `.alpha_v`) of each query's BSDF,
+/// textured on the GPU with `textures`.
 pub fn texture_lookups(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     textures: &[crate::scene::texture::Texture],
     queries: &[TextureQuery],
-) -> Result<Vec<(Vec3, Vec3, f32)>, RenderError> {
+) -> Result<Vec<(Vec3, Vec3, f32, f32)>, RenderError> {
     let gpu_scene = GpuScene::upload(ctx, scene)?;
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
@@ -333,7 +334,14 @@ pub fn texture_lookups(
     let n = queries.len();
     let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 2))?;
     Ok((0..n)
-        .map(|i| (out[i].truncate(), out[n + i].truncate(), out[i].w))
+        .map(|i| {
+            (
+                out[i].truncate(),
+                out[n + i].truncate(),
+                out[i].w,
+                out[n + i].w,
+            )
+        })
         .collect())
 }
 

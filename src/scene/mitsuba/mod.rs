@@ -123,7 +123,7 @@ struct BsdfDesc {
     /// `null`: the shape is invisible to paths.
     null: bool,
     /// Its textures' indices among the scene's (`Material::textures`).
-    textures: [Option<u32>; 3],
+    textures: [Option<u32>; crate::scene::TEXTURE_SLOTS],
     /// A `normalmap` around it.
     normal_map: Option<NormalMap>,
     /// A `mask`, `blendbsdf` or `twosided` with two BSDFs: the BSDFs it
@@ -813,7 +813,7 @@ impl Builder<'_, '_> {
                 emission: le,
                 one_sided: desc.one_sided,
                 // The colour slot holds a radiance texture.
-                textures: [radiance_texture, None, None],
+                textures: [radiance_texture, None, None, None],
                 normal_map: None,
                 choice: None,
             });
@@ -1051,7 +1051,7 @@ impl Builder<'_, '_> {
             },
             one_sided: true,
             null: false,
-            textures: [None; 3],
+            textures: [None; crate::scene::TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
         });
@@ -1759,7 +1759,7 @@ fn null_bsdf() -> BsdfDesc {
         },
         one_sided: false,
         null: true,
-        textures: [None; 3],
+        textures: [None; crate::scene::TEXTURE_SLOTS],
         normal_map: None,
         choice: None,
     }
@@ -1780,7 +1780,7 @@ fn bsdf(
         surface,
         one_sided: true,
         null: false,
-        textures: [None; 3],
+        textures: [None; crate::scene::TEXTURE_SLOTS],
         normal_map: None,
         choice: None,
     };
@@ -1983,6 +1983,8 @@ fn bsdf(
             mean(crate::shaders::TEXTURE_SLOT_COLOR),
             mean(crate::shaders::TEXTURE_SLOT_SECOND),
             mean(crate::shaders::TEXTURE_SLOT_ALPHA)
+                .map(|a| crate::bsdf::luminance(a).clamp(1e-4, 1.0)),
+            mean(crate::shaders::TEXTURE_SLOT_ACROSS)
                 .map(|a| crate::bsdf::luminance(a).clamp(1e-4, 1.0)),
         );
         desc.textures = given.map(|g| g.map(|(i, _)| i));

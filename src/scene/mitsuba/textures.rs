@@ -6,7 +6,8 @@ use super::xml::{Element, Props};
 use super::{Loader, SceneError};
 use crate::scene::texture::{Filter, Pattern, Texture, Wrap};
 use crate::shaders::{
-    TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_COLOR, TEXTURE_SLOT_SECOND,
+    TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_COLOR,
+    TEXTURE_SLOT_SECOND,
 };
 use glam::{Mat3, Vec3};
 use std::collections::HashMap;
@@ -27,6 +28,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
     const COLOR: u32 = TEXTURE_SLOT_COLOR;
     const SECOND: u32 = TEXTURE_SLOT_SECOND;
     const ALPHA: u32 = TEXTURE_SLOT_ALPHA;
+    const ACROSS: u32 = TEXTURE_SLOT_ACROSS;
     match kind {
         "diffuse" => &[("reflectance", COLOR)],
         "conductor" => &[("specular_reflectance", COLOR)],
@@ -45,10 +47,14 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("specular_transmittance", COLOR),
             ("specular_reflectance", SECOND),
         ],
+        // Anisotropic: alpha_u in the alpha slot, alpha_v in its own (the
+        // second holds the reflectance).
         "roughdielectric" => &[
             ("specular_transmittance", COLOR),
             ("specular_reflectance", SECOND),
             ("alpha", ALPHA),
+            ("alpha_u", ALPHA),
+            ("alpha_v", ACROSS),
         ],
         "plastic" | "roughplastic" => &[
             ("diffuse_reflectance", COLOR),
@@ -74,7 +80,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
 }
 
 /// What textures give a BSDF: per slot, the texture's index and mean.
-pub type Given = [Option<(u32, Vec3)>; 3];
+pub type Given = [Option<(u32, Vec3)>; crate::scene::TEXTURE_SLOTS];
 
 impl Textures {
     /// A top-level `<texture id>`.
@@ -96,7 +102,7 @@ impl Textures {
         kind: &str,
         loader: &Loader<'_>,
     ) -> Result<Given, SceneError> {
-        let mut out: Given = [None; 3];
+        let mut out: Given = [None; crate::scene::TEXTURE_SLOTS];
         for c in p.textures() {
             let name = c.required("name")?;
             // A bump map's height field may have any name.
@@ -149,6 +155,7 @@ impl Textures {
                 return Err(c.error("a bumpmap takes one texture"));
             }
             let number = slot == TEXTURE_SLOT_ALPHA
+                || slot == TEXTURE_SLOT_ACROSS
                 || matches!(kind, "mask" | "blendbsdf")
                 || (matches!(kind, "principled" | "roughconductor") && slot == TEXTURE_SLOT_SECOND);
             let texture = if number {
