@@ -584,6 +584,24 @@ impl Camera {
         }
     }
 
+    /// Pixels across a `width` × `height` image (of the whole film, where it
+    /// has a crop window) that a length `size` spans at `distance` from the
+    /// camera, seen square on (any distance, for an orthographic camera;
+    /// at none, infinitely many): how finely a curved shape there is
+    /// tessellated.
+    pub fn pixels_across(&self, size: f32, distance: f32, width: u32, height: u32) -> f32 {
+        let (w, h) = self.crop.map_or((width, height), |c| c.film);
+        let (tx, _) = self.film_tan_half_fov(w, h);
+        let per_pixel = 2.0 * tx / w as f32;
+        if self.orthographic.is_some() {
+            size / per_pixel
+        } else if distance > 0.0 {
+            size / (distance * per_pixel)
+        } else {
+            f32::INFINITY
+        }
+    }
+
     /// [`Camera::tan_half_fov`] of a whole film of `width` × `height`.
     fn film_tan_half_fov(&self, width: u32, height: u32) -> (f32, f32) {
         let aspect = width as f32 / height as f32;

@@ -47,7 +47,11 @@ pub(super) fn read(
         envmap: None,
         crop: None,
     };
-    for el in &elements {
+    // Sensors first: a sphere is tessellated as finely as the camera sees it.
+    for el in elements.iter().filter(|e| e.tag == "sensor") {
+        b.top_level(el)?;
+    }
+    for el in elements.iter().filter(|e| e.tag != "sensor") {
         b.top_level(el)?;
     }
     let Some(camera) = b.camera else {
@@ -905,6 +909,32 @@ impl Builder<'_, '_> {
         placed
     }
 
+    /// Segments around the equator of a sphere (at `center`, of `radius`,
+    /// placed by `to_world` and the instance being placed) from the pixels
+    /// its radius spans on the image, at the film's size or 1024 pixels
+    /// wide if more (`--width` may render a film larger than it says); the
+    /// most where the camera is inside it.
+    fn sphere_segments(&self, to_world: Mat4, center: Vec3, radius: f32) -> u32 {
+        let Some(camera) = &self.camera else {
+            return shapes::SEGMENTS;
+        };
+        let world = self.instance_to_world * to_world;
+        let centre = world.transform_point3(center);
+        // Its largest radius in the world: a to_world may scale unevenly.
+        let r = radius
+            * [Vec3::X, Vec3::Y, Vec3::Z]
+                .iter()
+                .map(|&a| world.transform_vector3(a).length())
+                .fold(0.0, f32::max);
+        let distance = (centre - camera.position).length() - r;
+        let (w, h) = (
+            self.defaults.width.unwrap_or(768),
+            self.defaults.height.unwrap_or(576),
+        );
+        let detail = (1024.0 / w as f32).max(1.0);
+        shapes::sphere_segments(camera.pixels_across(r, distance, w, h) * detail)
+    }
+
     /// A shape's triangles (with normals and UVs where it has them), in
     /// world space, turned over with `flip_normals`.
     /// With the values at its triangles' corners of the mesh attributes
@@ -952,7 +982,8 @@ impl Builder<'_, '_> {
                 if radius <= 0.0 {
                     return Err(el.error(format!("sphere radius {radius} must be positive")));
                 }
-                let (t, n, uv) = shapes::sphere(to_world, center, radius);
+                let segments = self.sphere_segments(to_world, center, radius);
+                let (t, n, uv) = shapes::sphere(to_world, center, radius, segments);
                 (t, Some(n), Some(uv))
             }
             "cylinder" => {

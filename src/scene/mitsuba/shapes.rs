@@ -5,10 +5,29 @@
 use glam::{Mat3, Mat4, Vec2, Vec3};
 use std::f32::consts::PI;
 
-/// Segments around a disk, a cylinder or a sphere's equator.
-const SEGMENTS: u32 = 128;
-/// Rings from a sphere's pole to pole.
-const RINGS: u32 = 64;
+/// Segments around a disk, a cylinder or (at most) a sphere's equator.
+pub const SEGMENTS: u32 = 128;
+/// Fewest segments around a sphere's equator.
+pub const MIN_SPHERE_SEGMENTS: u32 = 16;
+/// The most a sphere's outline may fall inside the true one, in pixels
+/// of the image (see [`sphere_segments`]).
+const SPHERE_PIXEL_ERROR: f32 = 0.05;
+
+/// Segments around the equator of a sphere that spans `pixels` pixels
+/// in radius on the image: enough that no chord of its outline falls
+/// more than SPHERE_PIXEL_ERROR inside the true circle (a chord of n
+/// segments falls r pi² / (2 n²) inside), a multiple of 4 in
+/// MIN_SPHERE_SEGMENTS..=SEGMENTS. A sphere of 128 segments is 16,256
+/// triangles: a point cloud of thousands of small spheres (as the usual
+/// Mitsuba template renders one) would not fit a scene at that detail.
+pub fn sphere_segments(pixels: f32) -> u32 {
+    let n = PI * (pixels / (2.0 * SPHERE_PIXEL_ERROR)).sqrt();
+    // Not a number (no measure of its size) takes the most.
+    if n.is_nan() || n >= SEGMENTS as f32 {
+        return SEGMENTS;
+    }
+    ((n.ceil() as u32).div_ceil(4) * 4).clamp(MIN_SPHERE_SEGMENTS, SEGMENTS)
+}
 
 /// Triangles of an analytic shape (or a shapegroup's, placed by an
 /// instance), wound so that their normal is Mitsuba's:
@@ -139,17 +158,20 @@ pub fn disk(to_world: Mat4) -> (Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
     (placed(to_world, triangles), placed_uvs(to_world, uvs))
 }
 
-/// A sphere, its faces facing out, its normals at their corners, and
+/// A sphere of `segments` segments around its equator and half as many
+/// rings, its faces facing out, its normals at their corners, and
 /// Mitsuba's (u, v): the angle about z over 2π and from +z over π.
 #[allow(clippy::type_complexity)]
 pub fn sphere(
     to_world: Mat4,
     center: Vec3,
     radius: f32,
+    segments: u32,
 ) -> (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>, Vec<[Vec2; 3]>) {
+    let rings = segments / 2;
     let point = |ring: u32, seg: u32| {
-        let theta = PI * ring as f32 / RINGS as f32;
-        let phi = 2.0 * PI * (seg % SEGMENTS) as f32 / SEGMENTS as f32;
+        let theta = PI * ring as f32 / rings as f32;
+        let phi = 2.0 * PI * (seg % segments) as f32 / segments as f32;
         Vec3::new(
             theta.sin() * phi.cos(),
             theta.sin() * phi.sin(),
@@ -157,11 +179,11 @@ pub fn sphere(
         )
     };
     let uv =
-        |ring: u32, seg: u32| Vec2::new(seg as f32 / SEGMENTS as f32, ring as f32 / RINGS as f32);
-    let mut unit = Vec::with_capacity((2 * SEGMENTS * (RINGS - 1)) as usize);
+        |ring: u32, seg: u32| Vec2::new(seg as f32 / segments as f32, ring as f32 / rings as f32);
+    let mut unit = Vec::with_capacity((2 * segments * (rings - 1)) as usize);
     let mut uvs = Vec::with_capacity(unit.capacity());
-    for ring in 0..RINGS {
-        for seg in 0..SEGMENTS {
+    for ring in 0..rings {
+        for seg in 0..segments {
             let (a, b) = (point(ring, seg), point(ring, seg + 1));
             let (c, d) = (point(ring + 1, seg), point(ring + 1, seg + 1));
             // Counter-clockwise seen from outside; the poles' rings have one.
@@ -169,7 +191,7 @@ pub fn sphere(
                 unit.push([a, c, b]);
                 uvs.push([uv(ring, seg), uv(ring + 1, seg), uv(ring, seg + 1)]);
             }
-            if ring + 1 < RINGS {
+            if ring + 1 < rings {
                 unit.push([b, c, d]);
                 uvs.push([uv(ring, seg + 1), uv(ring + 1, seg), uv(ring + 1, seg + 1)]);
             }
@@ -267,13 +289,34 @@ mod tests {
     }
 
     #[test]
+    fn spheres_take_the_segments_their_size_on_the_image_needs() {
+        // n = pi sqrt(pixels / 0.1), up to a multiple of 4, in 16..=128.
+        assert_eq!(sphere_segments(0.0), 16);
+        assert_eq!(sphere_segments(1.0), 16);
+        assert_eq!(sphere_segments(10.0), 32);
+        assert_eq!(sphere_segments(18.0), 44);
+        assert_eq!(sphere_segments(160.0), 128);
+        assert_eq!(sphere_segments(1e6), 128);
+        assert_eq!(sphere_segments(f32::INFINITY), 128);
+        assert_eq!(sphere_segments(f32::NAN), 128);
+        // The outline's chord stays within the bound where not capped.
+        for px in [3.0f32, 10.0, 40.0, 100.0, 150.0] {
+            let n = sphere_segments(px) as f32;
+            assert!(px * PI * PI / (2.0 * n * n) <= SPHERE_PIXEL_ERROR, "{px}");
+        }
+    }
+
+    #[test]
     fn shapes_have_their_true_area_and_face_out() {
         let m = Mat4::IDENTITY;
         assert!((area(&rectangle(m).0) - 4.0).abs() < 1e-5);
         assert!((area(&cube(m).0) - 24.0).abs() < 1e-4);
         assert!((area(&disk(m).0) - PI).abs() < 1e-4);
-        let (s, normals, _) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5);
+        let (s, normals, _) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5, SEGMENTS);
         assert!((area(&s) - PI).abs() < 1e-3 * PI, "{}", area(&s));
+        let (coarse, _, _) = sphere(m, Vec3::new(1.0, 2.0, 3.0), 0.5, MIN_SPHERE_SEGMENTS);
+        assert!((area(&coarse) - PI).abs() < 1e-3 * PI, "{}", area(&coarse));
+        assert_eq!(coarse.len(), 16 * 7 * 2);
         for (t, n) in s.iter().zip(&normals) {
             let c = (t[0] + t[1] + t[2]) / 3.0 - Vec3::new(1.0, 2.0, 3.0);
             assert!(normal(t).dot(c) > 0.0);
@@ -343,7 +386,7 @@ mod tests {
         // the inverse transpose) still points to +z.
         let m = Mat4::from_scale(Vec3::new(-1.0, 1.0, 1.0));
         assert!(rectangle(m).0.iter().all(|t| normal(t).z > 0.99));
-        let (s, n, _) = sphere(m, Vec3::ZERO, 1.0);
+        let (s, n, _) = sphere(m, Vec3::ZERO, 1.0, SEGMENTS);
         assert!(s.iter().all(|t| normal(t).dot(t[0] + t[1] + t[2]) > 0.0));
         assert!(s.iter().zip(&n).all(|(t, n)| n[1].dot(t[1]) > 0.99));
     }
