@@ -137,6 +137,14 @@ vec2 texture_gradient(uint t, vec2 uv) {
     return vec2(g.x * row0.x + g.y * row1.x, g.x * row0.y + g.y * row1.y) * vec2(h.zw);
 }
 
+// A principled material's weight `value`, or where its record at `word`
+// holds a texture in slot s (TEXTURE_SLOT_SPEC_TINT..), that texture's
+// value as a number.
+float principled_weight(uint word, uint s, float value, uint i, vec2 b, vec2 uv) {
+    uint t = uint(rough_table(word, s));
+    return t != 0u ? luminance(texture_at(t - 1u, i, b, uv)) : value;
+}
+
 // Material m's texture in slot s (TEXTURE_SLOT_*): 1 + its index, or 0.
 uint texture_slot(Material m, uint s) {
     return (floatBitsToUint(m.eta.w) >> (TEXTURE_SLOT_BITS * s)) & ((1u << TEXTURE_SLOT_BITS) - 1u);
@@ -165,7 +173,17 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
         vec3 base = color != 0u ? bsdf.color : m.color.rgb;
         float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
         float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) : m.eta.x;
-        return principled_bsdf(m, front, base, r, metallic);
+        Bsdf p = principled_bsdf(m, front, base, r, metallic);
+        if (p.kind == MATERIAL_PRINCIPLED) {
+            // Its lobes' weights (the back of one that refracts is glass).
+            uint word = uint(m.k.w);
+            p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_SPEC_TINT, p.ior_eta.y, i, b, uv);
+            p.ior_eta.z = principled_weight(word, TEXTURE_SLOT_SHEEN, p.ior_eta.z, i, b, uv);
+            p.ior_k.x = principled_weight(word, TEXTURE_SLOT_SHEEN_TINT, p.ior_k.x, i, b, uv);
+            p.ior_k.y = principled_weight(word, TEXTURE_SLOT_FLATNESS, p.ior_k.y, i, b, uv);
+            p.ior_k.z = principled_weight(word, TEXTURE_SLOT_CLEARCOAT, p.ior_k.z, i, b, uv);
+        }
+        return p;
     }
     // An isotropic roughness's texture sets both alphas; a rough
     // conductor's second texture, its alpha across its tangent.

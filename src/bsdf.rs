@@ -426,6 +426,29 @@ impl Surface {
         self
     }
 
+    /// A principled surface with its weights that textures may give beside
+    /// its colour, roughness and metallic (specular tint, sheen, sheen tint,
+    /// flatness, clearcoat: `TEXTURE_SLOT_SPEC_TINT..`) set to
+    /// `weight(slot)` where that is a value.
+    pub fn with_weight_means(mut self, weight: impl Fn(u32) -> Option<f32>) -> Self {
+        use crate::shaders::{
+            TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_SHEEN,
+            TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TINT,
+        };
+        if let Surface::Principled { params, .. } = &mut self {
+            for (slot, value) in [
+                (TEXTURE_SLOT_SPEC_TINT, &mut params.specular_tint),
+                (TEXTURE_SLOT_SHEEN, &mut params.sheen),
+                (TEXTURE_SLOT_SHEEN_TINT, &mut params.sheen_tint),
+                (TEXTURE_SLOT_FLATNESS, &mut params.flatness),
+                (TEXTURE_SLOT_CLEARCOAT, &mut params.clearcoat),
+            ] {
+                *value = weight(slot).unwrap_or(*value);
+            }
+        }
+        self
+    }
+
     /// A plastic's specular colour and (internal diffuse reflectance,
     /// probability weight of the specular lobe, α: 0 for a smooth coat):
     /// the GPU `Material`'s `eta` and `k`.
@@ -982,6 +1005,18 @@ impl Bsdf {
             Lobe::Conductor { alpha, .. }
             | Lobe::RoughDielectric { alpha, .. }
             | Lobe::RoughPlastic { alpha, .. } => Some(alpha),
+            _ => None,
+        }
+    }
+
+    /// A principled lobe's (metallic, specular tint, sheen) and (sheen
+    /// tint, flatness, clearcoat), as the GPU's Bsdf holds them, for probes.
+    pub fn principled_weights(&self) -> Option<(Vec3, Vec3)> {
+        match self.lobe {
+            Lobe::Principled(p) => Some((
+                Vec3::new(p.metallic, p.specular_tint, p.sheen),
+                Vec3::new(p.sheen_tint, p.flatness, p.clearcoat),
+            )),
             _ => None,
         }
     }

@@ -350,7 +350,7 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                     emission: Vec3::ZERO,
                     // Mitsuba's BSDFs outside `twosided` are black from behind.
                     one_sided: rng.next() < 0.25,
-                    textures: [None; 4],
+                    textures: [None; qtrace::scene::TEXTURE_SLOTS],
                     normal_map: None,
                     choice: None,
                 },
@@ -512,6 +512,21 @@ fn gpu_textures_match_their_cpu_twin() {
             alpha_v: Some(0.05),
             distribution: Distribution::Beckmann,
         },
+        Surface::Principled {
+            base_color: Vec3::splat(0.6),
+            params: Principled {
+                sheen: 0.3,
+                clearcoat: 0.2,
+                ..Principled::default()
+            },
+        },
+        Surface::Principled {
+            base_color: Vec3::splat(0.6),
+            params: Principled {
+                spec_trans: 0.5,
+                ..Principled::default()
+            },
+        },
     ];
     let mut queries = Vec::new();
     for _ in 0..400 {
@@ -520,13 +535,20 @@ fn gpu_textures_match_their_cpu_twin() {
             let t = (rng.next() * 7.0) as u32;
             (t < textures.len() as u32).then_some(t)
         };
-        let mut slots = [pick(), pick(), pick(), pick()];
+        let mut slots = [None; qtrace::scene::TEXTURE_SLOTS];
+        for s in &mut slots {
+            *s = pick();
+        }
         if surface.kind() == qtrace::shaders::MATERIAL_PLASTIC {
             slots[2] = None;
         }
-        // Only rough glass has an alpha across its tangent of its own.
+        // Only rough glass has an alpha across its tangent of its own, and
+        // only a principled material the weights after it.
         if !matches!(surface, Surface::RoughDielectric { .. }) {
             slots[3] = None;
+        }
+        if !matches!(surface, Surface::Principled { .. }) {
+            slots[4..].fill(None);
         }
         queries.push(probe::TextureQuery {
             material: Material {
@@ -546,7 +568,9 @@ fn gpu_textures_match_their_cpu_twin() {
     common::assert_no_validation_errors(&ctx);
     let mut textured = 0;
     let mut across = 0;
-    for (q, (color, second, alpha, alpha_v)) in queries.iter().zip(gpu) {
+    let mut weights = 0;
+    for (q, g) in queries.iter().zip(gpu) {
+        let (color, second, alpha, alpha_v) = (g.color, g.second, g.alpha, g.alpha_v);
         let cpu = q
             .material
             .bsdf_at(q.front, q.uv, &textures, Sampling::Cosine);
@@ -580,10 +604,19 @@ fn gpu_textures_match_their_cpu_twin() {
             );
         }
         across += usize::from(q.material.textures[3].is_some() && lit);
+        if let Some((eta, k)) = cpu.principled_weights() {
+            assert!(
+                close(second, eta) && close(g.k, k),
+                "{what}: principled weights {second} {} vs CPU {eta} {k}",
+                g.k
+            );
+            weights += usize::from(q.material.textures[4..].iter().any(Option::is_some) && lit);
+        }
         textured += usize::from(q.material.textured() && (q.front || !q.material.one_sided));
     }
     assert!(textured > 200, "only {textured} textured lookups");
     assert!(across > 20, "only {across} textured alphas across");
+    assert!(weights > 20, "only {weights} textured principled weights");
 }
 
 /// The GPU's environment (glsl/environment.glsl) against the CPU twin:

@@ -752,9 +752,9 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "principled metallic 1.5 must lie in [0, 1]",
         ),
         (
-            "<shape type=\"cube\"><bsdf type=\"principled\">\n<texture type=\"checkerboard\" name=\"sheen\"/></bsdf></shape>",
+            "<shape type=\"cube\"><bsdf type=\"principled\">\n<texture type=\"checkerboard\" name=\"clearcoat_gloss\"/></bsdf></shape>",
             6,
-            "principled's 'sheen' cannot be a texture in qtrace",
+            "principled's 'clearcoat_gloss' cannot be a texture in qtrace",
         ),
         (
             "<shape type=\"obj\"><string name=\"filename\" value=\"gone.obj\"/></shape>",
@@ -1437,6 +1437,21 @@ fn textured_anisotropic_rough_glass_agrees_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-u",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn principled_weights_as_textures_agree_with_mitsuba() {
+    // Clearcoat, sheen, sheen tint, specular tint and flatness given as
+    // bitmaps and checkerboards.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-w.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-w",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

@@ -247,7 +247,7 @@ fn guided_sampler_matches_its_pdf() {
             surface,
             emission: Vec3::ZERO,
             one_sided: false,
-            textures: [None; 4],
+            textures: [None; qtrace::scene::TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
         };

@@ -228,12 +228,15 @@ impl Material {
         let look = |slot: u32| self.textures[slot as usize].map(|t| textures[t as usize].eval(uv));
         if let Surface::Principled { .. } = self.surface {
             // Its textures' values enter both its sides' lobes.
-            let surface = self.surface.with_means(
-                look(shaders::TEXTURE_SLOT_COLOR),
-                look(shaders::TEXTURE_SLOT_SECOND),
-                look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
-                None,
-            );
+            let surface = self
+                .surface
+                .with_means(
+                    look(shaders::TEXTURE_SLOT_COLOR),
+                    look(shaders::TEXTURE_SLOT_SECOND),
+                    look(shaders::TEXTURE_SLOT_ALPHA).map(luminance),
+                    None,
+                )
+                .with_weight_means(|s| look(s).map(luminance));
             return crate::bsdf::Bsdf::new(surface, front, sampling);
         }
         bsdf.textured(
@@ -387,6 +390,8 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
         }
         if let Surface::Principled { params, .. } = materials[i].surface {
             out[i].k[3] = (4 * out.len()) as f32;
+            // Its further textures' slots (TEXTURE_SLOT_SPEC_TINT..).
+            let slot = |s: u32| materials[i].textures[s as usize].map_or(0.0, |t| t as f32 + 1.0);
             out.push(shaders::Material {
                 color: [
                     params.eta,
@@ -394,6 +399,13 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
                     params.spec_trans,
                     params.anisotropic,
                 ],
+                emission: [
+                    slot(shaders::TEXTURE_SLOT_SPEC_TINT),
+                    slot(shaders::TEXTURE_SLOT_SHEEN),
+                    slot(shaders::TEXTURE_SLOT_SHEEN_TINT),
+                    slot(shaders::TEXTURE_SLOT_FLATNESS),
+                ],
+                eta: [slot(shaders::TEXTURE_SLOT_CLEARCOAT), 0.0, 0.0, 0.0],
                 ..Default::default()
             });
         }
@@ -1525,7 +1537,7 @@ pub struct Loader<'a> {
 pub const MITSUBA_UNLIMITED_DEPTH: u32 = 1024;
 
 /// Texture slots a material has (`TEXTURE_SLOT_*`).
-pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_ACROSS as usize + 1;
+pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_CLEARCOAT as usize + 1;
 
 /// Most triangles a scene may have: about 3 GiB of host memory while it
 /// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and
@@ -1819,7 +1831,10 @@ mod tests {
         };
         let scene = load("Kd 0.5\nmap_Kd t.png\n").unwrap();
         let m = &scene.materials[0];
-        assert_eq!(m.textures, [Some(0), None, None, None]);
+        assert_eq!(
+            m.textures[..],
+            [Some(0), None, None, None, None, None, None, None, None]
+        );
         let mean = scene.textures[0].mean();
         assert_eq!(m.surface, Surface::Diffuse { albedo: mean });
         assert_eq!(
@@ -1844,7 +1859,7 @@ mod tests {
         );
         // Not a diffuse material: ignored with a warning, as Kd is.
         let metal = load("Pm 1\nmap_Kd t.png\n").unwrap();
-        assert_eq!(metal.materials[0].textures, [None; 4]);
+        assert_eq!(metal.materials[0].textures, [None; TEXTURE_SLOTS]);
     }
 
     #[test]

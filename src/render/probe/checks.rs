@@ -297,15 +297,27 @@ pub struct TextureQuery {
     pub uv: glam::Vec2,
 }
 
-/// The colour, second colour, alpha and alpha across the tangent
-/// (`Bsdf.color`, `.ior_eta`, `.alpha`, `.alpha_v`) of each query's BSDF,
-/// textured on the GPU with `textures`.
+/// What the GPU makes of each query's BSDF, textured with `textures`.
+#[derive(Clone, Copy, Debug)]
+pub struct TextureLookup {
+    pub color: Vec3,
+    /// Its second colour (`Bsdf.ior_eta`; a principled lobe's metallic,
+    /// specular tint and sheen).
+    pub second: Vec3,
+    pub alpha: f32,
+    /// Its alpha across its tangent.
+    pub alpha_v: f32,
+    /// `Bsdf.ior_k` (a principled lobe's sheen tint, flatness, clearcoat).
+    pub k: Vec3,
+}
+
+/// [`TextureLookup`] of each query's BSDF, textured on the GPU with `textures`.
 pub fn texture_lookups(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     textures: &[crate::scene::texture::Texture],
     queries: &[TextureQuery],
-) -> Result<Vec<(Vec3, Vec3, f32, f32)>, RenderError> {
+) -> Result<Vec<TextureLookup>, RenderError> {
     let gpu_scene = GpuScene::upload(ctx, scene)?;
     let settings = RenderSettings::resolve(scene, &Default::default())?;
     let mut params = pass_params(scene, &settings);
@@ -332,15 +344,14 @@ pub fn texture_lookups(
         })
         .collect();
     let n = queries.len();
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 2))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
     Ok((0..n)
-        .map(|i| {
-            (
-                out[i].truncate(),
-                out[n + i].truncate(),
-                out[i].w,
-                out[n + i].w,
-            )
+        .map(|i| TextureLookup {
+            color: out[i].truncate(),
+            second: out[n + i].truncate(),
+            alpha: out[i].w,
+            alpha_v: out[n + i].w,
+            k: out[2 * n + i].truncate(),
         })
         .collect())
 }

@@ -817,7 +817,11 @@ impl Builder<'_, '_> {
                 emission: le,
                 one_sided: desc.one_sided,
                 // The colour slot holds a radiance texture.
-                textures: [radiance_texture, None, None, None],
+                textures: {
+                    let mut t = [None; crate::scene::TEXTURE_SLOTS];
+                    t[crate::shaders::TEXTURE_SLOT_COLOR as usize] = radiance_texture;
+                    t
+                },
                 normal_map: None,
                 choice: None,
             });
@@ -2018,6 +2022,9 @@ fn bsdf(
             mean(crate::shaders::TEXTURE_SLOT_ACROSS)
                 .map(|a| crate::bsdf::luminance(a).clamp(1e-4, 1.0)),
         );
+        desc.surface = desc
+            .surface
+            .with_weight_means(|s| mean(s).map(crate::bsdf::luminance));
         desc.textures = given.map(|g| g.map(|(i, _)| i));
     }
     Ok(desc)

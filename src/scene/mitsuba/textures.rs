@@ -6,8 +6,9 @@ use super::xml::{Element, Props};
 use super::{Loader, SceneError};
 use crate::scene::texture::{Filter, Pattern, Texture, Wrap};
 use crate::shaders::{
-    TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_COLOR,
-    TEXTURE_SLOT_SECOND,
+    TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_CLEARCOAT,
+    TEXTURE_SLOT_COLOR, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_SECOND, TEXTURE_SLOT_SHEEN,
+    TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TINT,
 };
 use glam::{Mat3, Vec3};
 use std::collections::HashMap;
@@ -60,11 +61,16 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("diffuse_reflectance", COLOR),
             ("specular_reflectance", SECOND),
         ],
-        // Read as numbers: metallic and roughness.
+        // Read as numbers: all but the base colour.
         "principled" => &[
             ("base_color", COLOR),
             ("metallic", SECOND),
             ("roughness", ALPHA),
+            ("spec_tint", TEXTURE_SLOT_SPEC_TINT),
+            ("sheen", TEXTURE_SLOT_SHEEN),
+            ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
+            ("flatness", TEXTURE_SLOT_FLATNESS),
+            ("clearcoat", TEXTURE_SLOT_CLEARCOAT),
         ],
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
@@ -155,7 +161,7 @@ impl Textures {
                 return Err(c.error("a bumpmap takes one texture"));
             }
             let number = slot == TEXTURE_SLOT_ALPHA
-                || slot == TEXTURE_SLOT_ACROSS
+                || slot >= TEXTURE_SLOT_ACROSS
                 || matches!(kind, "mask" | "blendbsdf")
                 || (matches!(kind, "principled" | "roughconductor") && slot == TEXTURE_SLOT_SECOND);
             let texture = if number {
