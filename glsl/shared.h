@@ -432,8 +432,8 @@ struct Material {
 // A principled material's weights that live in its Bsdf: specular tint,
 // sheen, sheen tint, flatness and clearcoat, each 1 + the index of its
 // texture or 0, in its record (the floats after eta, clearcoat gloss,
-// spec_trans and anisotropic: TEXTURE_SLOT_SPEC_TINT + n is float 4 + n).
-#define TEXTURE_SLOT_SPEC_TINT 4
+// spec_trans and anisotropic: TEXTURE_SLOT_HIGHLIGHT_TINT + n is float 4 + n).
+#define TEXTURE_SLOT_HIGHLIGHT_TINT 4
 #define TEXTURE_SLOT_SHEEN 5
 #define TEXTURE_SLOT_SHEEN_TINT 6
 #define TEXTURE_SLOT_FLATNESS 7

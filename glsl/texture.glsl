@@ -138,7 +138,7 @@ vec2 texture_gradient(uint t, vec2 uv) {
 }
 
 // A principled material's weight `value`, or where its record at `word`
-// holds a texture in slot s (TEXTURE_SLOT_SPEC_TINT..), that texture's
+// holds a texture in slot s (TEXTURE_SLOT_HIGHLIGHT_TINT..), that texture's
 // value as a number.
 float principled_weight(uint word, uint s, float value, uint i, vec2 b, vec2 uv) {
     uint t = uint(rough_table(word, s));
@@ -177,7 +177,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
         if (p.kind == MATERIAL_PRINCIPLED) {
             // Its lobes' weights (the back of one that refracts is glass).
             uint word = uint(m.k.w);
-            p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_SPEC_TINT, p.ior_eta.y, i, b, uv);
+            p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_HIGHLIGHT_TINT, p.ior_eta.y, i, b, uv);
             p.ior_eta.z = principled_weight(word, TEXTURE_SLOT_SHEEN, p.ior_eta.z, i, b, uv);
             p.ior_k.x = principled_weight(word, TEXTURE_SLOT_SHEEN_TINT, p.ior_k.x, i, b, uv);
             p.ior_k.y = principled_weight(word, TEXTURE_SLOT_FLATNESS, p.ior_k.y, i, b, uv);

@@ -428,16 +428,16 @@ impl Surface {
 
     /// A principled surface with its weights that textures may give beside
     /// its colour, roughness and metallic (specular tint, sheen, sheen tint,
-    /// flatness, clearcoat: `TEXTURE_SLOT_SPEC_TINT..`) set to
+    /// flatness, clearcoat: `TEXTURE_SLOT_HIGHLIGHT_TINT..`) set to
     /// `weight(slot)` where that is a value.
     pub fn with_weight_means(mut self, weight: impl Fn(u32) -> Option<f32>) -> Self {
         use crate::shaders::{
-            TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_SHEEN,
-            TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TINT,
+            TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT,
+            TEXTURE_SLOT_SHEEN, TEXTURE_SLOT_SHEEN_TINT,
         };
         if let Surface::Principled { params, .. } = &mut self {
             for (slot, value) in [
-                (TEXTURE_SLOT_SPEC_TINT, &mut params.specular_tint),
+                (TEXTURE_SLOT_HIGHLIGHT_TINT, &mut params.specular_tint),
                 (TEXTURE_SLOT_SHEEN, &mut params.sheen),
                 (TEXTURE_SLOT_SHEEN_TINT, &mut params.sheen_tint),
                 (TEXTURE_SLOT_FLATNESS, &mut params.flatness),

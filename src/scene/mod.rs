@@ -390,7 +390,7 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
         }
         if let Surface::Principled { params, .. } = materials[i].surface {
             out[i].k[3] = (4 * out.len()) as f32;
-            // Its further textures' slots (TEXTURE_SLOT_SPEC_TINT..).
+            // Its further textures' slots (TEXTURE_SLOT_HIGHLIGHT_TINT..).
             let slot = |s: u32| materials[i].textures[s as usize].map_or(0.0, |t| t as f32 + 1.0);
             out.push(shaders::Material {
                 color: [
@@ -400,7 +400,7 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
                     params.anisotropic,
                 ],
                 emission: [
-                    slot(shaders::TEXTURE_SLOT_SPEC_TINT),
+                    slot(shaders::TEXTURE_SLOT_HIGHLIGHT_TINT),
                     slot(shaders::TEXTURE_SLOT_SHEEN),
                     slot(shaders::TEXTURE_SLOT_SHEEN_TINT),
                     slot(shaders::TEXTURE_SLOT_FLATNESS),

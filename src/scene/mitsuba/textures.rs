@@ -7,8 +7,8 @@ use super::{Loader, SceneError};
 use crate::scene::texture::{Filter, Pattern, Texture, Wrap};
 use crate::shaders::{
     TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_CLEARCOAT,
-    TEXTURE_SLOT_COLOR, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_SECOND, TEXTURE_SLOT_SHEEN,
-    TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TINT,
+    TEXTURE_SLOT_COLOR, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SECOND,
+    TEXTURE_SLOT_SHEEN, TEXTURE_SLOT_SHEEN_TINT,
 };
 use glam::{Mat3, Vec3};
 use std::collections::HashMap;
@@ -66,7 +66,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("base_color", COLOR),
             ("metallic", SECOND),
             ("roughness", ALPHA),
-            ("spec_tint", TEXTURE_SLOT_SPEC_TINT),
+            ("spec_tint", TEXTURE_SLOT_HIGHLIGHT_TINT),
             ("sheen", TEXTURE_SLOT_SHEEN),
             ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
             ("flatness", TEXTURE_SLOT_FLATNESS),
