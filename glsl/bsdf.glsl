@@ -21,7 +21,7 @@ layout(constant_id = CONSTANT_NON_DIFFUSE) const bool NON_DIFFUSE = true;
 // MATERIAL_FRESNEL, FEATURE_*); the code of the others is left out.
 layout(constant_id = CONSTANT_MATERIAL_FEATURES) const uint MATERIAL_FEATURES =
     MATERIAL_BECKMANN | MATERIAL_FRESNEL | MATERIAL_NONLINEAR | FEATURE_PLASTIC | FEATURE_ROUGH_GLASS |
-    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES | FEATURE_PRINCIPLED | FEATURE_ANISOTROPIC;
+    FEATURE_ROUGH_PLASTIC | FEATURE_TEXTURES | FEATURE_PRINCIPLED | FEATURE_ANISOTROPIC | FEATURE_PRINCIPLED_THIN;
 
 // A material's scattering at a surface point, seen from one side
 // (docs/scenes.md).
@@ -74,19 +74,28 @@ vec2 principled_alphas(float r, float anisotropic) {
 // weighted by the refracting part's weight: rough glass of the specular
 // lobe's alpha, its transmission tinted by the base colour's square root
 // (black where metallic is 1). Without spec_trans its back is its front's
-// lobes (inside twosided; a one-sided material's is black before this).
-Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic) {
+// lobes (inside twosided; a one-sided material's is black before this). A
+// thin one (`thin`, metallic its diffuse transmission) is the same on both
+// sides.
+Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic, bool thin) {
     uint word = uint(m.k.w);
     float eta = rough_table(word, 0u);
     float spec_trans = rough_table(word, 2u);
     float w = (1.0 - metallic) * spec_trans;
-    if (front || spec_trans <= 0.0) {
-        return Bsdf(MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb), m.k.rgb, word,
-                    rough_table(word, 3u), vec2(1.0, 0.0));
+    if (front || spec_trans <= 0.0 || thin) {
+        return Bsdf(thin ? MATERIAL_PRINCIPLED_THIN : MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb),
+                    m.k.rgb, word, rough_table(word, 3u), vec2(1.0, 0.0));
     }
     vec2 alpha = principled_alphas(r, rough_table(word, 3u));
     return Bsdf(MATERIAL_DIELECTRIC, sqrt(base) * w, alpha.x, 1.0 / eta, 0u, vec3(w), vec3(0.0), 0u, alpha.y,
                 vec2(1.0, 0.0));
+}
+
+// Whether a material's kind is a principled one, thin or not; a constant
+// false where the scene has none.
+bool material_principled(uint kind) {
+    return (MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u &&
+           (kind == MATERIAL_PRINCIPLED || ((MATERIAL_FEATURES & FEATURE_PRINCIPLED_THIN) != 0u && kind == MATERIAL_PRINCIPLED_THIN));
 }
 
 // The BSDF of material m for a path arriving on the side the triangle's
@@ -102,10 +111,11 @@ Bsdf bsdf_of(Material m, bool front) {
     // A plastic's coat, and a thin sheet, look the same from either side.
     float eta = front || kind == MATERIAL_PLASTIC || kind == MATERIAL_THIN ? p : 1.0 / p;
     vec3 specular = black ? vec3(0.0) : m.eta.rgb;
-    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && kind == MATERIAL_PRINCIPLED) {
+    if (material_principled(kind)) {
         // Its specular lobe does not scale with the base colour: a one-sided
         // one's back is a black diffuse lobe.
-        return black ? bsdf_diffuse(vec3(0.0)) : principled_bsdf(m, front, color, p, m.eta.x);
+        return black ? bsdf_diffuse(vec3(0.0))
+                     : principled_bsdf(m, front, color, p, m.eta.x, kind == MATERIAL_PRINCIPLED_THIN);
     }
     // A rough conductor's or rough glass's alpha across its tangent, where
     // anisotropic, in k.w (rough glass's texture there is below 0:
@@ -132,8 +142,7 @@ bool bsdf_plastic(Bsdf bsdf) {
 // has no such BSDF.
 bool bsdf_anisotropic(Bsdf bsdf) {
     return (MATERIAL_FEATURES & FEATURE_ANISOTROPIC) != 0u &&
-           ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && bsdf.kind == MATERIAL_PRINCIPLED ? bsdf.alpha_v > 0.0
-                                                                                              : bsdf.alpha_v != bsdf.alpha);
+           (material_principled(bsdf.kind) ? bsdf.alpha_v > 0.0 : bsdf.alpha_v != bsdf.alpha);
 }
 
 // A local direction in the frame of the BSDF's tangent, and back.
@@ -174,12 +183,24 @@ bool bsdf_is_delta(Bsdf bsdf) {
 
 bool principled_transmits(Bsdf bsdf);
 
+// Whether the BSDF is a thin principled one; a constant false where the
+// scene has none.
+bool bsdf_principled_thin(Bsdf bsdf) {
+    return (MATERIAL_FEATURES & FEATURE_PRINCIPLED_THIN) != 0u && bsdf_is(bsdf, MATERIAL_PRINCIPLED_THIN);
+}
+
+// Whether a thin principled BSDF lets light through (spec_trans, or a
+// diffuse transmission).
+bool thin_transmits(Bsdf bsdf) {
+    return bsdf_principled_thin(bsdf) && (rough_table(bsdf.table, 2u) > 0.0 || bsdf.ior_eta.x > 0.0);
+}
+
 // Whether the BSDF sends light through the surface without a delta lobe
 // (rough glass, a principled BSDF's refraction): its directions below the
 // surface are sampled, evaluated and reached by NEE; the guides, whose
 // sectors cover the side the path arrives on, do not sample there.
 bool bsdf_transmits(Bsdf bsdf) {
-    return bsdf_rough_glass(bsdf) || principled_transmits(bsdf);
+    return bsdf_rough_glass(bsdf) || principled_transmits(bsdf) || thin_transmits(bsdf);
 }
 
 // The microfacet distributions in the frame of the surface's tangent:
@@ -545,6 +566,99 @@ vec3 principled_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     return wi;
 }
 
+// Mitsuba's principledthin (Principled::thin_* in src/bsdf/principled.rs
+// says more): its shares of specular reflection, specular transmission and
+// diffuse reflection (diffuse transmission takes the rest).
+vec3 thin_shares(Bsdf bsdf) {
+    float s = rough_table(bsdf.table, 2u);
+    return vec3(0.5 * s, 0.5 * s, (1.0 - s) * (1.0 - bsdf.ior_eta.x));
+}
+
+// The transmission's lobe: the roughness scaled by 0.65 eta - 0.35.
+Bsdf thin_transmission(Bsdf bsdf) {
+    bsdf.alpha *= 0.65 * bsdf.eta - 0.35;
+    return principled_specular(bsdf);
+}
+
+// The half vector of wo and wi mirrored above the surface, in xyz; w 0
+// where the lobe of wi's side does not see it from the right sides
+// (reflection: both in front of it; transmission: wi behind it).
+vec4 thin_half(vec3 wo, vec3 wi) {
+    vec3 h = normalize(wo + vec3(wi.xy, abs(wi.z)));
+    return vec4(h, dot(wo, h) > 0.0 && (dot(wi, h) > 0.0) == (wi.z > 0.0) ? 1.0 : 0.0);
+}
+
+vec3 thin_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
+    float s = rough_table(bsdf.table, 2u);
+    float through = bsdf.ior_eta.x;
+    vec3 base = bsdf.color;
+    float lum = luminance(base);
+    vec3 tint = lum > 0.0 ? base / lum : vec3(1.0);
+    vec3 value = vec3(0.0);
+    vec4 hv = thin_half(wo, wi);
+    if (s > 0.0 && hv.w > 0.0) {
+        vec3 wi_r = vec3(wi.xy, abs(wi.z));
+        float oh = dot(wo, hv.xyz);
+        float fd = fresnel_dielectric(oh, bsdf.eta);
+        if (wi.z > 0.0) {
+            float r0 = (bsdf.eta - 1.0) / (bsdf.eta + 1.0);
+            vec3 f = mix(vec3(fd), schlick(tint * (r0 * r0), oh, bsdf.eta), bsdf.ior_eta.y);
+            value += f * (s * microfacet_dg(principled_specular(bsdf), wo, wi_r, hv.xyz) / (4.0 * wo.z));
+        } else {
+            value += base * (s * (1.0 - fd) * microfacet_dg(thin_transmission(bsdf), wo, wi_r, hv.xyz) / (4.0 * wo.z));
+        }
+    }
+    float diffuse = (1.0 - s) * INV_PI * abs(wi.z);
+    if (wi.z < 0.0) {
+        return value + base * (diffuse * through);
+    }
+    vec3 h = normalize(wo + wi);
+    float ih = dot(wi, h);
+    float fo = schlick_weight(wi.z);
+    float fi = schlick_weight(wo.z);
+    float lambert = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
+    float rr = 2.0 * bsdf.alpha * ih * ih;
+    float retro = rr * (fo + fi + fo * fi * (rr - 1.0));
+    float ss90 = 0.5 * rr;
+    float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
+    float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
+    value += base * (diffuse * (1.0 - through) * mix(lambert + retro, subsurface, bsdf.ior_k.y));
+    float sheen = bsdf.ior_eta.z;
+    if (sheen > 0.0) {
+        value += mix(vec3(1.0), tint, bsdf.ior_k.x) * (sheen * (1.0 - s) * (1.0 - through) * schlick_weight(abs(ih)) * wi.z);
+    }
+    return value;
+}
+
+float thin_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
+    vec3 share = thin_shares(bsdf);
+    float pdf = (wi.z > 0.0 ? share.z : 1.0 - share.x - share.y - share.z) * abs(wi.z) * INV_PI;
+    vec4 hv = thin_half(wo, wi);
+    if (share.x > 0.0 && hv.w > 0.0) {
+        Bsdf lobe = wi.z > 0.0 ? principled_specular(bsdf) : thin_transmission(bsdf);
+        pdf += share.x * microfacet_sample_pdf(lobe, wo, hv.xyz) / (4.0 * dot(vec3(wi.xy, abs(wi.z)), hv.xyz));
+    }
+    return pdf;
+}
+
+// A direction by u.z's lobe: a reflection about a visible GGX normal, one
+// about the transmission's turned to the far side, or the cosine on either
+// side; the zero vector where the reflection falls on the wrong side.
+vec3 thin_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
+    vec3 share = thin_shares(bsdf);
+    if (u.z >= share.x + share.y) {
+        vec3 wi = sample_cosine(u.xy);
+        square = 0.5 + (u.xy - 0.5) / sqrt(1.0 + wi.z);
+        return u.z >= share.x + share.y + share.z ? -wi : wi;
+    }
+    bool reflect = u.z < share.x;
+    vec3 m = microfacet_sample(reflect ? principled_specular(bsdf) : thin_transmission(bsdf), wo, u.xy);
+    vec3 r = 2.0 * dot(wo, m) * m - wo;
+    vec3 wi = reflect ? r : vec3(r.xy, -r.z);
+    square = hemisphere_to_square(vec3(r.xy, max(r.z, 0.0)));
+    return r.z > 0.0 && dot(wo, m) > 0.0 && (dot(wi, m) > 0.0) == reflect ? wi : vec3(0.0);
+}
+
 // The probability that a bounce from wo takes the BSDF's delta lobe: 1 for
 // a mirror or glass, a plastic's Fresnel-weighted share of its coat's
 // reflection, 0 for the rest. bsdf_sample_delta draws that lobe;
@@ -584,6 +698,9 @@ vec3 bsdf_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     }
     if (bsdf_principled(bsdf)) {
         return wo.z > 0.0 && wi.z != 0.0 ? principled_eval(bsdf, wo, wi) : vec3(0.0);
+    }
+    if (bsdf_principled_thin(bsdf)) {
+        return wo.z > 0.0 && wi.z != 0.0 ? thin_eval(bsdf, wo, wi) : vec3(0.0);
     }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return vec3(0.0);
@@ -636,6 +753,9 @@ float bsdf_pdf(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (bsdf_principled(bsdf)) {
         return principled_pdf(bsdf, wo, wi);
     }
+    if (bsdf_principled_thin(bsdf)) {
+        return wo.z > 0.0 && wi.z != 0.0 ? thin_pdf(bsdf, wo, wi) : 0.0;
+    }
     if (wi.z <= 0.0 || wo.z <= 0.0) {
         return 0.0;
     }
@@ -683,6 +803,9 @@ vec3 bsdf_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
 vec3 bsdf_sample_local(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     if (bsdf_principled(bsdf)) {
         return principled_sample(bsdf, wo, u, square);
+    }
+    if (bsdf_principled_thin(bsdf)) {
+        return thin_sample(bsdf, wo, u, square);
     }
     bool coat = bsdf_rough_plastic(bsdf) && u.z < rough_coat_share(bsdf, wo);
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || coat || bsdf_rough_glass(bsdf)) {

@@ -292,6 +292,10 @@ struct Triangle {
 // materials' buffer where (eta, clearcoat gloss, spec_trans, anisotropic)
 // follow the materials. Where FEATURE_PRINCIPLED says so.
 #define MATERIAL_PRINCIPLED 6
+// Mitsuba's principledthin, laid out as a principled material: eta.x holds
+// the share of its diffuse part it lets through (diff_trans / 2) in place
+// of metallic; its clearcoat is 0. Where FEATURE_PRINCIPLED_THIN says so.
+#define MATERIAL_PRINCIPLED_THIN 7
 #define CHOICE_AT_RANDOM 0
 #define CHOICE_BY_SIDE 1
 #define MAX_CHOICE_DEPTH 4
@@ -345,6 +349,9 @@ struct Triangle {
 #define FEATURE_ATTRIBUTES 32768
 // ... an emitter whose BSDF scatters (MATERIAL_EMITTER_REFLECTS).
 #define FEATURE_EMITTERS_REFLECT 65536
+// ... a thin principled material (MATERIAL_PRINCIPLED_THIN; FEATURE_PRINCIPLED
+// too).
+#define FEATURE_PRINCIPLED_THIN 131072
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

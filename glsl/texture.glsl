@@ -166,15 +166,18 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
     if (color != 0u) {
         bsdf.color = texture_at(color - 1u, i, b, uv);
     }
-    if ((MATERIAL_FEATURES & FEATURE_PRINCIPLED) != 0u && (uint(m.color.w) & (MATERIAL_ONE_SIDED - 1u)) == MATERIAL_PRINCIPLED) {
+    uint kind = uint(m.color.w) & (MATERIAL_ONE_SIDED - 1u);
+    if (material_principled(kind)) {
         // Numbers from the second and alpha slots, as Mitsuba reads them:
-        // metallic, and the roughness (not clamped as an alpha is); all
+        // metallic (a thin one's diffuse transmission, whose range Mitsuba
+        // halves), and the roughness (not clamped as an alpha is); all
         // enter both sides' lobes.
+        bool thin = kind == MATERIAL_PRINCIPLED_THIN;
         vec3 base = color != 0u ? bsdf.color : m.color.rgb;
         float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
-        float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) : m.eta.x;
-        Bsdf p = principled_bsdf(m, front, base, r, metallic);
-        if (p.kind == MATERIAL_PRINCIPLED) {
+        float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) * (thin ? 0.5 : 1.0) : m.eta.x;
+        Bsdf p = principled_bsdf(m, front, base, r, metallic, thin);
+        if (material_principled(p.kind)) {
             // Its lobes' weights (the back of one that refracts is glass).
             uint word = uint(m.k.w);
             p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_HIGHLIGHT_TINT, p.ior_eta.y, i, b, uv);

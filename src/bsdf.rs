@@ -309,6 +309,9 @@ impl Surface {
                 crate::shaders::MATERIAL_PLASTIC
             }
             Surface::Thin { .. } => crate::shaders::MATERIAL_THIN,
+            Surface::Principled { params, .. } if params.thin.is_some() => {
+                crate::shaders::MATERIAL_PRINCIPLED_THIN
+            }
             Surface::Principled { .. } => crate::shaders::MATERIAL_PRINCIPLED,
         }
     }
@@ -415,11 +418,15 @@ impl Surface {
                 *diffuse = color.unwrap_or(*diffuse);
                 *specular = second.unwrap_or(*specular);
             }
-            // Its second texture is the metallic weight, its alpha's the
-            // roughness.
+            // Its second texture is the metallic weight (a thin one's
+            // diffuse transmission, halved as Mitsuba does), its alpha's
+            // the roughness.
             Surface::Principled { base_color, params } => {
                 *base_color = color.unwrap_or(*base_color);
-                params.metallic = second.map_or(params.metallic, luminance);
+                match &mut params.thin {
+                    Some(through) => *through = second.map_or(*through, |c| 0.5 * luminance(c)),
+                    None => params.metallic = second.map_or(params.metallic, luminance),
+                }
                 params.roughness = a.unwrap_or(params.roughness);
             }
         }
@@ -866,8 +873,11 @@ impl Bsdf {
                 diffuse,
             ),
             // Without spec_trans, its back is its front's lobes (inside
-            // `twosided`) or black (one-sided, `Material::bsdf`).
-            Surface::Principled { base_color, params } if front || params.spec_trans <= 0.0 => {
+            // `twosided`) or black (one-sided, `Material::bsdf`); a thin
+            // one's is its front's.
+            Surface::Principled { base_color, params }
+                if front || params.spec_trans <= 0.0 || params.thin.is_some() =>
+            {
                 (Lobe::Principled(params), base_color)
             }
             Surface::Principled { base_color, params } => {
@@ -1010,11 +1020,12 @@ impl Bsdf {
     }
 
     /// A principled lobe's (metallic, specular tint, sheen) and (sheen
-    /// tint, flatness, clearcoat), as the GPU's Bsdf holds them, for probes.
+    /// tint, flatness, clearcoat), as the GPU's Bsdf holds them (a thin
+    /// one's diffuse transmission in metallic's place), for probes.
     pub fn principled_weights(&self) -> Option<(Vec3, Vec3)> {
         match self.lobe {
             Lobe::Principled(p) => Some((
-                Vec3::new(p.metallic, p.specular_tint, p.sheen),
+                Vec3::new(p.thin.unwrap_or(p.metallic), p.specular_tint, p.sheen),
                 Vec3::new(p.sheen_tint, p.flatness, p.clearcoat),
             )),
             _ => None,
@@ -1652,6 +1663,16 @@ mod tests {
                 ..Principled::default()
             },
         };
+        let thin = Surface::Principled {
+            base_color: Vec3::new(0.4, 0.7, 0.5),
+            params: Principled {
+                roughness: 0.5,
+                spec_trans: 0.7,
+                anisotropic: 0.9,
+                thin: Some(0.3),
+                ..Principled::default()
+            },
+        };
         let cases = [
             (
                 "anisotropic GGX",
@@ -1668,6 +1689,7 @@ mod tests {
             ("anisotropic glass front true", glass, true, 2.0),
             ("anisotropic glass front false", glass, false, -0.6),
             ("anisotropic principled", principled, true, 0.9),
+            ("anisotropic principled thin", thin, false, -1.3),
         ];
         cases
             .into_iter()
@@ -1733,6 +1755,40 @@ mod tests {
                     ..p
                 },
             ),
+            (
+                "principled thin leaf",
+                Vec3::new(0.3, 0.6, 0.2),
+                Principled {
+                    roughness: 0.4,
+                    sheen: 0.5,
+                    sheen_tint: 0.3,
+                    flatness: 0.3,
+                    thin: Some(0.4),
+                    ..p
+                },
+            ),
+            (
+                "principled thin glass",
+                Vec3::new(0.9, 0.8, 0.7),
+                Principled {
+                    roughness: 0.3,
+                    spec_trans: 1.0,
+                    specular_tint: 0.4,
+                    thin: Some(0.0),
+                    ..p
+                },
+            ),
+            (
+                "principled thin mix",
+                Vec3::new(0.6, 0.7, 0.9),
+                Principled {
+                    roughness: 0.6,
+                    spec_trans: 0.5,
+                    eta: 1.33,
+                    thin: Some(0.6),
+                    ..p
+                },
+            ),
         ];
         let mut out = Vec::new();
         for (name, base_color, params) in cases {
@@ -1769,7 +1825,8 @@ mod tests {
         for (name, bsdf) in rough_lobes() {
             let eta = match bsdf.lobe {
                 Lobe::RoughDielectric { eta, .. } => eta,
-                Lobe::Principled(p) => p.eta,
+                // A thin sheet passes light through unbent.
+                Lobe::Principled(p) if p.thin.is_none() => p.eta,
                 _ => 1.0,
             };
             for theta in [0.0, 45.0, 80.0] {
@@ -1864,6 +1921,8 @@ mod tests {
                             },
                         )
                     }
+                    // A thin sheet's back is its front.
+                    Lobe::Principled(p) if p.thin.is_some() => (1.0, bsdf),
                     // Its back is rough glass (Principled::back).
                     Lobe::Principled(p) if p.transmits() => (
                         p.eta,
@@ -1875,6 +1934,14 @@ mod tests {
                 let there = bsdf.eval(wo, below) / below.z.abs();
                 let flip = |v: Vec3| Vec3::new(v.x, v.y, -v.z);
                 let back_again = other.eval(flip(below), flip(wo)) / wo.z;
+                // Mitsuba's thin sheet passes light only where the far
+                // direction sees the half vector from behind, which need not
+                // hold both ways at grazing angles: not reciprocal there.
+                let thin = matches!(bsdf.lobe, Lobe::Principled(p) if p.thin.is_some());
+                let seen = |wo, wi| Principled::thin_half(wo, wi).is_some();
+                if thin && seen(wo, below) != seen(flip(below), flip(wo)) {
+                    continue;
+                }
                 assert!(
                     (back_again - there * eta * eta).abs().max_element()
                         <= 1e-3 * back_again.max_element().max(1e-3),

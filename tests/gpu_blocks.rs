@@ -334,6 +334,42 @@ fn gpu_bsdf_matches_its_cpu_twin() {
                 ..Principled::default()
             },
         },
+        // Thin sheets (principledthin): diffuse through, glass, both and
+        // anisotropic.
+        Surface::Principled {
+            base_color: Vec3::new(0.3, 0.6, 0.2),
+            params: Principled {
+                roughness: 0.4,
+                sheen: 0.5,
+                sheen_tint: 0.3,
+                flatness: 0.3,
+                thin: Some(0.4),
+                ..Principled::default()
+            },
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.9, 0.8, 0.7),
+            params: Principled {
+                roughness: 0.3,
+                spec_trans: 1.0,
+                specular_tint: 0.4,
+                thin: Some(0.0),
+                ..Principled::default()
+            },
+        },
+        Surface::Principled {
+            base_color: Vec3::new(0.6, 0.7, 0.9),
+            params: Principled {
+                roughness: 0.6,
+                spec_trans: 0.5,
+                specular_tint: 0.2,
+                sheen: 0.3,
+                anisotropic: 0.5,
+                eta: 1.33,
+                thin: Some(0.6),
+                ..Principled::default()
+            },
+        },
     ];
     let mut queries = Vec::new();
     for surface in surfaces {
@@ -527,9 +563,18 @@ fn gpu_textures_match_their_cpu_twin() {
                 ..Principled::default()
             },
         },
+        // A thin sheet: its second slot is its diffuse transmission.
+        Surface::Principled {
+            base_color: Vec3::splat(0.6),
+            params: Principled {
+                spec_trans: 0.3,
+                thin: Some(0.2),
+                ..Principled::default()
+            },
+        },
     ];
     let mut queries = Vec::new();
-    for _ in 0..400 {
+    for _ in 0..450 {
         let surface = surfaces[(rng.next() * surfaces.len() as f32) as usize % surfaces.len()];
         let mut pick = || {
             let t = (rng.next() * 7.0) as u32;
@@ -549,6 +594,10 @@ fn gpu_textures_match_their_cpu_twin() {
         }
         if !matches!(surface, Surface::Principled { .. }) {
             slots[4..].fill(None);
+        }
+        // A thin one has no clearcoat.
+        if surface.kind() == qtrace::shaders::MATERIAL_PRINCIPLED_THIN {
+            slots[qtrace::shaders::TEXTURE_SLOT_CLEARCOAT as usize] = None;
         }
         queries.push(probe::TextureQuery {
             material: Material {

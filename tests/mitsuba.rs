@@ -732,9 +732,29 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "a bumpmap's height field must be a bitmap",
         ),
         (
-            "<shape type=\"cube\"><bsdf type=\"principledthin\"/></shape>",
+            "<shape type=\"cube\"><bsdf type=\"hair\"/></shape>",
             5,
-            "bsdf 'principledthin' is not supported",
+            "bsdf 'hair' is not supported",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"twosided\">\n<bsdf type=\"principledthin\"/></bsdf></shape>",
+            6,
+            "twosided takes only BSDFs that let no light through",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principledthin\">\n<float name=\"diff_trans\" value=\"2.5\"/></bsdf></shape>",
+            5,
+            "principledthin diff_trans 2.5 must lie in [0, 2]",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principledthin\">\n<float name=\"metallic\" value=\"0.5\"/></bsdf></shape>",
+            6,
+            "metallic",
+        ),
+        (
+            "<shape type=\"cube\"><bsdf type=\"principledthin\">\n<texture type=\"checkerboard\" name=\"spec_trans\"/></bsdf></shape>",
+            6,
+            "principledthin's 'spec_trans' cannot be a texture",
         ),
         (
             "<shape type=\"cube\"><bsdf type=\"principled\">\n<float name=\"eta\" value=\"1.4\"/><float name=\"specular\" value=\"0.5\"/></bsdf></shape>",
@@ -1452,6 +1472,21 @@ fn principled_weights_as_textures_agree_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-w",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn thin_principled_sheets_agree_with_mitsuba() {
+    // principledthin: diffuse transmission from a bitmap, thin rough glass,
+    // and a sheet passing light both ways, anisotropic.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-x.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-x",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

@@ -4,8 +4,9 @@
 //! term blends a dielectric's with Schlick's metallic and tinted ones, a
 //! GTR1 clearcoat, and (`spec_trans`) refraction through the specular
 //! lobe's microfacets; on its back the dielectric alone (rough glass,
-//! `Principled::back`). The device's twin is `principled_*` in
-//! glsl/bsdf.glsl.
+//! `Principled::back`). Mitsuba's `principledthin` is its thin-sheet
+//! sibling (`Principled::thin`), the same on both sides. The device's twin
+//! is `principled_*` and `thin_*` in glsl/bsdf.glsl.
 
 use super::{
     cosine, fresnel_dielectric, luminance, refraction_jacobian, rough_glass_half, Distribution,
@@ -35,6 +36,11 @@ pub struct Principled {
     /// The relative index of its dielectric (Mitsuba's `eta`, or the one
     /// its `specular` stands for).
     pub eta: f32,
+    /// Mitsuba's `principledthin`, a sheet without an inside, where Some:
+    /// the share of its diffuse part it lets through (Mitsuba's
+    /// `diff_trans` / 2). Its specular part (spec_trans) reflects and
+    /// passes light through unbent; metallic and clearcoat are 0.
+    pub thin: Option<f32>,
 }
 
 /// Mitsuba's defaults: roughness 0.5, the index that `specular` 0.5 stands
@@ -53,6 +59,7 @@ impl Default for Principled {
             spec_trans: 0.0,
             anisotropic: 0.0,
             eta: 1.5,
+            thin: None,
         }
     }
 }
@@ -127,7 +134,10 @@ impl Principled {
 
     /// Whether it lets light through.
     pub fn transmits(&self) -> bool {
-        self.weights().1 > 0.0
+        match self.thin {
+            Some(through) => self.spec_trans > 0.0 || through > 0.0,
+            None => self.weights().1 > 0.0,
+        }
     }
 
     /// Its back where it has `spec_trans`, as Mitsuba's: the dielectric
@@ -151,6 +161,9 @@ impl Principled {
     pub fn eval(&self, base: Vec3, wo: Vec3, wi: Vec3) -> Vec3 {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return Vec3::ZERO;
+        }
+        if let Some(through) = self.thin {
+            return self.thin_eval(base, wo, wi, through);
         }
         let (brdf, bsdf) = self.weights();
         if wi.z < 0.0 {
@@ -212,6 +225,9 @@ impl Principled {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
+        if let Some(through) = self.thin {
+            return self.thin_pdf(wo, wi, through);
+        }
         let (pd, pc) = self.shares();
         let ps = 1.0 - pd - pc;
         let reflect = wi.z > 0.0;
@@ -234,6 +250,9 @@ impl Principled {
     /// its point of the equal-area square; None where a microfacet's
     /// reflection falls below the surface.
     pub fn sample(&self, wo: Vec3, u: Vec3) -> Option<(Vec3, Vec2)> {
+        if let Some(through) = self.thin {
+            return self.thin_sample(wo, u, through);
+        }
         let (pd, pc) = self.shares();
         if u.z < pd {
             return Some(cosine(u.truncate()));
@@ -258,6 +277,133 @@ impl Principled {
         };
         let wi = 2.0 * wo.dot(m) * m - wo;
         (wi.z > 0.0 && wo.dot(m) > 0.0).then(|| (wi, hemisphere_to_square(wi)))
+    }
+
+    /// A thin sheet's probabilities of sampling its specular reflection,
+    /// its specular transmission and its diffuse reflection (its diffuse
+    /// transmission takes the rest): Mitsuba's, spec_trans / 2 for each
+    /// specular lobe and the diffuse part's shares.
+    fn thin_shares(&self, through: f32) -> (f32, f32, f32) {
+        let s = self.spec_trans;
+        (0.5 * s, 0.5 * s, (1.0 - s) * (1.0 - through))
+    }
+
+    /// The alphas of a thin sheet's transmission: its roughness scaled by
+    /// 0.65 eta - 0.35 (Burley 2015, as Mitsuba).
+    fn thin_transmission_alphas(&self) -> Vec2 {
+        Principled {
+            roughness: (0.65 * self.eta - 0.35) * self.roughness,
+            ..*self
+        }
+        .alphas()
+    }
+
+    /// A thin sheet's half vector of wo and wi mirrored above the surface,
+    /// where the lobe wi's side picks sees it from the right sides (Mitsuba's
+    /// `mac_mic_compatibility`): reflection needs both in front of it,
+    /// transmission wi behind it.
+    pub(super) fn thin_half(wo: Vec3, wi: Vec3) -> Option<Vec3> {
+        let h = (wo + Vec3::new(wi.x, wi.y, wi.z.abs())).normalize();
+        (wo.dot(h) > 0.0 && (wi.dot(h) > 0.0) == (wi.z > 0.0)).then_some(h)
+    }
+
+    /// f_s cos of a thin sheet, the same seen from either side: its
+    /// specular part (weight spec_trans) reflects with a dielectric's
+    /// Fresnel term tinted as Mitsuba's `thin_fresnel`, and passes what it
+    /// does not reflect through a GGX lobe of scaled roughness mirrored to
+    /// the far side; its diffuse part is the principled one's (without
+    /// metallic), a share `through` of it Lambertian transmission.
+    fn thin_eval(&self, base: Vec3, wo: Vec3, wi: Vec3, through: f32) -> Vec3 {
+        let s = self.spec_trans;
+        let mut value = Vec3::ZERO;
+        let half = Self::thin_half(wo, wi);
+        if let Some(h) = half.filter(|_| s > 0.0) {
+            let wi_r = Vec3::new(wi.x, wi.y, wi.z.abs());
+            let oh = wo.dot(h);
+            let fd = fresnel_dielectric(oh, self.eta).0;
+            if wi.z > 0.0 {
+                let lum = luminance(base);
+                let tint = if lum > 0.0 { base / lum } else { Vec3::ONE };
+                let r0 = ((self.eta - 1.0) / (self.eta + 1.0)).powi(2);
+                let st = self.specular_tint;
+                let f = (1.0 - st) * fd + st * schlick(tint * r0, oh, self.eta);
+                value += f * (s * Distribution::Ggx.dg(self.alphas(), wo, wi_r, h) / (4.0 * wo.z));
+            } else {
+                let dg = Distribution::Ggx.dg(self.thin_transmission_alphas(), wo, wi_r, h);
+                value += base * (s * (1.0 - fd) * dg / (4.0 * wo.z));
+            }
+        }
+        let diffuse = (1.0 - s) * FRAC_1_PI * wi.z.abs();
+        if wi.z < 0.0 {
+            return value + base * (diffuse * through);
+        }
+        let h = (wo + wi).normalize();
+        let ih = wi.dot(h);
+        let (fo, fi) = (schlick_weight(wi.z), schlick_weight(wo.z));
+        let lambert = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
+        let rr = 2.0 * self.roughness * ih * ih;
+        let retro = rr * (fo + fi + fo * fi * (rr - 1.0));
+        let ss90 = 0.5 * rr;
+        let ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
+        let subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
+        let d = lambert + retro;
+        let lobe = d + self.flatness * (subsurface - d);
+        value += base * (diffuse * (1.0 - through) * lobe);
+        if self.sheen > 0.0 {
+            let lum = luminance(base);
+            let tint = if lum > 0.0 { base / lum } else { Vec3::ONE };
+            let sheen = Vec3::ONE + self.sheen_tint * (tint - Vec3::ONE);
+            value += sheen
+                * (self.sheen * (1.0 - s) * (1.0 - through) * schlick_weight(ih.abs()) * wi.z);
+        }
+        value
+    }
+
+    /// Solid-angle pdf of `thin_sample` choosing wi.
+    fn thin_pdf(&self, wo: Vec3, wi: Vec3, through: f32) -> f32 {
+        let (reflect, transmit, diffuse) = self.thin_shares(through);
+        let mut pdf = if wi.z > 0.0 {
+            diffuse * wi.z * FRAC_1_PI
+        } else {
+            (1.0 - reflect - transmit - diffuse) * -wi.z * FRAC_1_PI
+        };
+        if let Some(h) = Self::thin_half(wo, wi).filter(|_| self.spec_trans > 0.0) {
+            let (share, alphas) = if wi.z > 0.0 {
+                (reflect, self.alphas())
+            } else {
+                (transmit, self.thin_transmission_alphas())
+            };
+            let wi_r = Vec3::new(wi.x, wi.y, wi.z.abs());
+            pdf += share * Distribution::Ggx.sampler_pdf(alphas, wo, h) / (4.0 * wi_r.dot(h));
+        }
+        pdf
+    }
+
+    /// A thin sheet's direction from three uniform numbers (u.z picks the
+    /// lobe): a reflection about a visible GGX normal, the same about one
+    /// of the transmission's alphas turned to the far side, or the cosine on
+    /// either side; None where the reflection falls on the wrong side.
+    fn thin_sample(&self, wo: Vec3, u: Vec3, through: f32) -> Option<(Vec3, Vec2)> {
+        let (reflect, transmit, diffuse) = self.thin_shares(through);
+        if u.z >= reflect + transmit {
+            let (wi, square) = cosine(u.truncate());
+            let below = u.z >= reflect + transmit + diffuse;
+            return Some((if below { -wi } else { wi }, square));
+        }
+        let alphas = if u.z < reflect {
+            self.alphas()
+        } else {
+            self.thin_transmission_alphas()
+        };
+        let m = Distribution::Ggx.sample_normal(alphas, wo, u.truncate());
+        let r = 2.0 * wo.dot(m) * m - wo;
+        let wi = if u.z < reflect {
+            r
+        } else {
+            Vec3::new(r.x, r.y, -r.z)
+        };
+        (r.z > 0.0 && wo.dot(m) > 0.0 && (wi.dot(m) > 0.0) == (wi.z > 0.0))
+            .then(|| (wi, hemisphere_to_square(r)))
     }
 }
 
@@ -496,6 +642,122 @@ mod tests {
                 assert!(
                     (pdf - want_pdf).abs() <= 2e-3 * want_pdf,
                     "{name} front {front}: θ {t} φ {phi}: pdf {pdf} vs Mitsuba's {want_pdf}"
+                );
+            }
+        }
+    }
+
+    /// A thin sheet: f cos and pdf against Mitsuba 3.9.1's principledthin
+    /// (scalar_rgb, `BSDF.eval` and `BSDF.pdf`, wi at θ 40° φ 0°; θ above
+    /// 90° lies through the sheet). Mitsuba gave the same numbers with wi
+    /// and each direction turned to the back: the sheet has no sides.
+    #[test]
+    fn principled_thin_evaluates_as_mitsuba() {
+        let thin = |base: [f32; 3], p: Principled, diff_trans: f32| {
+            (
+                Vec3::from(base),
+                Principled {
+                    thin: Some(0.5 * diff_trans),
+                    ..p
+                },
+            )
+        };
+        #[allow(clippy::type_complexity)]
+        let cases: [(&str, (Vec3, Principled), [(f32, f32, [f32; 3], f32); 7]); 4] = [
+            (
+                "plain",
+                thin([0.8, 0.4, 0.2], params(0.5), 0.0),
+                [
+                    (10.0, 180.0, [0.2508357, 0.1254179, 0.0627089], 0.313474),
+                    (60.0, 90.0, [0.1281031, 0.0640516, 0.0320258], 0.1591549),
+                    (45.0, 170.0, [0.1800874, 0.0900437, 0.0450219], 0.2250791),
+                    (80.0, 0.0, [0.050759, 0.0253795, 0.0126897], 0.0552739),
+                    (150.0, 180.0, [0.0; 3], 0.0),
+                    (120.0, 40.0, [0.0; 3], 0.0),
+                    (165.0, 20.0, [0.0; 3], 0.0),
+                ],
+            ),
+            (
+                "leaf",
+                thin(
+                    [0.3, 0.6, 0.2],
+                    Principled {
+                        sheen: 0.5,
+                        sheen_tint: 0.3,
+                        flatness: 0.3,
+                        ..params(0.4)
+                    },
+                    0.8,
+                ),
+                [
+                    (10.0, 180.0, [0.0515885, 0.1031755, 0.0343928], 0.1880844),
+                    (60.0, 90.0, [0.028519, 0.0570237, 0.0190174], 0.095493),
+                    (45.0, 170.0, [0.0388848, 0.0775918, 0.0259824], 0.1350474),
+                    (80.0, 0.0, [0.0109647, 0.0219294, 0.0073098], 0.0331644),
+                    (150.0, 180.0, [0.0330797, 0.0661595, 0.0220532], 0.1102658),
+                    (120.0, 40.0, [0.0190986, 0.0381972, 0.0127324], 0.063662),
+                    (165.0, 20.0, [0.0368956, 0.0737913, 0.0245971], 0.1229855),
+                ],
+            ),
+            (
+                "glass",
+                thin(
+                    [0.9, 0.8, 0.7],
+                    Principled {
+                        spec_trans: 1.0,
+                        specular_tint: 0.4,
+                        eta: 1.5,
+                        ..params(0.3)
+                    },
+                    0.0,
+                ),
+                [
+                    (10.0, 180.0, [0.006366, 0.0060688, 0.0057716], 0.0756031),
+                    (60.0, 90.0, [0.0002, 0.0001909, 0.0001818], 0.0023236),
+                    (45.0, 170.0, [0.1484407, 0.1421957, 0.1359507], 1.5937893),
+                    (80.0, 0.0, [5.86e-05, 5.58e-05, 5.31e-05], 0.0007429),
+                    (150.0, 180.0, [1.4201276, 1.2623358, 1.1045438], 0.8245443),
+                    (120.0, 40.0, [0.0; 3], 0.0),
+                    (165.0, 20.0, [0.0025141, 0.0022347, 0.0019554], 0.001455),
+                ],
+            ),
+            (
+                "mix",
+                thin(
+                    [0.6, 0.7, 0.9],
+                    Principled {
+                        spec_trans: 0.5,
+                        eta: 1.33,
+                        anisotropic: 0.5,
+                        specular_tint: 0.2,
+                        sheen: 0.3,
+                        ..params(0.6)
+                    },
+                    1.2,
+                ),
+                [
+                    (10.0, 180.0, [0.0427957, 0.0492175, 0.0620613], 0.1927397),
+                    (60.0, 90.0, [0.0196098, 0.0228349, 0.029285], 0.0394858),
+                    (45.0, 170.0, [0.0344278, 0.0391079, 0.0484681], 0.206016),
+                    (80.0, 0.0, [0.0083937, 0.0097477, 0.0124558], 0.0274068),
+                    (150.0, 180.0, [1.6334146, 1.9056504, 2.4501219], 1.4343551),
+                    (120.0, 40.0, [0.0286479, 0.0334225, 0.0429718], 0.0477465),
+                    (165.0, 20.0, [0.0730986, 0.0852817, 0.1096479], 0.1073426),
+                ],
+            ),
+        ];
+        let wo = dir(40.0, 0.0);
+        for (name, (base, p), values) in cases {
+            for (t, phi, want, want_pdf) in values {
+                let (got, want) = (p.eval(base, wo, dir(t, phi)), Vec3::from(want));
+                assert!(
+                    (got - want).abs().max_element() <= 2e-3 * want.max_element() + 1e-7,
+                    "{name}: θ {t} φ {phi}: {got} vs Mitsuba's {want}"
+                );
+                let pdf = p.pdf(wo, dir(t, phi));
+                assert!(
+                    (pdf - want_pdf).abs() <= 2e-3 * want_pdf + 1e-7,
+                    "{name}: θ {t} φ {phi}: pdf {pdf} vs Mitsuba's {want_pdf}"
                 );
             }
         }

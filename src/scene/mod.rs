@@ -334,7 +334,7 @@ impl Material {
             (eta, k) = (reflectance, Vec3::new(0.0, 0.0, alpha));
         }
         if let Surface::Principled { params: p, .. } = self.surface {
-            eta = Vec3::new(p.metallic, p.specular_tint, p.sheen);
+            eta = Vec3::new(p.thin.unwrap_or(p.metallic), p.specular_tint, p.sheen);
             k = Vec3::new(p.sheen_tint, p.flatness, p.clearcoat);
         }
         // Three slots in eta.w's bits; rough glass's alpha across its
@@ -793,6 +793,9 @@ impl Scene {
                     shaders::FEATURE_PLASTIC | shaders::FEATURE_ROUGH_PLASTIC
                 }
                 Surface::RoughDielectric { .. } => shaders::FEATURE_ROUGH_GLASS,
+                Surface::Principled { params, .. } if params.thin.is_some() => {
+                    shaders::FEATURE_PRINCIPLED | shaders::FEATURE_PRINCIPLED_THIN
+                }
                 // Its back is rough glass where it lets light through.
                 Surface::Principled { params, .. } if params.transmits() => {
                     shaders::FEATURE_PRINCIPLED | shaders::FEATURE_ROUGH_GLASS

@@ -166,6 +166,8 @@ impl BsdfDesc {
                 self.surface,
                 Surface::Dielectric { .. } | Surface::Thin { .. } | Surface::RoughDielectric { .. }
             )
+            // Mitsuba's principledthin always has a transmission lobe.
+            || matches!(self.surface, Surface::Principled { params, .. } if params.thin.is_some())
             || self.surface.rough_transmission()
             || self
                 .choice
@@ -1721,62 +1723,92 @@ fn rough_plastic(el: &Element, p: &Props) -> Result<Surface, SceneError> {
     })
 }
 
-/// A `principled` as Mitsuba reads it (each weight in [0, 1]).
-fn principled(el: &Element, p: &Props) -> Result<Surface, SceneError> {
+/// A `principled` as Mitsuba reads it (each weight in [0, 1]), or its
+/// thin sibling `principledthin` (`thin`: no metallic, clearcoat or
+/// `specular`; `diff_trans` in [0, 2]).
+fn principled(el: &Element, p: &Props, thin: bool) -> Result<Surface, SceneError> {
+    let kind = if thin { "principledthin" } else { "principled" };
     // Mitsuba reads each as a texture's eval_1: a colour by its mean.
-    let weight = |name: &str, default: f32| -> Result<f32, SceneError> {
+    let ranged = |name: &str, default: f32, most: f32| -> Result<f32, SceneError> {
         let v = p.mean_number(name)?.unwrap_or(default);
-        if !(0.0..=1.0).contains(&v) {
-            return Err(el.error(format!("principled {name} {v} must lie in [0, 1]")));
+        if !(0.0..=most).contains(&v) {
+            return Err(el.error(format!("{kind} {name} {v} must lie in [0, {most}]")));
         }
         Ok(v)
     };
+    let weight = |name: &str, default: f32| ranged(name, default, 1.0);
     let spec_trans = weight("spec_trans", 0.0)?;
     let anisotropic = weight("anisotropic", 0.0)?;
     let roughness = weight("roughness", 0.5)?;
-    let eta = match (p.float("eta")?, p.float("specular")?) {
-        (Some(_), Some(_)) => {
-            return Err(el.error("principled: give eta or specular, not both (as in Mitsuba)"))
-        }
-        // Mitsuba moves an index of 1, which refracts nothing, off 1 where
-        // the BSDF refracts.
-        (Some(eta), None) if eta == 1.0 && spec_trans > 0.0 => 1.001,
-        (Some(eta), None) => positive(el, "eta", eta)?,
-        (None, specular) => {
-            let s = match specular.unwrap_or(0.5) {
-                0.0 if spec_trans > 0.0 => 1e-3,
-                s => s,
-            };
-            if !(0.0..12.5).contains(&s) {
-                return Err(el.error(format!(
-                    "principled specular {s} must lie in [0, 12.5) (an index of refraction)"
-                )));
+    let eta = if thin {
+        positive(el, "eta", p.mean_number("eta")?.unwrap_or(1.5))?
+    } else {
+        match (p.float("eta")?, p.float("specular")?) {
+            (Some(_), Some(_)) => {
+                return Err(el.error("principled: give eta or specular, not both (as in Mitsuba)"))
             }
-            2.0 / (1.0 - (0.08 * s).sqrt()) - 1.0
+            // Mitsuba moves an index of 1, which refracts nothing, off 1
+            // where the BSDF refracts.
+            (Some(eta), None) if eta == 1.0 && spec_trans > 0.0 => 1.001,
+            (Some(eta), None) => positive(el, "eta", eta)?,
+            (None, specular) => {
+                let s = match specular.unwrap_or(0.5) {
+                    0.0 if spec_trans > 0.0 => 1e-3,
+                    s => s,
+                };
+                if !(0.0..12.5).contains(&s) {
+                    return Err(el.error(format!(
+                        "principled specular {s} must lie in [0, 12.5) (an index of refraction)"
+                    )));
+                }
+                2.0 / (1.0 - (0.08 * s).sqrt()) - 1.0
+            }
         }
     };
     // How often Mitsuba samples each lobe: no part of the image.
-    for rate in [
-        "diffuse_reflectance_sampling_rate",
-        "main_specular_sampling_rate",
-        "clearcoat_sampling_rate",
-    ] {
+    let rates: &[&str] = if thin {
+        &[
+            "diffuse_reflectance_sampling_rate",
+            "specular_reflectance_sampling_rate",
+            "specular_transmittance_sampling_rate",
+            "diffuse_transmittance_sampling_rate",
+        ]
+    } else {
+        &[
+            "diffuse_reflectance_sampling_rate",
+            "main_specular_sampling_rate",
+            "clearcoat_sampling_rate",
+        ]
+    };
+    for rate in rates {
         p.float(rate)?;
     }
+    let thick = |name: &str, default: f32| {
+        if thin {
+            Ok(0.0)
+        } else {
+            weight(name, default)
+        }
+    };
     Ok(Surface::Principled {
         base_color: reflectance(el, p, "base_color", 0.5)?,
         params: crate::bsdf::Principled {
             roughness,
-            metallic: weight("metallic", 0.0)?,
+            metallic: thick("metallic", 0.0)?,
             specular_tint: weight("spec_tint", 0.0)?,
             sheen: weight("sheen", 0.0)?,
             sheen_tint: weight("sheen_tint", 0.0)?,
             flatness: weight("flatness", 0.0)?,
-            clearcoat: weight("clearcoat", 0.0)?,
-            clearcoat_gloss: weight("clearcoat_gloss", 0.0)?,
+            clearcoat: thick("clearcoat", 0.0)?,
+            clearcoat_gloss: thick("clearcoat_gloss", 0.0)?,
             spec_trans,
             anisotropic,
             eta,
+            thin: if thin {
+                Some(0.5 * ranged("diff_trans", 0.0, 2.0)?)
+            } else {
+                None
+            },
         },
     })
 }
@@ -1956,11 +1988,13 @@ fn bsdf(
             d
         }
         "roughplastic" => one(rough_plastic(el, &p)?),
-        "principled" => {
-            // Where it lets light through, its back is its dielectric's.
-            let surface = principled(el, &p)?;
+        "principled" | "principledthin" => {
+            // Where it lets light through, its back is its dielectric's; a
+            // thin one is the same on both sides.
+            let thin = kind == "principledthin";
+            let surface = principled(el, &p, thin)?;
             BsdfDesc {
-                one_sided: !surface.rough_transmission(),
+                one_sided: !thin && !surface.rough_transmission(),
                 ..one(surface)
             }
         }
@@ -1996,10 +2030,9 @@ fn bsdf(
             d.map_normals(b, map)?;
             d
         }
-        "pplastic" | "principledthin" | "hair" | "measured" | "polarizer" | "retarder"
-        | "circular" => {
+        "pplastic" | "hair" | "measured" | "polarizer" | "retarder" | "circular" => {
             return Err(el.error(format!(
-                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, principled, twosided, normalmap, bumpmap, mask, blendbsdf and null"
+                "bsdf '{kind}' is not supported; qtrace has diffuse, conductor, roughconductor, dielectric, roughdielectric, thindielectric, plastic, roughplastic, principled, principledthin, twosided, normalmap, bumpmap, mask, blendbsdf and null"
             )))
         }
         other => return Err(el.error(format!("'{other}' is not a Mitsuba 3 BSDF"))),

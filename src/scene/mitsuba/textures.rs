@@ -72,6 +72,16 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("flatness", TEXTURE_SLOT_FLATNESS),
             ("clearcoat", TEXTURE_SLOT_CLEARCOAT),
         ],
+        // Its diffuse transmission in metallic's place.
+        "principledthin" => &[
+            ("base_color", COLOR),
+            ("diff_trans", SECOND),
+            ("roughness", ALPHA),
+            ("spec_tint", TEXTURE_SLOT_HIGHLIGHT_TINT),
+            ("sheen", TEXTURE_SLOT_SHEEN),
+            ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
+            ("flatness", TEXTURE_SLOT_FLATNESS),
+        ],
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
         "normalmap" => &[("normalmap", COLOR)],
@@ -163,7 +173,8 @@ impl Textures {
             let number = slot == TEXTURE_SLOT_ALPHA
                 || slot >= TEXTURE_SLOT_ACROSS
                 || matches!(kind, "mask" | "blendbsdf")
-                || (matches!(kind, "principled" | "roughconductor") && slot == TEXTURE_SLOT_SECOND);
+                || (matches!(kind, "principled" | "principledthin" | "roughconductor")
+                    && slot == TEXTURE_SLOT_SECOND);
             let texture = if number {
                 read_as_number(texture)
             } else {
