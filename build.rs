@@ -67,8 +67,8 @@ const VARIANTS: &[(&str, &str, &[&str])] = &[
     // Rows with one target (a transition) or one per sector (a volume).
     ("mlp_train", "mlp_train", &[]),
     ("mlp_train", "mlp_train_dense", &["MLP_DENSE"]),
-    ("mlp_adam_output", "mlp_adam_output", &[]),
-    ("mlp_adam_output", "mlp_adam_output_dense", &["MLP_DENSE"]),
+    ("mlp_adam", "mlp_adam", &[]),
+    ("mlp_adam", "mlp_adam_dense", &["MLP_DENSE"]),
     // The walk alone, its lanes waiting for each round's longest walk or
     // refilled as they finish (examples/bvh_steps.rs --gpu).
     ("walk_bench", "walk_bench", &[]),

@@ -1,7 +1,7 @@
 //! The Neural-Q network on the GPU: its parameters and Adam moments, a batch
 //! of training transitions, and the passes that train on that batch
-//! (`mlp_train`, `mlp_adam` for the hidden layers, `mlp_bucket` to group the
-//! rows by sector, `mlp_adam_output`, then `mlp_batch` to empty it). The maths is `guide::mlp`'s.
+//! (`mlp_train`, `mlp_bucket` to group the rows by sector, `mlp_adam` for
+//! all layers in one dispatch, then `mlp_batch` to empty it). The maths is `guide::mlp`'s.
 //! A dense network's rows have a target for every sector (a volume's row of
 //! target means) instead of one: its training and output passes are the
 //! `MLP_DENSE` variants, and it needs no grouping by sector.
@@ -37,11 +37,9 @@ pub struct Network {
     bucket: ComputePipeline,
     bucket_set: DescriptorSet,
     adam_pass: ComputePipeline,
-    adam_output: ComputePipeline,
     batch_pass: ComputePipeline,
     train_set: DescriptorSet,
     adam_set: DescriptorSet,
-    adam_output_set: DescriptorSet,
     batch_set: DescriptorSet,
 }
 
@@ -52,9 +50,8 @@ fn groups(items: u32) -> [u32; 3] {
 /// The passes of one training step, as the profiler names them.
 const TRAINING: &str = "mlp training";
 const ROWS_BY_SECTOR: &str = "mlp rows by sector";
-const ADAM_HIDDEN: &str = "mlp Adam step (hidden)";
-const ADAM_OUTPUT: &str = "mlp Adam step (output)";
-pub const STEP_PASSES: [&str; 4] = [TRAINING, ROWS_BY_SECTOR, ADAM_HIDDEN, ADAM_OUTPUT];
+const ADAM: &str = "mlp Adam step";
+pub const STEP_PASSES: [&str; 3] = [TRAINING, ROWS_BY_SECTOR, ADAM];
 
 impl Network {
     /// A network with parameters `params` (see `MlpShape::init`) and a
@@ -101,28 +98,15 @@ impl Network {
         } else {
             None
         };
-        let (train_spirv, output_spirv) = match dense {
-            Some(_) => (spirv::MLP_TRAIN_DENSE, spirv::MLP_ADAM_OUTPUT_DENSE),
-            None => (spirv::MLP_TRAIN, spirv::MLP_ADAM_OUTPUT),
+        let (train_spirv, adam_spirv) = match dense {
+            Some(_) => (spirv::MLP_TRAIN_DENSE, spirv::MLP_ADAM_DENSE),
+            None => (spirv::MLP_TRAIN, spirv::MLP_ADAM),
         };
         let push = size_of::<MlpPush>() as u32;
         let constants = shape.constants();
         let train =
             ComputePipeline::specialized(ctx, "mlp training", train_spirv, push, &constants)?;
-        let adam_pass = ComputePipeline::specialized(
-            ctx,
-            "mlp Adam step (hidden)",
-            spirv::MLP_ADAM,
-            push,
-            &constants,
-        )?;
-        let adam_output = ComputePipeline::specialized(
-            ctx,
-            "mlp Adam step (output)",
-            output_spirv,
-            push,
-            &constants,
-        )?;
+        let adam_pass = ComputePipeline::specialized(ctx, ADAM, adam_spirv, push, &constants)?;
         let bucket = ComputePipeline::specialized(
             ctx,
             "mlp rows by sector",
@@ -145,7 +129,6 @@ impl Network {
         bindings.extend(dense.iter().map(|d| (shaders::B_MLP_DENSE, d)));
         let train_set = DescriptorSet::new(ctx, &train, &bindings)?;
         let adam_set = DescriptorSet::new(ctx, &adam_pass, &bindings)?;
-        let adam_output_set = DescriptorSet::new(ctx, &adam_output, &bindings)?;
         let batch_set = DescriptorSet::new(ctx, &batch_pass, &bindings)?;
         let bucket_set = DescriptorSet::new(ctx, &bucket, &bindings)?;
         ctx.submit(None, |rec| {
@@ -172,11 +155,9 @@ impl Network {
             bucket,
             bucket_set,
             adam_pass,
-            adam_output,
             batch_pass,
             train_set,
             adam_set,
-            adam_output_set,
             batch_set,
         })
     }
@@ -236,28 +217,24 @@ impl Network {
                     groups: [1, 1, 1],
                 });
             }
-            // An invocation per four weights of a unit and per bias.
+            // One dispatch for all layers (glsl/mlp_adam.comp): first the
+            // hidden layers' workgroups, an invocation per four weights of
+            // a unit and per bias, then the output layer's.
             let slots = |fan_in: usize, fan_out: usize| (fan_out * (fan_in / 4 + 1)) as u32;
             let layers = self.shape.layers();
             let (output, hidden) = layers.split_last().unwrap();
+            let hidden_groups = groups(hidden.iter().map(|l| slots(l.fan_in, l.fan_out)).sum())[0];
+            // One workgroup per output, or with dense rows as the hidden ones.
+            let output_groups = match self.dense {
+                Some(_) => groups(slots(output.fan_in, output.fan_out))[0],
+                None => self.shape.outputs,
+            };
             rec.dispatch(Pass {
-                name: ADAM_HIDDEN,
+                name: ADAM,
                 pipeline: &self.adam_pass,
                 set: &self.adam_set,
                 push,
-                groups: groups(hidden.iter().map(|l| slots(l.fan_in, l.fan_out)).sum()),
-            });
-            // One workgroup per output, or with dense rows as the hidden ones.
-            let output_groups = match self.dense {
-                Some(_) => groups(slots(output.fan_in, output.fan_out)),
-                None => [self.shape.outputs, 1, 1],
-            };
-            rec.dispatch(Pass {
-                name: ADAM_OUTPUT,
-                pipeline: &self.adam_output,
-                set: &self.adam_output_set,
-                push,
-                groups: output_groups,
+                groups: [hidden_groups + output_groups, 1, 1],
             });
         }
     }
