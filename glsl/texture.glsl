@@ -211,14 +211,15 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
 }
 
 // What emitting material m sends from triangle i at barycentric b: its
-// radiance texture's value there (the colour slot of an emitter), else its
-// radiance.
+// radiance texture's value there (the colour slot of an emitter; a mesh
+// attribute's, interpolated), else its radiance.
 vec3 emitted(Material m, uint i, vec2 b) {
     uint t = texture_slot(m, TEXTURE_SLOT_COLOR);
     if (!scene_textured() || t == 0u) {
         return m.emission.rgb;
     }
-    return texture_eval(t - 1u, surface_uv(i, clamp(b, vec2(0.0), vec2(1.0))));
+    b = clamp(b, vec2(0.0), vec2(1.0));
+    return texture_at(t - 1u, i, b, surface_uv(i, b));
 }
 
 #endif

@@ -1495,6 +1495,56 @@ fn thin_principled_sheets_agree_with_mitsuba() {
 }
 
 #[test]
+fn lights_whose_radiance_is_a_mesh_attribute_pick_triangles_by_their_own() {
+    // NEE's probability of a triangle over its area is its own mean
+    // radiance's luminance over the total: the same ratio on every triangle
+    // of both lights, and those of the wall's faces differ.
+    use qtrace::scene::texture::Pattern;
+    let scene = Scene::load(common::repo("tests/fixtures/mitsuba/coverage-y.xml")).unwrap();
+    let (mut ratios, mut pdfs) = (Vec::new(), Vec::new());
+    for (i, t) in scene.triangles.iter().enumerate() {
+        let m = &scene.materials[t.material as usize];
+        let Some(slot) = m.textures[qtrace::shaders::TEXTURE_SLOT_COLOR as usize] else {
+            continue;
+        };
+        let Pattern::Attribute { name, scale, .. } = &scene.textures[slot as usize].pattern else {
+            continue;
+        };
+        let (_, corners) = scene.attributes.iter().find(|(n, _)| n == name).unwrap();
+        let [a, b, c] = corners[i];
+        let le = scale * qtrace::bsdf::luminance((a + b + c) / 3.0);
+        assert!(t.light_pdf > 0.0, "triangle {i} of '{name}' is no light");
+        ratios.push(t.light_pdf / le);
+        pdfs.push(t.light_pdf);
+    }
+    assert!(ratios.len() > 1000, "{} emitting triangles", ratios.len());
+    let first = ratios[0];
+    for r in &ratios {
+        assert!((r / first - 1.0).abs() < 1e-4, "{r} vs {first}");
+    }
+    let (lo, hi) = pdfs
+        .iter()
+        .fold((f32::MAX, 0.0f32), |(lo, hi), &p| (lo.min(p), hi.max(p)));
+    assert!(hi > 3.0 * lo, "densities {lo} to {hi}");
+}
+
+#[test]
+fn lights_whose_radiance_is_a_mesh_attribute_agree_with_mitsuba() {
+    // A sphere glowing in its vertex colours, a wall of tiles each in its
+    // face colour: seen, reached by NEE (each triangle weighed by its own
+    // radiance) and learned by the guides.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-y.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "coverage-y",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn point_clouds_of_small_spheres_agree_with_mitsuba() {
     // 150 small spheres, tessellated as finely as the camera sees them,
     // and a large one.

@@ -1055,12 +1055,17 @@ impl Scene {
         let sky_weight = environment
             .as_ref()
             .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
-        let (lights, delta_entries) =
-            build_lights(&mut triangles, &materials, &delta_lights, sky_weight);
         let attributes: Attributes = attributes
             .into_iter()
             .map(|(n, v)| (n, in_order(v, &bvh.order)))
             .collect();
+        let (lights, delta_entries) = build_lights(
+            &mut triangles,
+            &materials,
+            &emitted_means(&materials, &textures, &attributes),
+            &delta_lights,
+            sky_weight,
+        );
         // Each attribute texture reads its values at its place among
         // the triangle's.
         let mut textures = textures;
@@ -1349,13 +1354,40 @@ pub fn ray_triangle(o: Vec3, d: Vec3, t: &shaders::Triangle) -> Option<f32> {
     (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && tt > 0.0).then_some(tt)
 }
 
+/// Per material whose radiance is a mesh attribute, the attribute's
+/// corners (per triangle, in the triangles' order) and its scale: such a
+/// light's triangles are weighed by their own mean radiance, the mean of
+/// their corners', as the kernels interpolate them.
+fn emitted_means<'a>(
+    materials: &[Material],
+    textures: &[texture::Texture],
+    attributes: &'a Attributes,
+) -> Vec<Option<(&'a [[Vec3; 3]], f32)>> {
+    materials
+        .iter()
+        .map(|m| {
+            let t = m.textures[shaders::TEXTURE_SLOT_COLOR as usize]?;
+            match &textures[t as usize].pattern {
+                texture::Pattern::Attribute { name, scale, .. } if m.emission != Vec3::ZERO => {
+                    let (_, corners) = attributes.iter().find(|(n, _)| n == name)?;
+                    Some((corners.as_slice(), *scale))
+                }
+                _ => None,
+            }
+        })
+        .collect()
+}
+
 /// Emissive triangles, chosen for next-event estimation in proportion to
-/// area × luminance(Le), and the delta lights by their weights; also stores
-/// each triangle's P(choose)/area on it. The delta lights' entries follow
-/// the triangles' in the one list NEE draws from.
+/// area × luminance(Le) (a mesh attribute's: the triangle's own mean, at
+/// least a thousandth of its light's, so that every triangle of a light
+/// stays one), and the delta lights by their weights; also stores each
+/// triangle's P(choose)/area on it. The delta lights' entries follow the
+/// triangles' in the one list NEE draws from.
 fn build_lights(
     triangles: &mut [shaders::Triangle],
     materials: &[Material],
+    attributes: &[Option<(&[[Vec3; 3]], f32)>],
     delta: &[(shaders::DeltaLight, f32)],
     sky: Option<f32>,
 ) -> (Vec<shaders::Light>, Vec<shaders::Light>) {
@@ -1363,7 +1395,15 @@ fn build_lights(
         .iter()
         .enumerate()
         .filter_map(|(i, t)| {
-            let w = t.area * luminance(materials[t.material as usize].emission);
+            let mean = luminance(materials[t.material as usize].emission);
+            let le = match attributes[t.material as usize] {
+                Some((corners, scale)) => {
+                    let [a, b, c] = corners[i];
+                    (scale * luminance((a + b + c) / 3.0)).max(1e-3 * mean)
+                }
+                None => mean,
+            };
+            let w = t.area * le;
             (w > 0.0).then_some((i as u32, w))
         })
         .chain(

@@ -771,8 +771,13 @@ impl Builder<'_, '_> {
         let p = Props::new(el);
         let emission = area_emission(&p, &mut self.textures, self.loader)?;
         let (desc, shared) = self.shape_bsdf(&p, emission.is_some())?;
-        // An emitter's BSDF takes no textures.
+        // An emitter's BSDF takes no textures; its radiance may be a mesh
+        // attribute.
         let attributes = match emission {
+            Some((_, Some(t))) => match &self.textures.used[t as usize].pattern {
+                Pattern::Attribute { name, .. } => vec![(name.clone(), false)],
+                _ => Vec::new(),
+            },
             Some(_) => Vec::new(),
             None => self.attribute_read(&desc),
         };
@@ -827,7 +832,7 @@ impl Builder<'_, '_> {
                 normal_map: None,
                 choice: None,
             });
-            self.add(el, &label, mesh, Vec::new(), m);
+            self.add(el, &label, mesh, attributes, m);
             return Ok(());
         }
         let m = match shared {

@@ -151,19 +151,10 @@ impl Textures {
             }
             if let Pattern::Attribute { name: a, .. } = &texture.pattern {
                 // Mitsuba has no mean of a mesh attribute (which its
-                // plastics weigh their lobes by) and no gradient; qtrace
-                // weighs an emitter by its radiance's mean too.
-                if matches!(
-                    kind,
-                    "plastic" | "roughplastic" | "normalmap" | "bumpmap" | "area"
-                ) {
+                // plastics weigh their lobes by) and no gradient.
+                if matches!(kind, "plastic" | "roughplastic" | "normalmap" | "bumpmap") {
                     return Err(c.error(format!(
-                        "{kind}'s '{name}' cannot be a mesh attribute ('{a}'){}",
-                        if kind == "area" {
-                            " in qtrace yet"
-                        } else {
-                            ", as in Mitsuba"
-                        }
+                        "{kind}'s '{name}' cannot be a mesh attribute ('{a}'), as in Mitsuba"
                     )));
                 }
             }
