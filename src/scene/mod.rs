@@ -1354,15 +1354,18 @@ pub fn ray_triangle(o: Vec3, d: Vec3, t: &shaders::Triangle) -> Option<f32> {
     (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && tt > 0.0).then_some(tt)
 }
 
-/// Per material whose radiance is a mesh attribute, the attribute's
-/// corners (per triangle, in the triangles' order) and its scale: such a
+/// A light's radiance as a mesh attribute: its corners per triangle, in the
+/// triangles' order, and its scale.
+type EmittedAttribute<'a> = Option<(&'a [[Vec3; 3]], f32)>;
+
+/// Per material whose radiance is a mesh attribute, that attribute: such a
 /// light's triangles are weighed by their own mean radiance, the mean of
 /// their corners', as the kernels interpolate them.
 fn emitted_means<'a>(
     materials: &[Material],
     textures: &[texture::Texture],
     attributes: &'a Attributes,
-) -> Vec<Option<(&'a [[Vec3; 3]], f32)>> {
+) -> Vec<EmittedAttribute<'a>> {
     materials
         .iter()
         .map(|m| {
@@ -1387,7 +1390,7 @@ fn emitted_means<'a>(
 fn build_lights(
     triangles: &mut [shaders::Triangle],
     materials: &[Material],
-    attributes: &[Option<(&[[Vec3; 3]], f32)>],
+    attributes: &[EmittedAttribute<'_>],
     delta: &[(shaders::DeltaLight, f32)],
     sky: Option<f32>,
 ) -> (Vec<shaders::Light>, Vec<shaders::Light>) {
