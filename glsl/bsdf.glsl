@@ -425,6 +425,21 @@ float gtr1_d(float alpha, vec3 h) {
     return (a2 - 1.0) / (PI * log(a2) * (1.0 + (a2 - 1.0) * h.z * h.z));
 }
 
+// Burley's diffuse lobe over the Lambertian one, with retro-reflection at
+// roughness r, flattened towards Hanrahan-Krueger's by `flatness`; ih is
+// wi.h for the half vector h of wo and wi.
+float burley_diffuse(vec3 wo, vec3 wi, float ih, float r, float flatness) {
+    float fo = schlick_weight(wi.z);
+    float fi = schlick_weight(wo.z);
+    float diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
+    float rr = 2.0 * r * ih * ih;
+    float retro = rr * (fo + fi + fo * fi * (rr - 1.0));
+    float ss90 = 0.5 * rr;
+    float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
+    float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
+    return mix(diffuse + retro, subsurface, flatness);
+}
+
 // The specular lobe as a GGX conductor (principled_alphas), for the
 // microfacet helpers.
 Bsdf principled_specular(Bsdf bsdf) {
@@ -494,15 +509,7 @@ vec3 principled_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
         value += 0.25 * clearcoat * f * gtr1_d(principled_clearcoat_alpha(bsdf), h) * g * wi.z;
     }
     if (weights.x > 0.0) {
-        float fo = schlick_weight(wi.z);
-        float fi = schlick_weight(wo.z);
-        float diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
-        float rr = 2.0 * bsdf.alpha * ih * ih;
-        float retro = rr * (fo + fi + fo * fi * (rr - 1.0));
-        float ss90 = 0.5 * rr;
-        float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
-        float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
-        float lobe = mix(diffuse + retro, subsurface, bsdf.ior_k.y);
+        float lobe = burley_diffuse(wo, wi, ih, bsdf.alpha, bsdf.ior_k.y);
         value += base * (weights.x * wi.z * INV_PI * lobe);
         float sheen = bsdf.ior_eta.z;
         if (sheen > 0.0) {
@@ -612,17 +619,8 @@ vec3 thin_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
     if (wi.z < 0.0) {
         return value + base * (diffuse * through);
     }
-    vec3 h = normalize(wo + wi);
-    float ih = dot(wi, h);
-    float fo = schlick_weight(wi.z);
-    float fi = schlick_weight(wo.z);
-    float lambert = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
-    float rr = 2.0 * bsdf.alpha * ih * ih;
-    float retro = rr * (fo + fi + fo * fi * (rr - 1.0));
-    float ss90 = 0.5 * rr;
-    float ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
-    float subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
-    value += base * (diffuse * (1.0 - through) * mix(lambert + retro, subsurface, bsdf.ior_k.y));
+    float ih = dot(wi, normalize(wo + wi));
+    value += base * (diffuse * (1.0 - through) * burley_diffuse(wo, wi, ih, bsdf.alpha, bsdf.ior_k.y));
     float sheen = bsdf.ior_eta.z;
     if (sheen > 0.0) {
         value += mix(vec3(1.0), tint, bsdf.ior_k.x) * (sheen * (1.0 - s) * (1.0 - through) * schlick_weight(abs(ih)) * wi.z);

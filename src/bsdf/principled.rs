@@ -93,6 +93,21 @@ fn gtr1_d(alpha: f32, h: Vec3) -> f32 {
     (a2 - 1.0) / (PI * a2.ln() * (1.0 + (a2 - 1.0) * h.z * h.z))
 }
 
+/// Burley's diffuse lobe over the Lambertian one, with retro-reflection at
+/// roughness r, flattened towards Hanrahan-Krueger's by `flatness`; ih is
+/// wi·h for the half vector h of wo and wi.
+fn burley_diffuse(wo: Vec3, wi: Vec3, ih: f32, r: f32, flatness: f32) -> f32 {
+    let (fo, fi) = (schlick_weight(wi.z), schlick_weight(wo.z));
+    let diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
+    let rr = 2.0 * r * ih * ih;
+    let retro = rr * (fo + fi + fo * fi * (rr - 1.0));
+    let ss90 = 0.5 * rr;
+    let ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
+    let subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
+    let d = diffuse + retro;
+    d + flatness * (subsurface - d)
+}
+
 impl Principled {
     /// The specular lobe's GGX alphas along the surface's tangent and
     /// across it, as Mitsuba maps roughness and `anisotropic` (Burley's):
@@ -202,15 +217,7 @@ impl Principled {
             );
         }
         if brdf > 0.0 {
-            let (fo, fi) = (schlick_weight(wi.z), schlick_weight(wo.z));
-            let diffuse = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
-            let rr = 2.0 * self.roughness * ih * ih;
-            let retro = rr * (fo + fi + fo * fi * (rr - 1.0));
-            let ss90 = 0.5 * rr;
-            let ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
-            let subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
-            let d = diffuse + retro;
-            let lobe = d + self.flatness * (subsurface - d);
+            let lobe = burley_diffuse(wo, wi, ih, self.roughness, self.flatness);
             value += base * (brdf * wi.z * FRAC_1_PI * lobe);
             if self.sheen > 0.0 {
                 let sheen = Vec3::ONE + self.sheen_tint * (tint - Vec3::ONE);
@@ -337,17 +344,8 @@ impl Principled {
         if wi.z < 0.0 {
             return value + base * (diffuse * through);
         }
-        let h = (wo + wi).normalize();
-        let ih = wi.dot(h);
-        let (fo, fi) = (schlick_weight(wi.z), schlick_weight(wo.z));
-        let lambert = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo);
-        let rr = 2.0 * self.roughness * ih * ih;
-        let retro = rr * (fo + fi + fo * fi * (rr - 1.0));
-        let ss90 = 0.5 * rr;
-        let ss = (1.0 + (ss90 - 1.0) * fo) * (1.0 + (ss90 - 1.0) * fi);
-        let subsurface = 1.25 * (ss * (1.0 / (wo.z + wi.z) - 0.5) + 0.5);
-        let d = lambert + retro;
-        let lobe = d + self.flatness * (subsurface - d);
+        let ih = wi.dot((wo + wi).normalize());
+        let lobe = burley_diffuse(wo, wi, ih, self.roughness, self.flatness);
         value += base * (diffuse * (1.0 - through) * lobe);
         if self.sheen > 0.0 {
             let lum = luminance(base);
