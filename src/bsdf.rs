@@ -326,6 +326,7 @@ impl Surface {
             Surface::Thin { .. } => "thin glass",
             Surface::RoughDielectric { .. } => "rough glass",
             Surface::RoughPlastic { .. } => "rough plastic",
+            Surface::Principled { params, .. } if params.thin.is_some() => "thin principled",
             Surface::Principled { .. } => "principled",
         }
     }
