@@ -35,7 +35,8 @@ struct Bsdf {
     vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
     vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, alpha);
                   // glass, rough glass: its reflection's tint (ior_eta);
-                  // principled: (metallic, specular tint, sheen), (sheen tint, flatness, clearcoat)
+                  // principled: (metallic, specular tint, sheen), (sheen tint, flatness, clearcoat);
+                  // thin principled: metallic's place holds its diffuse transmission
     uint table;  // rough plastic: the word its transmittance table begins at;
                  // principled: the word of (eta, clearcoat gloss, spec_trans, anisotropic)
     float alpha_v; // rough conductor, rough glass: alpha along the tangent's normal
