@@ -63,12 +63,13 @@ vec3 shading_normal(uint i, Triangle tri, vec3 p) {
 // What delta light i sends to x: the radiance-like term NEE weighs by the
 // BSDF (intensity / distance^2 times a spot's falloff, or a directional
 // light's irradiance), the direction toward it and its distance.
-vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist) {
+vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist, out vec3 projected) {
     vec4 position = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i)));
     vec4 intensity = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 1u)));
     vec4 axis = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 2u)));
     vec4 falloff = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 3u)));
-    uint kind = uint(position.w);
+    uint kind = uint(position.w) & 3u;
+    projected = vec3(0.0);
     if (kind == DELTA_DIRECTIONAL) {
         wi = -position.xyz;
         dist = 3.0e38;
@@ -78,6 +79,17 @@ vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist) {
     float d2 = dot(to, to);
     dist = sqrt(d2);
     wi = to / dist;
+    if (kind == DELTA_PROJECTOR) {
+        // Mitsuba's: x in the projector's frame (z forward), its image's
+        // point (u, v) as a perspective camera's, and irradiance at z = 1
+        // made radiance by 1 / (z^2 cos): pi scale I(u, v) dist / z^3.
+        vec3 d = x - position.xyz;
+        vec3 local = vec3(dot(d, falloff.xyz), falloff.w * dot(d, cross(axis.xyz, falloff.xyz)), dot(d, axis.xyz));
+        vec2 uv = 0.5 - 0.5 * intensity.w * vec2(local.x, axis.w * local.y) / local.z;
+        bool inside = local.z > 0.0 && all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)));
+        projected = vec3(uv, float(uint(position.w) >> 2u));
+        return inside ? intensity.rgb * (dist / (local.z * local.z * local.z)) : vec3(0.0);
+    }
     vec3 l = intensity.rgb / d2;
     if (kind == DELTA_SPOT) {
         // Mitsuba's: full inside the beam, falling linearly in angle to

@@ -125,6 +125,8 @@
 #define DELTA_POINT 0
 #define DELTA_SPOT 1
 #define DELTA_DIRECTIONAL 2
+// Mitsuba's projector: a pinhole that casts an image (DeltaLight says how).
+#define DELTA_PROJECTOR 3
 
 // PassParams.flags bits.
 #define FLAG_NEE 1
@@ -465,7 +467,13 @@ struct Light {
     float pad;
 };
 
-// A light only NEE reaches (Mitsuba's point, spot and directional).
+// A light only NEE reaches (Mitsuba's point, spot, directional and
+// projector). A projector: position.w is DELTA_PROJECTOR + 4 (1 + its
+// image's texture index, or 0 where its irradiance is a colour);
+// intensity.rgb is pi scale (times that colour), intensity.w the
+// cotangent of half its field of view across; axis.xyz its forward axis,
+// axis.w its image's width over height; falloff.xyz its image's x axis,
+// falloff.w 1, or -1 where its frame is mirrored.
 struct DeltaLight {
     vec4 position;  // xyz: where it is (point, spot) or the direction its light travels (directional); w: DELTA_*
     vec4 intensity; // rgb: intensity (point, spot) or irradiance (directional); w: spot: cos of the cutoff angle

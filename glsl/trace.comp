@@ -554,7 +554,12 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
     vec3 le;
     bool faces = true;
     if (delta_light) {
-        le = delta_light_radiance(entry.x & ~LIGHT_DELTA, s.position, wi, dist);
+        vec3 projected;
+        le = delta_light_radiance(entry.x & ~LIGHT_DELTA, s.position, wi, dist, projected);
+        // A projector's image there.
+        if (scene_textured() && projected.z > 0.0) {
+            le *= texture_eval(uint(projected.z) - 1u, projected.xy);
+        }
         light_pdf = uintBitsToFloat(entry.z);
     } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
         // The sky: a direction by its brightness, unbounded.

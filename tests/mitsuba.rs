@@ -825,6 +825,17 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
             "sun_aperture 0 must lie in (0, 180)",
         ),
         ("<emitter type=\"spot\"><float name=\"beam_width\" value=\"30\"/></emitter>", 5, "beam_width"),
+        ("<emitter type=\"projector\"/>", 5, "projector needs an irradiance"),
+        (
+            "<emitter type=\"projector\"><rgb name=\"irradiance\" value=\"1\"/><transform name=\"to_world\"><scale value=\"2\"/></transform></emitter>",
+            5,
+            "projector: its to_world must not scale",
+        ),
+        (
+            "<emitter type=\"projector\"><rgb name=\"irradiance\" value=\"1\"/><float name=\"fov\" value=\"180\"/></emitter>",
+            5,
+            "fov 180 must lie in (0, 180)",
+        ),
         ("<texture type=\"bitmap\"/>", 5, "a top-level <texture> needs an id"),
         ("<texture type=\"bitmap\" id=\"t\"/>", 5, "bitmap needs a filename"),
         ("<texture type=\"noise\" id=\"t\"/>", 5, "texture 'noise' is not supported"),
@@ -1537,6 +1548,20 @@ fn lights_whose_radiance_is_a_mesh_attribute_agree_with_mitsuba() {
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-y",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
+fn projectors_agree_with_mitsuba() {
+    // A bitmap cast from above the camera, a flat colour from the side.
+    let scene = common::repo("tests/fixtures/mitsuba/coverage-z.xml");
+    for m in [Method::PT, Method::SARSA] {
+        check(
+            "coverage-z",
             &scene,
             &[("res", "64")],
             method(m, true, 1024),

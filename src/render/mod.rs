@@ -70,7 +70,7 @@ impl GpuScene {
             .min(16 * info.max_texel_buffer_elements);
         // Buffers a scene may lack are bound all the same: one unused texel.
         let unused = |name: &str| Buffer::gpu_only_with(ctx, name, &[[0u32; 4]]);
-        let (uvs, textures) = if scene.materials.iter().any(|m| m.textured()) {
+        let (uvs, textures) = if scene.material_features() & crate::shaders::FEATURE_TEXTURES != 0 {
             let error = |e| RenderError::Textures(scene.path.clone(), e);
             let fitted = crate::scene::texture::fit(&scene.textures, limit).map_err(error)?;
             let textures =

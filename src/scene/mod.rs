@@ -828,6 +828,15 @@ impl Scene {
             0
         } else {
             shaders::FEATURE_ATTRIBUTES
+        } | if self
+            .delta_lights
+            .iter()
+            .any(|l| l.position[3] as u32 >> 2 != 0)
+        {
+            // A projector's image.
+            shaders::FEATURE_TEXTURES
+        } else {
+            0
         } | if self.materials.iter().any(Material::emitter_reflects) {
             shaders::FEATURE_EMITTERS_REFLECT
         } else {

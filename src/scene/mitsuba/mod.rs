@@ -312,6 +312,7 @@ impl Builder<'_, '_> {
                     2.0 * std::f32::consts::PI * (1.0 - c.cos()) * luminance(intensity)
                 }
             }
+            "projector" => self.projector(el, &p, to_world, &mut light)?,
             "directional" => {
                 let irradiance = p.radiance("irradiance")?.unwrap_or(Vec3::ONE);
                 let direction = match p.point("direction")? {
@@ -405,7 +406,7 @@ impl Builder<'_, '_> {
             }
             other => {
                 return Err(el.error(format!(
-                    "emitter '{other}' is not supported; qtrace has area (on shapes), point, spot, directional, constant, envmap and sunsky"
+                    "emitter '{other}' is not supported; qtrace has area (on shapes), point, spot, directional, projector, constant, envmap and sunsky"
                 )))
             }
         };
@@ -415,6 +416,103 @@ impl Builder<'_, '_> {
         p.finish()?;
         self.delta_lights.push((light, power));
         Ok(())
+    }
+
+    /// A `projector` (a pinhole casting its `irradiance` image, as Mitsuba's
+    /// perspective camera maps directions to its film) into `light`; its
+    /// power for NEE's choice.
+    fn projector(
+        &mut self,
+        el: &Element,
+        p: &Props,
+        to_world: Mat4,
+        light: &mut crate::shaders::DeltaLight,
+    ) -> Result<f32, SceneError> {
+        let (x, y, z) = (
+            to_world.x_axis.truncate(),
+            to_world.y_axis.truncate(),
+            to_world.z_axis.truncate(),
+        );
+        let rigid = [x, y, z].iter().all(|a| (a.length() - 1.0).abs() < 1e-3)
+            && x.dot(y).abs() < 1e-3
+            && y.dot(z).abs() < 1e-3
+            && z.dot(x).abs() < 1e-3;
+        if !rigid {
+            return Err(el.error(
+                "projector: its to_world must not scale or shear (rotations and a lookat place it)",
+            ));
+        }
+        let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
+        let given = self.textures.given(el, p, "projector", self.loader)?[slot];
+        let (colour, texture, mean, aspect) = match given {
+            Some((t, mean)) => {
+                // Mitsuba sizes the image plane by the texture's
+                // resolution (a checkerboard's is 1 by 1).
+                let aspect = match &self.textures.used[t as usize].pattern {
+                    Pattern::Bitmap { width, height, .. } => *width as f32 / *height as f32,
+                    _ => 1.0,
+                };
+                (Vec3::ONE, t + 1, mean, aspect)
+            }
+            None => {
+                let c = p.radiance("irradiance")?.ok_or_else(|| {
+                    el.error("projector needs an irradiance (a texture or a colour)")
+                })?;
+                (c, 0, Vec3::ONE, 1.0)
+            }
+        };
+        let scale = p.float_or("scale", 1.0)?;
+        if !(scale >= 0.0 && scale.is_finite()) || mean.min_element() < 0.0 {
+            return Err(el.error("the projector's scale and irradiance must not be negative"));
+        }
+        // Mitsuba's parse_fov: the tangent of half the field of view across.
+        let (fov, axis) = match (p.float("fov")?, p.string("focal_length")?) {
+            (Some(_), Some(_)) => return Err(el.error("give fov or focal_length, not both")),
+            (Some(f), None) => (f, p.string("fov_axis")?.unwrap_or("x")),
+            (None, focal) => {
+                let text = focal.unwrap_or("50mm");
+                let mm = text
+                    .trim()
+                    .strip_suffix("mm")
+                    .and_then(xml::parse_f32)
+                    .filter(|v| *v > 0.0)
+                    .ok_or_else(|| {
+                        el.error(format!("focal_length '{text}' is not a length like 50mm"))
+                    })?;
+                let diagonal = (36.0f32 * 36.0 + 24.0 * 24.0).sqrt();
+                (
+                    2.0 * (diagonal / (2.0 * mm)).atan().to_degrees(),
+                    "diagonal",
+                )
+            }
+        };
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
+        }
+        let t = (0.5 * fov.to_radians()).tan();
+        let across = match axis {
+            "x" => t,
+            "y" => t * aspect,
+            "diagonal" => t / (1.0 + 1.0 / (aspect * aspect)).sqrt(),
+            "smaller" if aspect > 1.0 => t * aspect,
+            "smaller" => t,
+            "larger" if aspect > 1.0 => t,
+            "larger" => t * aspect,
+            other => {
+                return Err(el.error(format!(
+                    "fov_axis '{other}' is not x, y, diagonal, smaller or larger"
+                )))
+            }
+        };
+        let pi = std::f32::consts::PI;
+        let kind = crate::shaders::DELTA_PROJECTOR + 4 * texture;
+        light.position = to_world.w_axis.truncate().extend(kind as f32).into();
+        light.intensity = (pi * scale * colour).extend(1.0 / across).into();
+        light.axis = z.extend(aspect).into();
+        let mirrored = z.cross(x).dot(y) < 0.0;
+        light.falloff = x.extend(if mirrored { -1.0 } else { 1.0 }).into();
+        // Its flux: the irradiance over its image plane at distance 1.
+        Ok(crate::bsdf::luminance(pi * scale * colour * mean) * 4.0 * across * across / aspect)
     }
 
     fn integrator(&mut self, el: &Element) -> Result<(), SceneError> {

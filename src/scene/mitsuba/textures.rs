@@ -91,6 +91,8 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
         // An emitter's material: paths end there, so its colour slot holds
         // the radiance.
         "area" => &[("radiance", COLOR)],
+        // A projector's image.
+        "projector" => &[("irradiance", COLOR)],
         _ => &[],
     }
 }
@@ -152,7 +154,10 @@ impl Textures {
             if let Pattern::Attribute { name: a, .. } = &texture.pattern {
                 // Mitsuba has no mean of a mesh attribute (which its
                 // plastics weigh their lobes by) and no gradient.
-                if matches!(kind, "plastic" | "roughplastic" | "normalmap" | "bumpmap") {
+                if matches!(
+                    kind,
+                    "plastic" | "roughplastic" | "normalmap" | "bumpmap" | "projector"
+                ) {
                     return Err(c.error(format!(
                         "{kind}'s '{name}' cannot be a mesh attribute ('{a}'), as in Mitsuba"
                     )));
