@@ -469,22 +469,7 @@ impl Builder<'_, '_> {
         let (fov, axis) = match (p.float("fov")?, p.string("focal_length")?) {
             (Some(_), Some(_)) => return Err(el.error("give fov or focal_length, not both")),
             (Some(f), None) => (f, p.string("fov_axis")?.unwrap_or("x")),
-            (None, focal) => {
-                let text = focal.unwrap_or("50mm");
-                let mm = text
-                    .trim()
-                    .strip_suffix("mm")
-                    .and_then(xml::parse_f32)
-                    .filter(|v| *v > 0.0)
-                    .ok_or_else(|| {
-                        el.error(format!("focal_length '{text}' is not a length like 50mm"))
-                    })?;
-                let diagonal = (36.0f32 * 36.0 + 24.0 * 24.0).sqrt();
-                (
-                    2.0 * (diagonal / (2.0 * mm)).atan().to_degrees(),
-                    "diagonal",
-                )
-            }
+            (None, focal) => (focal_fov(el, focal)?, "diagonal"),
         };
         if !(fov > 0.0 && fov < 180.0) {
             return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
@@ -634,23 +619,7 @@ impl Builder<'_, '_> {
             (None, None) if orthographic => (90.0, axis),
             (Some(_), Some(_)) => return Err(el.error("give fov or focal_length, not both")),
             (Some(f), None) => (f, axis),
-            (None, focal) => {
-                // A focal length on 35 mm film sets the diagonal field of view.
-                let text = focal.unwrap_or("50mm");
-                let mm = text
-                    .trim()
-                    .strip_suffix("mm")
-                    .and_then(xml::parse_f32)
-                    .filter(|v| *v > 0.0)
-                    .ok_or_else(|| {
-                        el.error(format!("focal_length '{text}' is not a length like 50mm"))
-                    })?;
-                let diagonal = (36.0f32 * 36.0 + 24.0 * 24.0).sqrt();
-                (
-                    2.0 * (diagonal / (2.0 * mm)).atan().to_degrees(),
-                    FovAxis::Diagonal,
-                )
-            }
+            (None, focal) => (focal_fov(el, focal)?, FovAxis::Diagonal),
         };
         if !(fov > 0.0 && fov < 180.0) {
             return Err(el.error(format!("fov {fov} must lie in (0, 180) degrees")));
@@ -1656,6 +1625,20 @@ fn placed_by_instance((triangles, normals, uvs): Mesh, m: Mat4) -> Mesh {
         normals.map(|n| shapes::placed_normals(m, &n)),
         uvs.map(|uv| shapes::placed_uvs(m, uv)),
     )
+}
+
+/// The diagonal field of view, in degrees, of a focal length on 35 mm film
+/// (Mitsuba's `focal_length`, 50mm where not given).
+fn focal_fov(el: &Element, focal: Option<&str>) -> Result<f32, SceneError> {
+    let text = focal.unwrap_or("50mm");
+    let mm = text
+        .trim()
+        .strip_suffix("mm")
+        .and_then(xml::parse_f32)
+        .filter(|v| *v > 0.0)
+        .ok_or_else(|| el.error(format!("focal_length '{text}' is not a length like 50mm")))?;
+    let diagonal = (36.0f32 * 36.0 + 24.0 * 24.0).sqrt();
+    Ok(2.0 * (diagonal / (2.0 * mm)).atan().to_degrees())
 }
 
 /// The radiance of a shape's nested `area` emitter, if it has one.
