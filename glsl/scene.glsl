@@ -62,8 +62,10 @@ vec3 shading_normal(uint i, Triangle tri, vec3 p) {
 
 // What delta light i sends to x: the radiance-like term NEE weighs by the
 // BSDF (intensity / distance^2 times a spot's falloff, or a directional
-// light's irradiance), the direction toward it and its distance.
-vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist, out vec3 projected) {
+// light's irradiance; a projector's, where `projectors` builds its code in,
+// before its image at `projected`: (u, v, 1 + texture index or 0)), the
+// direction toward it and its distance.
+vec3 delta_light_radiance(uint i, vec3 x, bool projectors, out vec3 wi, out float dist, out vec3 projected) {
     vec4 position = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i)));
     vec4 intensity = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 1u)));
     vec4 axis = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 2u)));
@@ -79,11 +81,11 @@ vec3 delta_light_radiance(uint i, vec3 x, out vec3 wi, out float dist, out vec3 
     float d2 = dot(to, to);
     dist = sqrt(d2);
     wi = to / dist;
-    if (kind == DELTA_PROJECTOR) {
+    if (projectors && kind == DELTA_PROJECTOR) {
         // Mitsuba's: x in the projector's frame (z forward), its image's
         // point (u, v) as a perspective camera's, and irradiance at z = 1
         // made radiance by 1 / (z^2 cos): pi scale I(u, v) dist / z^3.
-        vec3 d = x - position.xyz;
+        vec3 d = -to;
         vec3 local = vec3(dot(d, falloff.xyz), falloff.w * dot(d, cross(axis.xyz, falloff.xyz)), dot(d, axis.xyz));
         vec2 uv = 0.5 - 0.5 * intensity.w * vec2(local.x, axis.w * local.y) / local.z;
         bool inside = local.z > 0.0 && all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)));

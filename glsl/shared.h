@@ -354,6 +354,9 @@ struct Triangle {
 // ... a thin principled material (MATERIAL_PRINCIPLED_THIN; FEATURE_PRINCIPLED
 // too).
 #define FEATURE_PRINCIPLED_THIN 131072
+// ... a projector among the delta lights (DELTA_PROJECTOR): its code costs
+// the other delta lights' NEE on lavapipe where compiled in.
+#define FEATURE_PROJECTORS 262144
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
 #define CONSTANT_NON_DIFFUSE 4

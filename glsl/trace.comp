@@ -555,7 +555,8 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
     bool faces = true;
     if (delta_light) {
         vec3 projected;
-        le = delta_light_radiance(entry.x & ~LIGHT_DELTA, s.position, wi, dist, projected);
+        bool projectors = (MATERIAL_FEATURES & FEATURE_PROJECTORS) != 0u;
+        le = delta_light_radiance(entry.x & ~LIGHT_DELTA, s.position, projectors, wi, dist, projected);
         // A projector's image there.
         if (scene_textured() && projected.z > 0.0) {
             le *= texture_eval(uint(projected.z) - 1u, projected.xy);

@@ -93,6 +93,17 @@ fn gtr1_d(alpha: f32, h: Vec3) -> f32 {
     (a2 - 1.0) / (PI * a2.ln() * (1.0 + (a2 - 1.0) * h.z * h.z))
 }
 
+/// The base colour over its luminance (white where it is black): the hue
+/// the tints take.
+fn tint(base: Vec3) -> Vec3 {
+    let lum = luminance(base);
+    if lum > 0.0 {
+        base / lum
+    } else {
+        Vec3::ONE
+    }
+}
+
 /// Burley's diffuse lobe over the Lambertian one, with retro-reflection at
 /// roughness r, flattened towards Hanrahan-Krueger's by `flatness`; ih is
 /// wi·h for the half vector h of wo and wi.
@@ -195,8 +206,7 @@ impl Principled {
         let h = (wo + wi).normalize();
         let (oh, ih) = (wo.dot(h), wi.dot(h));
         let m = self.metallic;
-        let lum = luminance(base);
-        let tint = if lum > 0.0 { base / lum } else { Vec3::ONE };
+        let tint = tint(base);
         let mut value = Vec3::ZERO;
         // Mitsuba leaves the whole specular lobe out where the dielectric
         // reflects nothing (eta 1), its metallic part too.
@@ -329,11 +339,9 @@ impl Principled {
             let oh = wo.dot(h);
             let fd = fresnel_dielectric(oh, self.eta).0;
             if wi.z > 0.0 {
-                let lum = luminance(base);
-                let tint = if lum > 0.0 { base / lum } else { Vec3::ONE };
                 let r0 = ((self.eta - 1.0) / (self.eta + 1.0)).powi(2);
                 let st = self.specular_tint;
-                let f = (1.0 - st) * fd + st * schlick(tint * r0, oh, self.eta);
+                let f = (1.0 - st) * fd + st * schlick(tint(base) * r0, oh, self.eta);
                 value += f * (s * Distribution::Ggx.dg(self.alphas(), wo, wi_r, h) / (4.0 * wo.z));
             } else {
                 let dg = Distribution::Ggx.dg(self.thin_transmission_alphas(), wo, wi_r, h);
@@ -348,9 +356,7 @@ impl Principled {
         let lobe = burley_diffuse(wo, wi, ih, self.roughness, self.flatness);
         value += base * (diffuse * (1.0 - through) * lobe);
         if self.sheen > 0.0 {
-            let lum = luminance(base);
-            let tint = if lum > 0.0 { base / lum } else { Vec3::ONE };
-            let sheen = Vec3::ONE + self.sheen_tint * (tint - Vec3::ONE);
+            let sheen = Vec3::ONE + self.sheen_tint * (tint(base) - Vec3::ONE);
             value += sheen
                 * (self.sheen * (1.0 - s) * (1.0 - through) * schlick_weight(ih.abs()) * wi.z);
         }

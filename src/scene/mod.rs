@@ -828,16 +828,21 @@ impl Scene {
             0
         } else {
             shaders::FEATURE_ATTRIBUTES
-        } | if self
-            .delta_lights
-            .iter()
-            .any(|l| l.position[3] as u32 >> 2 != 0)
-        {
-            // A projector's image.
-            shaders::FEATURE_TEXTURES
-        } else {
-            0
-        } | if self.materials.iter().any(Material::emitter_reflects) {
+        } | self.delta_lights.iter().fold(0, |acc, l| {
+            // A projector, and its image.
+            let code = l.position[3] as u32;
+            let projector = if code & 3 == shaders::DELTA_PROJECTOR {
+                shaders::FEATURE_PROJECTORS
+            } else {
+                0
+            };
+            let image = if code >> 2 != 0 {
+                shaders::FEATURE_TEXTURES
+            } else {
+                0
+            };
+            acc | projector | image
+        }) | if self.materials.iter().any(Material::emitter_reflects) {
             shaders::FEATURE_EMITTERS_REFLECT
         } else {
             0
