@@ -3,6 +3,7 @@
 #define QTRACE_SCENE_GLSL
 
 #include "shared.h"
+#include "sampling.glsl"
 
 // The scene's buffers, as raw uvec4 words (WORDS in shared.h).
 WORDS(node_texels, B_NODES)         // 8 per BvhNode
@@ -63,8 +64,9 @@ vec3 shading_normal(uint i, Triangle tri, vec3 p) {
 // What delta light i sends to x: the radiance-like term NEE weighs by the
 // BSDF (intensity / distance^2 times a spot's falloff, or a directional
 // light's irradiance; a projector's, where `projectors` builds its code in,
-// before its image at `projected`: (u, v, 1 + texture index or 0)), the
-// direction toward it and its distance.
+// before its image at `projected`: (u, v, 1 + texture index or 0), as a
+// spot light's that casts an image), the direction toward it and its
+// distance.
 vec3 delta_light_radiance(uint i, vec3 x, bool projectors, out vec3 wi, out float dist, out vec3 projected) {
     vec4 position = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i)));
     vec4 intensity = uintBitsToFloat(FETCH(delta_light_texels, int(4u * i + 1u)));
@@ -99,6 +101,19 @@ vec3 delta_light_radiance(uint i, vec3 x, bool projectors, out vec3 wi, out floa
         float c = dot(-wi, axis.xyz);
         float beam = c >= axis.w ? 1.0 : (falloff.x - acos(clamp(c, -1.0, 1.0))) * falloff.y;
         l *= c > intensity.w ? beam : 0.0;
+        uint image = uint(position.w) >> 2u;
+        if (projectors && image != 0u) {
+            // Mitsuba's: the image spans the cone, (u, v) = 0.5 + 0.5
+            // (x, y) / (z tan(cutoff)) in the spot's frame.
+            vec3 t;
+            vec3 b;
+            make_frame(axis.xyz, t, b);
+            vec3 x_axis = cos(falloff.z) * t + sin(falloff.z) * b;
+            vec3 d = -wi;
+            vec2 across = vec2(dot(d, x_axis), falloff.w * dot(d, cross(axis.xyz, x_axis)));
+            vec2 uv = 0.5 + 0.5 * across / (max(c, 1e-6) * tan(falloff.x));
+            projected = vec3(clamp(uv, vec2(0.0), vec2(1.0)), float(image));
+        }
     }
     return l;
 }

@@ -354,8 +354,9 @@ struct Triangle {
 // ... a thin principled material (MATERIAL_PRINCIPLED_THIN; FEATURE_PRINCIPLED
 // too).
 #define FEATURE_PRINCIPLED_THIN 131072
-// ... a projector among the delta lights (DELTA_PROJECTOR): its code costs
-// the other delta lights' NEE on lavapipe where compiled in.
+// ... a projector among the delta lights (DELTA_PROJECTOR), or a spot light
+// that casts an image: their code costs the other delta lights' NEE on
+// lavapipe where compiled in.
 #define FEATURE_PROJECTORS 262144
 // Specialization constant of the kernels that shade: whether the scene has a
 // material that is not diffuse (constants 0-3 are a network's shape).
@@ -476,7 +477,10 @@ struct Light {
 // intensity.rgb is pi scale (times that colour), intensity.w the
 // cotangent of half its field of view across; axis.xyz its forward axis,
 // axis.w its image's width over height; falloff.xyz its image's x axis,
-// falloff.w 1, or -1 where its frame is mirrored.
+// falloff.w 1, or -1 where its frame is mirrored. A spot light that casts
+// an image: position.w is DELTA_SPOT + 4 (1 + its texture index); its
+// image's x axis is cos(falloff.z) t + sin(falloff.z) b, (t, b) make_frame
+// of its axis, and falloff.w is 1, or -1 where its frame is mirrored.
 struct DeltaLight {
     vec4 position;  // xyz: where it is (point, spot) or the direction its light travels (directional); w: DELTA_*
     vec4 intensity; // rgb: intensity (point, spot) or irradiance (directional); w: spot: cos of the cutoff angle

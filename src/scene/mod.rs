@@ -829,9 +829,10 @@ impl Scene {
         } else {
             shaders::FEATURE_ATTRIBUTES
         } | self.delta_lights.iter().fold(0, |acc, l| {
-            // A projector, and its image.
+            // A projector, or a spot light casting an image, and its image.
             let code = l.position[3] as u32;
-            let projector = if code & 3 == shaders::DELTA_PROJECTOR {
+            let casts = code & 3 == shaders::DELTA_SPOT && code >> 2 != 0;
+            let projector = if code & 3 == shaders::DELTA_PROJECTOR || casts {
                 shaders::FEATURE_PROJECTORS
             } else {
                 0

@@ -309,7 +309,8 @@ impl Builder<'_, '_> {
                     light.intensity = intensity.extend(c.cos()).into();
                     light.axis = axis.extend(w.cos()).into();
                     light.falloff = [c, 1.0 / (c - w), 0.0, 0.0];
-                    2.0 * std::f32::consts::PI * (1.0 - c.cos()) * luminance(intensity)
+                    let mean = self.spot_image(el, &p, to_world, &mut light)?;
+                    2.0 * std::f32::consts::PI * (1.0 - c.cos()) * luminance(intensity * mean)
                 }
             }
             "projector" => self.projector(el, &p, to_world, &mut light)?,
@@ -418,6 +419,35 @@ impl Builder<'_, '_> {
         Ok(())
     }
 
+    /// A spot light's `texture`, the image Mitsuba spreads over its cone:
+    /// into `light` (the image's texture and x axis); the image's mean, or
+    /// one where it casts none.
+    fn spot_image(
+        &mut self,
+        el: &Element,
+        p: &Props,
+        to_world: Mat4,
+        light: &mut crate::shaders::DeltaLight,
+    ) -> Result<Vec3, SceneError> {
+        if p.color("texture").is_ok_and(|c| c.is_some()) {
+            return Err(el.error(
+                "a spot light's texture must be a bitmap or checkerboard (as in Mitsuba; a colour belongs in its intensity)",
+            ));
+        }
+        let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
+        let Some((texture, mean)) = self.textures.given(el, p, "spot", self.loader)?[slot] else {
+            return Ok(Vec3::ONE);
+        };
+        let [x, y, z] = rigid_axes(el, "spot", to_world)?;
+        // The image's x axis as an angle in the frame the kernels build
+        // around the spot's axis: the 16 floats a light has are taken.
+        let (t, b) = crate::sampling::make_frame(z);
+        light.position[3] += (4 * (texture + 1)) as f32;
+        light.falloff[2] = x.dot(b).atan2(x.dot(t));
+        light.falloff[3] = if z.cross(x).dot(y) < 0.0 { -1.0 } else { 1.0 };
+        Ok(mean)
+    }
+
     /// A `projector` (a pinhole casting its `irradiance` image, as Mitsuba's
     /// perspective camera maps directions to its film) into `light`; its
     /// power for NEE's choice.
@@ -428,20 +458,7 @@ impl Builder<'_, '_> {
         to_world: Mat4,
         light: &mut crate::shaders::DeltaLight,
     ) -> Result<f32, SceneError> {
-        let (x, y, z) = (
-            to_world.x_axis.truncate(),
-            to_world.y_axis.truncate(),
-            to_world.z_axis.truncate(),
-        );
-        let rigid = [x, y, z].iter().all(|a| (a.length() - 1.0).abs() < 1e-3)
-            && x.dot(y).abs() < 1e-3
-            && y.dot(z).abs() < 1e-3
-            && z.dot(x).abs() < 1e-3;
-        if !rigid {
-            return Err(el.error(
-                "projector: its to_world must not scale or shear (rotations and a lookat place it)",
-            ));
-        }
+        let [x, y, z] = rigid_axes(el, "projector", to_world)?;
         let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
         let given = self.textures.given(el, p, "projector", self.loader)?[slot];
         let (colour, texture, mean, aspect) = match given {
@@ -1648,15 +1665,37 @@ fn area_emission(
     loader: &Loader<'_>,
 ) -> Result<Option<(Vec3, Option<u32>)>, SceneError> {
     let mut emission = None;
+    let mut emitters = 0;
     for e in p.nested("emitter") {
+        emitters += 1;
+        if emitters > 1 {
+            return Err(e.error("a shape has one emitter, as in Mitsuba"));
+        }
+        if e.plugin()? == "directionalarea" {
+            // It emits along its normal alone, a direction no path from
+            // the camera meets: Mitsuba's `path` never sees it either.
+            let ep = Props::new(e);
+            if ep.transform("to_world")?.is_some() {
+                return Err(e.error(
+                    "a directionalarea emitter takes its shape's to_world, not its own (as in Mitsuba)",
+                ));
+            }
+            ep.textures();
+            ep.ignore("radiance");
+            ep.ignore("sampling_weight");
+            ep.finish()?;
+            log::warn!(
+                "{}:{}: a directionalarea emitter emits only along its shape's normal, which no path from the camera meets: it adds no light (as in Mitsuba's path integrator)",
+                e.file.display(),
+                e.line
+            );
+            continue;
+        }
         if e.plugin()? != "area" {
             return Err(e.error(format!(
-                "{} inside a shape: a shape emits with 'area'",
+                "{} inside a shape: a shape emits with 'area' (or 'directionalarea')",
                 plugin_name(e)
             )));
-        }
-        if emission.is_some() {
-            return Err(e.error("a shape has one area emitter"));
         }
         let ep = Props::new(e);
         ep.ignore("sampling_weight");
@@ -2147,6 +2186,23 @@ fn bsdf(
         desc.textures = given.map(|g| g.map(|(i, _)| i));
     }
     Ok(desc)
+}
+
+/// The unit axes of a light's to_world, which must place it without scale
+/// or shear where it casts an image.
+fn rigid_axes(el: &Element, kind: &str, to_world: Mat4) -> Result<[Vec3; 3], SceneError> {
+    let axes = [to_world.x_axis, to_world.y_axis, to_world.z_axis].map(|a| a.truncate());
+    let [x, y, z] = axes;
+    let rigid = axes.iter().all(|a| (a.length() - 1.0).abs() < 1e-3)
+        && x.dot(y).abs() < 1e-3
+        && y.dot(z).abs() < 1e-3
+        && z.dot(x).abs() < 1e-3;
+    if !rigid {
+        return Err(el.error(format!(
+            "{kind}: its to_world must not scale or shear where it casts an image (rotations and a lookat place it)"
+        )));
+    }
+    Ok(axes)
 }
 
 /// An environment's to_world as a rotation: a mirror turns the sky over as

@@ -91,8 +91,9 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
         // An emitter's material: paths end there, so its colour slot holds
         // the radiance.
         "area" => &[("radiance", COLOR)],
-        // A projector's image.
+        // A projector's image, and a spot light's.
         "projector" => &[("irradiance", COLOR)],
+        "spot" => &[("texture", COLOR)],
         _ => &[],
     }
 }
@@ -156,7 +157,7 @@ impl Textures {
                 // plastics weigh their lobes by) and no gradient.
                 if matches!(
                     kind,
-                    "plastic" | "roughplastic" | "normalmap" | "bumpmap" | "projector"
+                    "plastic" | "roughplastic" | "normalmap" | "bumpmap" | "projector" | "spot"
                 ) {
                     return Err(c.error(format!(
                         "{kind}'s '{name}' cannot be a mesh attribute ('{a}'), as in Mitsuba"
