@@ -32,14 +32,15 @@ struct Bsdf {
     float alpha; // conductor, dielectric, plastic: alpha, 0 when smooth; principled: roughness
     float eta;   // dielectric: index beyond the surface / index on the path's side;
                  // plastic: its coat's relative index; principled: its dielectric's
-    uint flags;  // MATERIAL_BECKMANN; conductor: MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR
+    uint flags;  // MATERIAL_BECKMANN; conductor: MATERIAL_FRESNEL; plastic: MATERIAL_NONLINEAR;
+                 // principled: its spec_trans (float bits)
     vec3 ior_eta; // conductor with MATERIAL_FRESNEL: its complex index eta + i k;
     vec3 ior_k;   // plastic: specular reflectance, and (internal reflectance, specular weight, alpha);
                   // glass, rough glass: its reflection's tint (ior_eta);
                   // principled: (metallic, specular tint, sheen), (sheen tint, flatness, clearcoat);
                   // thin principled: metallic's place holds its diffuse transmission
     uint table;  // rough plastic: the word its transmittance table begins at;
-                 // principled: the word of (eta, clearcoat gloss, spec_trans, anisotropic)
+                 // principled: its clearcoat gloss (float bits)
     float alpha_v; // rough conductor, rough glass: alpha along the tangent's normal
                    // (alpha is along the tangent); principled: `anisotropic`
     vec2 tangent;  // where anisotropic: the surface's tangent (Mitsuba's dp/du)
@@ -70,6 +71,18 @@ vec2 principled_alphas(float r, float anisotropic) {
     return max(vec2(r * r / aspect, r * r * aspect), vec2(1e-3));
 }
 
+// A principled material's own clearcoat gloss, spec_trans and anisotropic
+// (its record's floats 1-3, after eta).
+vec3 principled_extra(Material m) {
+    uint word = uint(m.k.w);
+    return vec3(rough_table(word, 1u), rough_table(word, 2u), rough_table(word, 3u));
+}
+
+// A principled BSDF's spec_trans, which its `flags` hold.
+float principled_spec_trans(Bsdf bsdf) {
+    return uintBitsToFloat(bsdf.flags);
+}
+
 // Principled material m's BSDF of base colour `base`, roughness r and
 // metallic weight `metallic` (its own, or its textures' values): on the
 // front its own lobes; on the back, as Mitsuba's, its dielectric alone,
@@ -78,17 +91,21 @@ vec2 principled_alphas(float r, float anisotropic) {
 // (black where metallic is 1). Without spec_trans its back is its front's
 // lobes (inside twosided; a one-sided material's is black before this). A
 // thin one (`thin`, metallic its diffuse transmission) is the same on both
-// sides.
-Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic, bool thin) {
-    uint word = uint(m.k.w);
-    float eta = rough_table(word, 0u);
-    float spec_trans = rough_table(word, 2u);
+// sides. `extra`: its clearcoat gloss, spec_trans and anisotropic.
+Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic, bool thin, vec3 extra) {
+    float eta = rough_table(uint(m.k.w), 0u);
+    float spec_trans = extra.y;
     float w = (1.0 - metallic) * spec_trans;
-    if (front || spec_trans <= 0.0 || thin) {
-        return Bsdf(thin ? MATERIAL_PRINCIPLED_THIN : MATERIAL_PRINCIPLED, base, r, eta, 0u, vec3(metallic, m.eta.gb),
-                    m.k.rgb, word, rough_table(word, 3u), vec2(1.0, 0.0));
+    if (!front && !thin && spec_trans <= 0.0 && rough_table(uint(m.k.w), 2u) > 0.0) {
+        // Where the texture of one that lets light through says opaque:
+        // black from behind, as in Mitsuba.
+        return bsdf_diffuse(vec3(0.0));
     }
-    vec2 alpha = principled_alphas(r, rough_table(word, 3u));
+    if (front || spec_trans <= 0.0 || thin) {
+        return Bsdf(thin ? MATERIAL_PRINCIPLED_THIN : MATERIAL_PRINCIPLED, base, r, eta, floatBitsToUint(spec_trans),
+                    vec3(metallic, m.eta.gb), m.k.rgb, floatBitsToUint(extra.x), extra.z, vec2(1.0, 0.0));
+    }
+    vec2 alpha = principled_alphas(r, extra.z);
     return Bsdf(MATERIAL_DIELECTRIC, sqrt(base) * w, alpha.x, 1.0 / eta, 0u, vec3(w), vec3(0.0), 0u, alpha.y,
                 vec2(1.0, 0.0));
 }
@@ -117,7 +134,8 @@ Bsdf bsdf_of(Material m, bool front) {
         // Its specular lobe does not scale with the base colour: a one-sided
         // one's back is a black diffuse lobe.
         return black ? bsdf_diffuse(vec3(0.0))
-                     : principled_bsdf(m, front, color, p, m.eta.x, kind == MATERIAL_PRINCIPLED_THIN);
+                     : principled_bsdf(m, front, color, p, m.eta.x, kind == MATERIAL_PRINCIPLED_THIN,
+                                       principled_extra(m));
     }
     // A rough conductor's or rough glass's alpha across its tangent, where
     // anisotropic, in k.w (rough glass's texture there is below 0:
@@ -194,7 +212,7 @@ bool bsdf_principled_thin(Bsdf bsdf) {
 // Whether a thin principled BSDF lets light through (spec_trans, or a
 // diffuse transmission).
 bool thin_transmits(Bsdf bsdf) {
-    return bsdf_principled_thin(bsdf) && (rough_table(bsdf.table, 2u) > 0.0 || bsdf.ior_eta.x > 0.0);
+    return bsdf_principled_thin(bsdf) && (principled_spec_trans(bsdf) > 0.0 || bsdf.ior_eta.x > 0.0);
 }
 
 // Whether the BSDF sends light through the surface without a delta lobe
@@ -451,12 +469,12 @@ Bsdf principled_specular(Bsdf bsdf) {
 
 // The clearcoat's GTR1 alpha: 0.1 at gloss 0 to 0.001 at gloss 1.
 float principled_clearcoat_alpha(Bsdf bsdf) {
-    return mix(0.1, 1e-3, rough_table(bsdf.table, 1u));
+    return mix(0.1, 1e-3, uintBitsToFloat(bsdf.table));
 }
 
 // The weights of its diffuse part and of its refracting one.
 vec2 principled_weights(Bsdf bsdf) {
-    float spec_trans = rough_table(bsdf.table, 2u);
+    float spec_trans = principled_spec_trans(bsdf);
     return (1.0 - bsdf.ior_eta.x) * vec2(1.0 - spec_trans, spec_trans);
 }
 
@@ -579,7 +597,7 @@ vec3 principled_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
 // says more): its shares of specular reflection, specular transmission and
 // diffuse reflection (diffuse transmission takes the rest).
 vec3 thin_shares(Bsdf bsdf) {
-    float s = rough_table(bsdf.table, 2u);
+    float s = principled_spec_trans(bsdf);
     return vec3(0.5 * s, 0.5 * s, (1.0 - s) * (1.0 - bsdf.ior_eta.x));
 }
 
@@ -598,7 +616,7 @@ vec4 thin_half(vec3 wo, vec3 wi) {
 }
 
 vec3 thin_eval(Bsdf bsdf, vec3 wo, vec3 wi) {
-    float s = rough_table(bsdf.table, 2u);
+    float s = principled_spec_trans(bsdf);
     float through = bsdf.ior_eta.x;
     vec3 base = bsdf.color;
     float lum = luminance(base);

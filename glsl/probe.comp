@@ -70,7 +70,9 @@ void main() {
         // in[5i..5i+4] = a Material; in[5i+4] = (u, v, front side? 1 : 0, 0).
         // out[i] = (its textured BSDF's colour, alpha), out[count + i] =
         // (its second colour, its alpha across its tangent), out[2 count +
-        // i] = (its ior_k, 0): a principled lobe's further weights.
+        // i] = (its ior_k, 0), out[3 count + i] = (its table and flags as
+        // floats, 0, 0): a principled lobe's further weights (clearcoat
+        // gloss and spec_trans).
         uint b = 5u * i;
         Material m = Material(probe_in[b], probe_in[b + 1u], probe_in[b + 2u], probe_in[b + 3u]);
         vec4 at = probe_in[b + 4u];
@@ -79,6 +81,7 @@ void main() {
         probe_out[i] = vec4(bsdf.color, bsdf.alpha);
         probe_out[params.item_count + i] = vec4(bsdf.ior_eta, bsdf.alpha_v);
         probe_out[2u * params.item_count + i] = vec4(bsdf.ior_k, 0.0);
+        probe_out[3u * params.item_count + i] = vec4(uintBitsToFloat(bsdf.table), uintBitsToFloat(bsdf.flags), 0.0, 0.0);
     } else if (params.selector == PROBE_ENVIRONMENT) {
         // in[2i] = a direction, in[2i+1] = four uniform numbers. out[i] =
         // (its radiance, its density); out[count + i] = (the direction they

@@ -443,14 +443,18 @@ struct Material {
 // k.w (which holds that alpha where it is a number), as -(1 + index).
 #define TEXTURE_SLOT_ACROSS 3
 // A principled material's weights that live in its Bsdf: specular tint,
-// sheen, sheen tint, flatness and clearcoat, each 1 + the index of its
-// texture or 0, in its record (the floats after eta, clearcoat gloss,
-// spec_trans and anisotropic: TEXTURE_SLOT_HIGHLIGHT_TINT + n is float 4 + n).
+// sheen, sheen tint, flatness, clearcoat, clearcoat gloss, anisotropic and
+// spec_trans, each 1 + the index of its texture or 0, in its record (the
+// floats after eta, clearcoat gloss, spec_trans and anisotropic: slot s is
+// float s).
 #define TEXTURE_SLOT_HIGHLIGHT_TINT 4
 #define TEXTURE_SLOT_SHEEN 5
 #define TEXTURE_SLOT_SHEEN_TINT 6
 #define TEXTURE_SLOT_FLATNESS 7
 #define TEXTURE_SLOT_CLEARCOAT 8
+#define TEXTURE_SLOT_CLEARCOAT_GLOSS 9
+#define TEXTURE_SLOT_ANISOTROPIC 10
+#define TEXTURE_SLOT_SPEC_TRANS 11
 #define TEXTURE_HEADER_WORDS 3
 #define TEXTURE_TABLE_WORDS 64
 #define TEXTURE_FLOATS 0

@@ -176,10 +176,14 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
         vec3 base = color != 0u ? bsdf.color : m.color.rgb;
         float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
         float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) * (thin ? 0.5 : 1.0) : m.eta.x;
-        Bsdf p = principled_bsdf(m, front, base, r, metallic, thin);
+        uint word = uint(m.k.w);
+        vec3 own = principled_extra(m);
+        vec3 extra = vec3(principled_weight(word, TEXTURE_SLOT_CLEARCOAT_GLOSS, own.x, i, b, uv),
+                          principled_weight(word, TEXTURE_SLOT_SPEC_TRANS, own.y, i, b, uv),
+                          principled_weight(word, TEXTURE_SLOT_ANISOTROPIC, own.z, i, b, uv));
+        Bsdf p = principled_bsdf(m, front, base, r, metallic, thin, extra);
         if (material_principled(p.kind)) {
             // Its lobes' weights (the back of one that refracts is glass).
-            uint word = uint(m.k.w);
             p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_HIGHLIGHT_TINT, p.ior_eta.y, i, b, uv);
             p.ior_eta.z = principled_weight(word, TEXTURE_SLOT_SHEEN, p.ior_eta.z, i, b, uv);
             p.ior_k.x = principled_weight(word, TEXTURE_SLOT_SHEEN_TINT, p.ior_k.x, i, b, uv);

@@ -436,12 +436,14 @@ impl Surface {
 
     /// A principled surface with its weights that textures may give beside
     /// its colour, roughness and metallic (specular tint, sheen, sheen tint,
-    /// flatness, clearcoat: `TEXTURE_SLOT_HIGHLIGHT_TINT..`) set to
-    /// `weight(slot)` where that is a value.
+    /// flatness, clearcoat, clearcoat gloss, anisotropic, spec_trans:
+    /// `TEXTURE_SLOT_HIGHLIGHT_TINT..`) set to `weight(slot)` where that is
+    /// a value.
     pub fn with_weight_means(mut self, weight: impl Fn(u32) -> Option<f32>) -> Self {
         use crate::shaders::{
-            TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT,
-            TEXTURE_SLOT_SHEEN, TEXTURE_SLOT_SHEEN_TINT,
+            TEXTURE_SLOT_ANISOTROPIC, TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_CLEARCOAT_GLOSS,
+            TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SHEEN,
+            TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TRANS,
         };
         if let Surface::Principled { params, .. } = &mut self {
             for (slot, value) in [
@@ -450,6 +452,9 @@ impl Surface {
                 (TEXTURE_SLOT_SHEEN_TINT, &mut params.sheen_tint),
                 (TEXTURE_SLOT_FLATNESS, &mut params.flatness),
                 (TEXTURE_SLOT_CLEARCOAT, &mut params.clearcoat),
+                (TEXTURE_SLOT_CLEARCOAT_GLOSS, &mut params.clearcoat_gloss),
+                (TEXTURE_SLOT_ANISOTROPIC, &mut params.anisotropic),
+                (TEXTURE_SLOT_SPEC_TRANS, &mut params.spec_trans),
             ] {
                 *value = weight(slot).unwrap_or(*value);
             }
@@ -1029,6 +1034,15 @@ impl Bsdf {
                 Vec3::new(p.thin.unwrap_or(p.metallic), p.specular_tint, p.sheen),
                 Vec3::new(p.sheen_tint, p.flatness, p.clearcoat),
             )),
+            _ => None,
+        }
+    }
+
+    /// A principled lobe's clearcoat gloss, spec_trans and anisotropic, for
+    /// probes.
+    pub fn principled_extra(&self) -> Option<Vec3> {
+        match self.lobe {
+            Lobe::Principled(p) => Some(Vec3::new(p.clearcoat_gloss, p.spec_trans, p.anisotropic)),
             _ => None,
         }
     }

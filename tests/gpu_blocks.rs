@@ -553,6 +553,8 @@ fn gpu_textures_match_their_cpu_twin() {
             params: Principled {
                 sheen: 0.3,
                 clearcoat: 0.2,
+                clearcoat_gloss: 0.4,
+                anisotropic: 0.5,
                 ..Principled::default()
             },
         },
@@ -598,6 +600,7 @@ fn gpu_textures_match_their_cpu_twin() {
         // A thin one has no clearcoat.
         if surface.kind() == qtrace::shaders::MATERIAL_PRINCIPLED_THIN {
             slots[qtrace::shaders::TEXTURE_SLOT_CLEARCOAT as usize] = None;
+            slots[qtrace::shaders::TEXTURE_SLOT_CLEARCOAT_GLOSS as usize] = None;
         }
         queries.push(probe::TextureQuery {
             material: Material {
@@ -658,6 +661,12 @@ fn gpu_textures_match_their_cpu_twin() {
                 close(second, eta) && close(g.k, k),
                 "{what}: principled weights {second} {} vs CPU {eta} {k}",
                 g.k
+            );
+            let extra = cpu.principled_extra().unwrap();
+            assert!(
+                close(g.extra, extra),
+                "{what}: clearcoat gloss, spec_trans, anisotropic {} vs CPU {extra}",
+                g.extra
             );
             weights += usize::from(q.material.textures[4..].iter().any(Option::is_some) && lit);
         }

@@ -226,7 +226,7 @@ impl Material {
             return bsdf;
         }
         let look = |slot: u32| self.textures[slot as usize].map(|t| textures[t as usize].eval(uv));
-        if let Surface::Principled { .. } = self.surface {
+        if let Surface::Principled { params: own, .. } = self.surface {
             // Its textures' values enter both its sides' lobes.
             let surface = self
                 .surface
@@ -237,6 +237,17 @@ impl Material {
                     None,
                 )
                 .with_weight_means(|s| look(s).map(luminance));
+            // Where the texture of one that lets light through says
+            // opaque, its back is black (as in Mitsuba).
+            let opaque =
+                matches!(surface, Surface::Principled { params, .. } if params.spec_trans <= 0.0);
+            if !front && own.thin.is_none() && own.spec_trans > 0.0 && opaque {
+                return crate::bsdf::Bsdf::new(
+                    Surface::Diffuse { albedo: Vec3::ZERO },
+                    true,
+                    sampling,
+                );
+            }
             return crate::bsdf::Bsdf::new(surface, front, sampling);
         }
         bsdf.textured(
@@ -405,7 +416,12 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
                     slot(shaders::TEXTURE_SLOT_SHEEN_TINT),
                     slot(shaders::TEXTURE_SLOT_FLATNESS),
                 ],
-                eta: [slot(shaders::TEXTURE_SLOT_CLEARCOAT), 0.0, 0.0, 0.0],
+                eta: [
+                    slot(shaders::TEXTURE_SLOT_CLEARCOAT),
+                    slot(shaders::TEXTURE_SLOT_CLEARCOAT_GLOSS),
+                    slot(shaders::TEXTURE_SLOT_ANISOTROPIC),
+                    slot(shaders::TEXTURE_SLOT_SPEC_TRANS),
+                ],
                 ..Default::default()
             });
         }
@@ -1598,7 +1614,7 @@ pub struct Loader<'a> {
 pub const MITSUBA_UNLIMITED_DEPTH: u32 = 1024;
 
 /// Texture slots a material has (`TEXTURE_SLOT_*`).
-pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_CLEARCOAT as usize + 1;
+pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_SPEC_TRANS as usize + 1;
 
 /// Most triangles a scene may have: about 3 GiB of host memory while it
 /// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and
@@ -1892,10 +1908,9 @@ mod tests {
         };
         let scene = load("Kd 0.5\nmap_Kd t.png\n").unwrap();
         let m = &scene.materials[0];
-        assert_eq!(
-            m.textures[..],
-            [Some(0), None, None, None, None, None, None, None, None]
-        );
+        let mut slots = [None; TEXTURE_SLOTS];
+        slots[0] = Some(0);
+        assert_eq!(m.textures, slots);
         let mean = scene.textures[0].mean();
         assert_eq!(m.surface, Surface::Diffuse { albedo: mean });
         assert_eq!(

@@ -275,7 +275,7 @@ pub fn bsdf_samples(
         })
         .collect();
     let n = queries.len();
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 4))?;
     Ok((0..n)
         .map(|i| BsdfSample {
             wi: out[i].truncate(),
@@ -309,6 +309,8 @@ pub struct TextureLookup {
     pub alpha_v: f32,
     /// `Bsdf.ior_k` (a principled lobe's sheen tint, flatness, clearcoat).
     pub k: Vec3,
+    /// A principled lobe's clearcoat gloss, spec_trans and anisotropic.
+    pub extra: Vec3,
 }
 
 /// [`TextureLookup`] of each query's BSDF, textured on the GPU with `textures`.
@@ -344,7 +346,7 @@ pub fn texture_lookups(
         })
         .collect();
     let n = queries.len();
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 4))?;
     Ok((0..n)
         .map(|i| TextureLookup {
             color: out[i].truncate(),
@@ -352,6 +354,7 @@ pub fn texture_lookups(
             alpha: out[i].w,
             alpha_v: out[n + i].w,
             k: out[2 * n + i].truncate(),
+            extra: Vec3::new(out[3 * n + i].x, out[3 * n + i].y, out[n + i].w),
         })
         .collect())
 }
@@ -388,7 +391,7 @@ pub fn environment_lookups(
     constants[shaders::CONSTANT_ENVIRONMENT as usize] = env.layout(dense);
     let push = size_of::<PassParams>() as u32;
     let pipeline = ComputePipeline::specialized(ctx, "probe", spirv::PROBE, push, &constants)?;
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 4))?;
     let split = |v: Vec4| (v.truncate(), v.w);
     Ok((0..n)
         .map(|i| (split(out[i]), split(out[n + i]), split(out[2 * n + i])))

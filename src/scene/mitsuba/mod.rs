@@ -1863,6 +1863,11 @@ fn principled(el: &Element, p: &Props, thin: bool) -> Result<Surface, SceneError
     };
     let weight = |name: &str, default: f32| ranged(name, default, 1.0);
     let spec_trans = weight("spec_trans", 0.0)?;
+    // A texture's spec_trans refracts where it is above 0.
+    let transmits = spec_trans > 0.0
+        || el.children.iter().any(|c| {
+            (c.tag == "texture" || c.tag == "ref") && c.attr("name") == Some("spec_trans")
+        });
     let anisotropic = weight("anisotropic", 0.0)?;
     let roughness = weight("roughness", 0.5)?;
     let eta = if thin {
@@ -1874,11 +1879,11 @@ fn principled(el: &Element, p: &Props, thin: bool) -> Result<Surface, SceneError
             }
             // Mitsuba moves an index of 1, which refracts nothing, off 1
             // where the BSDF refracts.
-            (Some(eta), None) if eta == 1.0 && spec_trans > 0.0 => 1.001,
+            (Some(eta), None) if eta == 1.0 && transmits => 1.001,
             (Some(eta), None) => positive(el, "eta", eta)?,
             (None, specular) => {
                 let s = match specular.unwrap_or(0.5) {
-                    0.0 if spec_trans > 0.0 => 1e-3,
+                    0.0 if transmits => 1e-3,
                     s => s,
                 };
                 if !(0.0..12.5).contains(&s) {
@@ -2184,6 +2189,13 @@ fn bsdf(
             .surface
             .with_weight_means(|s| mean(s).map(crate::bsdf::luminance));
         desc.textures = given.map(|g| g.map(|(i, _)| i));
+        // A principled material whose spec_trans is a texture lets light
+        // through: its back is its dielectric's.
+        if matches!(desc.surface, Surface::Principled { params, .. } if params.thin.is_none())
+            && desc.surface.rough_transmission()
+        {
+            desc.one_sided = false;
+        }
     }
     Ok(desc)
 }

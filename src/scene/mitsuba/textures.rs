@@ -6,9 +6,10 @@ use super::xml::{Element, Props};
 use super::{Loader, SceneError};
 use crate::scene::texture::{Filter, Pattern, Texture, Wrap};
 use crate::shaders::{
-    TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_BITS, TEXTURE_SLOT_CLEARCOAT,
-    TEXTURE_SLOT_COLOR, TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SECOND,
-    TEXTURE_SLOT_SHEEN, TEXTURE_SLOT_SHEEN_TINT,
+    TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_ANISOTROPIC, TEXTURE_SLOT_BITS,
+    TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_CLEARCOAT_GLOSS, TEXTURE_SLOT_COLOR,
+    TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SECOND, TEXTURE_SLOT_SHEEN,
+    TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TRANS,
 };
 use glam::{Mat3, Vec3};
 use std::collections::HashMap;
@@ -71,6 +72,9 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
             ("flatness", TEXTURE_SLOT_FLATNESS),
             ("clearcoat", TEXTURE_SLOT_CLEARCOAT),
+            ("clearcoat_gloss", TEXTURE_SLOT_CLEARCOAT_GLOSS),
+            ("anisotropic", TEXTURE_SLOT_ANISOTROPIC),
+            ("spec_trans", TEXTURE_SLOT_SPEC_TRANS),
         ],
         // Its diffuse transmission in metallic's place.
         "principledthin" => &[
@@ -81,6 +85,8 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("sheen", TEXTURE_SLOT_SHEEN),
             ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
             ("flatness", TEXTURE_SLOT_FLATNESS),
+            ("anisotropic", TEXTURE_SLOT_ANISOTROPIC),
+            ("spec_trans", TEXTURE_SLOT_SPEC_TRANS),
         ],
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
