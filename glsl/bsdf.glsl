@@ -54,9 +54,16 @@ struct Bsdf {
 float rough_table(uint word, uint i) {
     return uintBitsToFloat(FETCH(material_texels, int(word + i / 4u))[i % 4u]);
 }
+// Its floats 4 row to 4 row + 3, in one read.
+vec4 record_row(uint word, uint row) {
+    return uintBitsToFloat(FETCH(material_texels, int(word + row)));
+}
 #else
 float rough_table(uint word, uint i) {
     return 1.0;
+}
+vec4 record_row(uint word, uint row) {
+    return vec4(1.0);
 }
 #endif
 
@@ -69,13 +76,6 @@ Bsdf bsdf_diffuse(vec3 albedo) {
 vec2 principled_alphas(float r, float anisotropic) {
     float aspect = sqrt(1.0 - 0.9 * anisotropic);
     return max(vec2(r * r / aspect, r * r * aspect), vec2(1e-3));
-}
-
-// A principled material's own clearcoat gloss, spec_trans and anisotropic
-// (its record's floats 1-3, after eta).
-vec3 principled_extra(Material m) {
-    uint word = uint(m.k.w);
-    return vec3(rough_table(word, 1u), rough_table(word, 2u), rough_table(word, 3u));
 }
 
 // A principled BSDF's spec_trans, which its `flags` hold.
@@ -91,12 +91,13 @@ float principled_spec_trans(Bsdf bsdf) {
 // (black where metallic is 1). Without spec_trans its back is its front's
 // lobes (inside twosided; a one-sided material's is black before this). A
 // thin one (`thin`, metallic its diffuse transmission) is the same on both
-// sides. `extra`: its clearcoat gloss, spec_trans and anisotropic.
-Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic, bool thin, vec3 extra) {
-    float eta = rough_table(uint(m.k.w), 0u);
+// sides. `own`: its record's first row (eta, clearcoat gloss, spec_trans,
+// anisotropic); `extra`: the last three there (its own, or its textures').
+Bsdf principled_bsdf(Material m, bool front, vec3 base, float r, float metallic, bool thin, vec4 own, vec3 extra) {
+    float eta = own.x;
     float spec_trans = extra.y;
     float w = (1.0 - metallic) * spec_trans;
-    if (!front && !thin && spec_trans <= 0.0 && rough_table(uint(m.k.w), 2u) > 0.0) {
+    if (!front && !thin && spec_trans <= 0.0 && own.z > 0.0) {
         // Where the texture of one that lets light through says opaque:
         // black from behind, as in Mitsuba.
         return bsdf_diffuse(vec3(0.0));
@@ -133,9 +134,9 @@ Bsdf bsdf_of(Material m, bool front) {
     if (material_principled(kind)) {
         // Its specular lobe does not scale with the base colour: a one-sided
         // one's back is a black diffuse lobe.
+        vec4 own = record_row(uint(m.k.w), 0u);
         return black ? bsdf_diffuse(vec3(0.0))
-                     : principled_bsdf(m, front, color, p, m.eta.x, kind == MATERIAL_PRINCIPLED_THIN,
-                                       principled_extra(m));
+                     : principled_bsdf(m, front, color, p, m.eta.x, kind == MATERIAL_PRINCIPLED_THIN, own, own.yzw);
     }
     // A rough conductor's or rough glass's alpha across its tangent, where
     // anisotropic, in k.w (rough glass's texture there is below 0:

@@ -137,11 +137,11 @@ vec2 texture_gradient(uint t, vec2 uv) {
     return vec2(g.x * row0.x + g.y * row1.x, g.x * row0.y + g.y * row1.y) * vec2(h.zw);
 }
 
-// A principled material's weight `value`, or where its record at `word`
-// holds a texture in slot s (TEXTURE_SLOT_HIGHLIGHT_TINT..), that texture's
-// value as a number.
-float principled_weight(uint word, uint s, float value, uint i, vec2 b, vec2 uv) {
-    uint t = uint(rough_table(word, s));
+// A principled material's weight `value`, or where its record's slot
+// (TEXTURE_SLOT_HIGHLIGHT_TINT..) holds a texture, that texture's value as
+// a number.
+float principled_weight(float slot, float value, uint i, vec2 b, vec2 uv) {
+    uint t = uint(slot);
     return t != 0u ? luminance(texture_at(t - 1u, i, b, uv)) : value;
 }
 
@@ -176,19 +176,22 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
         vec3 base = color != 0u ? bsdf.color : m.color.rgb;
         float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
         float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) * (thin ? 0.5 : 1.0) : m.eta.x;
+        // Its record's rows: its own numbers, then slots 4-7 and 8-11
+        // (TEXTURE_SLOT_HIGHLIGHT_TINT..TEXTURE_SLOT_SPEC_TRANS), a read each.
         uint word = uint(m.k.w);
-        vec3 own = principled_extra(m);
-        vec3 extra = vec3(principled_weight(word, TEXTURE_SLOT_CLEARCOAT_GLOSS, own.x, i, b, uv),
-                          principled_weight(word, TEXTURE_SLOT_SPEC_TRANS, own.y, i, b, uv),
-                          principled_weight(word, TEXTURE_SLOT_ANISOTROPIC, own.z, i, b, uv));
-        Bsdf p = principled_bsdf(m, front, base, r, metallic, thin, extra);
+        vec4 own = record_row(word, 0u);
+        vec4 tints = record_row(word, 1u);
+        vec4 coats = record_row(word, 2u);
+        vec3 extra = vec3(principled_weight(coats.y, own.y, i, b, uv), principled_weight(coats.w, own.z, i, b, uv),
+                          principled_weight(coats.z, own.w, i, b, uv));
+        Bsdf p = principled_bsdf(m, front, base, r, metallic, thin, own, extra);
         if (material_principled(p.kind)) {
             // Its lobes' weights (the back of one that refracts is glass).
-            p.ior_eta.y = principled_weight(word, TEXTURE_SLOT_HIGHLIGHT_TINT, p.ior_eta.y, i, b, uv);
-            p.ior_eta.z = principled_weight(word, TEXTURE_SLOT_SHEEN, p.ior_eta.z, i, b, uv);
-            p.ior_k.x = principled_weight(word, TEXTURE_SLOT_SHEEN_TINT, p.ior_k.x, i, b, uv);
-            p.ior_k.y = principled_weight(word, TEXTURE_SLOT_FLATNESS, p.ior_k.y, i, b, uv);
-            p.ior_k.z = principled_weight(word, TEXTURE_SLOT_CLEARCOAT, p.ior_k.z, i, b, uv);
+            p.ior_eta.y = principled_weight(tints.x, p.ior_eta.y, i, b, uv);
+            p.ior_eta.z = principled_weight(tints.y, p.ior_eta.z, i, b, uv);
+            p.ior_k.x = principled_weight(tints.z, p.ior_k.x, i, b, uv);
+            p.ior_k.y = principled_weight(tints.w, p.ior_k.y, i, b, uv);
+            p.ior_k.z = principled_weight(coats.x, p.ior_k.z, i, b, uv);
         }
         return p;
     }
