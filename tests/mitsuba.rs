@@ -849,7 +849,12 @@ fn bad_scenes_get_one_line_naming_file_and_line() {
         (
             "<emitter type=\"spot\"><texture type=\"checkerboard\" name=\"texture\"/><transform name=\"to_world\"><scale x=\"2\"/></transform></emitter>",
             5,
-            "spot: its to_world must not scale or shear where it casts an image",
+            "spot: its to_world must not stretch or shear",
+        ),
+        (
+            "<emitter type=\"spot\"><transform name=\"to_world\"><scale value=\"2\"/><lookat origin=\"0,0,0\" target=\"1,0,0\"/></transform></emitter>\n<emitter type=\"spot\"><transform name=\"to_world\"><scale z=\"3\"/></transform></emitter>",
+            6,
+            "spot: its to_world must not stretch or shear",
         ),
         (
             "<emitter type=\"point\"><texture type=\"checkerboard\" name=\"texture\"/></emitter>",

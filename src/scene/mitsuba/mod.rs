@@ -298,6 +298,7 @@ impl Builder<'_, '_> {
                     light.intensity = intensity.extend(0.0).into();
                     4.0 * std::f32::consts::PI * luminance(intensity)
                 } else {
+                    rigid_axes(el, "spot", to_world, true)?;
                     let cutoff = p.float_or("cutoff_angle", 20.0)?;
                     let beam = p.float_or("beam_width", cutoff * 0.75)?;
                     if !(cutoff > 0.0 && cutoff <= 90.0 && beam > 0.0 && beam < cutoff) {
@@ -438,7 +439,7 @@ impl Builder<'_, '_> {
         let Some((texture, mean)) = self.textures.given(el, p, "spot", self.loader)?[slot] else {
             return Ok(Vec3::ONE);
         };
-        let [x, y, z] = rigid_axes(el, "spot", to_world)?;
+        let [x, y, z] = rigid_axes(el, "spot", to_world, true)?;
         // The image's x axis as an angle in the frame the kernels build
         // around the spot's axis: the 16 floats a light has are taken.
         let (t, b) = crate::sampling::make_frame(z);
@@ -458,7 +459,7 @@ impl Builder<'_, '_> {
         to_world: Mat4,
         light: &mut crate::shaders::DeltaLight,
     ) -> Result<f32, SceneError> {
-        let [x, y, z] = rigid_axes(el, "projector", to_world)?;
+        let [x, y, z] = rigid_axes(el, "projector", to_world, false)?;
         let slot = crate::shaders::TEXTURE_SLOT_COLOR as usize;
         let given = self.textures.given(el, p, "projector", self.loader)?[slot];
         let (colour, texture, mean, aspect) = match given {
@@ -2200,21 +2201,32 @@ fn bsdf(
     Ok(desc)
 }
 
-/// The unit axes of a light's to_world, which must place it without scale
-/// or shear where it casts an image.
-fn rigid_axes(el: &Element, kind: &str, to_world: Mat4) -> Result<[Vec3; 3], SceneError> {
+/// The unit axes of a light's to_world, which must place it without a
+/// stretch or shear (a spot's cone would turn elliptical in Mitsuba, and a
+/// projector's image), or, `uniform`, any scale.
+fn rigid_axes(
+    el: &Element,
+    kind: &str,
+    to_world: Mat4,
+    uniform: bool,
+) -> Result<[Vec3; 3], SceneError> {
     let axes = [to_world.x_axis, to_world.y_axis, to_world.z_axis].map(|a| a.truncate());
-    let [x, y, z] = axes;
-    let rigid = axes.iter().all(|a| (a.length() - 1.0).abs() < 1e-3)
+    let scale = if uniform { axes[2].length() } else { 1.0 };
+    let unit = axes.map(|a| a / scale);
+    let [x, y, z] = unit;
+    let rigid = scale > 0.0
+        && unit.iter().all(|a| (a.length() - 1.0).abs() < 1e-3)
         && x.dot(y).abs() < 1e-3
         && y.dot(z).abs() < 1e-3
         && z.dot(x).abs() < 1e-3;
     if !rigid {
-        return Err(el.error(format!(
-            "{kind}: its to_world must not scale or shear where it casts an image (rotations and a lookat place it)"
-        )));
+        return Err(el.error(if uniform {
+            format!("{kind}: its to_world must not stretch or shear (Mitsuba's cone would turn elliptical); rotations, a lookat and a uniform scale place it")
+        } else {
+            format!("{kind}: its to_world must not scale or shear where it casts an image (rotations and a lookat place it)")
+        }));
     }
-    Ok(axes)
+    Ok(unit)
 }
 
 /// An environment's to_world as a rotation: a mirror turns the sky over as
