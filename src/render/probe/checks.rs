@@ -275,7 +275,7 @@ pub fn bsdf_samples(
         })
         .collect();
     let n = queries.len();
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 4))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
     Ok((0..n)
         .map(|i| BsdfSample {
             wi: out[i].truncate(),
@@ -391,7 +391,7 @@ pub fn environment_lookups(
     constants[shaders::CONSTANT_ENVIRONMENT as usize] = env.layout(dense);
     let push = size_of::<PassParams>() as u32;
     let pipeline = ComputePipeline::specialized(ctx, "probe", spirv::PROBE, push, &constants)?;
-    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 4))?;
+    let out = launch(ctx, &pipeline, &bindings, params, &input, (n, 3))?;
     let split = |v: Vec4| (v.truncate(), v.w);
     Ok((0..n)
         .map(|i| (split(out[i]), split(out[n + i]), split(out[2 * n + i])))

@@ -298,7 +298,7 @@ impl Builder<'_, '_> {
                     light.intensity = intensity.extend(0.0).into();
                     4.0 * std::f32::consts::PI * luminance(intensity)
                 } else {
-                    rigid_axes(el, "spot", to_world, true)?;
+                    let axes = rigid_axes(el, "spot", to_world, true)?;
                     let cutoff = p.float_or("cutoff_angle", 20.0)?;
                     let beam = p.float_or("beam_width", cutoff * 0.75)?;
                     if !(cutoff > 0.0 && cutoff <= 90.0 && beam > 0.0 && beam < cutoff) {
@@ -310,7 +310,7 @@ impl Builder<'_, '_> {
                     light.intensity = intensity.extend(c.cos()).into();
                     light.axis = axis.extend(w.cos()).into();
                     light.falloff = [c, 1.0 / (c - w), 0.0, 0.0];
-                    let mean = self.spot_image(el, &p, to_world, &mut light)?;
+                    let mean = self.spot_image(el, &p, axes, &mut light)?;
                     2.0 * std::f32::consts::PI * (1.0 - c.cos()) * luminance(intensity * mean)
                 }
             }
@@ -420,14 +420,14 @@ impl Builder<'_, '_> {
         Ok(())
     }
 
-    /// A spot light's `texture`, the image Mitsuba spreads over its cone:
-    /// into `light` (the image's texture and x axis); the image's mean, or
-    /// one where it casts none.
+    /// A spot light's `texture`, the image Mitsuba spreads over its cone
+    /// (the light's unit axes `axes`): into `light` (the image's texture
+    /// and x axis); the image's mean, or one where it casts none.
     fn spot_image(
         &mut self,
         el: &Element,
         p: &Props,
-        to_world: Mat4,
+        axes: [Vec3; 3],
         light: &mut crate::shaders::DeltaLight,
     ) -> Result<Vec3, SceneError> {
         if p.color("texture").is_ok_and(|c| c.is_some()) {
@@ -439,7 +439,7 @@ impl Builder<'_, '_> {
         let Some((texture, mean)) = self.textures.given(el, p, "spot", self.loader)?[slot] else {
             return Ok(Vec3::ONE);
         };
-        let [x, y, z] = rigid_axes(el, "spot", to_world, true)?;
+        let [x, y, z] = axes;
         // The image's x axis as an angle in the frame the kernels build
         // around the spot's axis: the 16 floats a light has are taken.
         let (t, b) = crate::sampling::make_frame(z);
