@@ -101,6 +101,7 @@ pub fn mitsuba_scenes() -> Vec<PathBuf> {
         "tests/fixtures/mitsuba/coverage-z.xml",
         "tests/fixtures/mitsuba/spot-image.xml",
         "tests/fixtures/mitsuba/principled-textures.xml",
+        "tests/fixtures/mitsuba/blender-principled.xml",
         "tests/fixtures/mitsuba/crop.xml",
         "tests/fixtures/mitsuba/rfilters.xml",
         "tests/fixtures/mitsuba/choices.xml",

@@ -1620,6 +1620,21 @@ fn principled_lobes_shaped_by_textures_agree_with_mitsuba() {
 }
 
 #[test]
+fn principled_materials_as_blenders_exporter_writes_them_agree_with_mitsuba() {
+    // mitsuba-blender's shapes: a twosided principled with `specular`, a
+    // bumpmap (`bumpmap_tex`) around one with bitmaps in four inputs.
+    let scene = common::repo("tests/fixtures/mitsuba/blender-principled.xml");
+    for m in [Method::PT, Method::NEURAL] {
+        check(
+            "blender-principled",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn spot_lights_that_cast_an_image_agree_with_mitsuba() {
     // A bitmap cast from above, a checkerboard from the side through a
     // mirrored, turned frame, a plain spot; a directionalarea panel that
