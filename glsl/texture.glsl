@@ -177,7 +177,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
         float r = alpha != 0u ? luminance(texture_at(alpha - 1u, i, b, uv)) : m.emission.w;
         float metallic = second != 0u ? luminance(texture_at(second - 1u, i, b, uv)) * (thin ? 0.5 : 1.0) : m.eta.x;
         // Its record's rows: its own numbers, then slots 4-7 and 8-11
-        // (TEXTURE_SLOT_HIGHLIGHT_TINT..TEXTURE_SLOT_SPEC_TRANS), a read each.
+        // (TEXTURE_SLOT_HIGHLIGHT_TINT..TEXTURE_SLOT_TRANSMISSION), a read each.
         uint word = uint(m.k.w);
         vec4 own = record_row(word, 0u);
         vec4 tints = record_row(word, 1u);

@@ -443,7 +443,7 @@ impl Surface {
         use crate::shaders::{
             TEXTURE_SLOT_ANISOTROPIC, TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_CLEARCOAT_GLOSS,
             TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SHEEN,
-            TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TRANS,
+            TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_TRANSMISSION,
         };
         if let Surface::Principled { params, .. } = &mut self {
             for (slot, value) in [
@@ -454,7 +454,7 @@ impl Surface {
                 (TEXTURE_SLOT_CLEARCOAT, &mut params.clearcoat),
                 (TEXTURE_SLOT_CLEARCOAT_GLOSS, &mut params.clearcoat_gloss),
                 (TEXTURE_SLOT_ANISOTROPIC, &mut params.anisotropic),
-                (TEXTURE_SLOT_SPEC_TRANS, &mut params.spec_trans),
+                (TEXTURE_SLOT_TRANSMISSION, &mut params.spec_trans),
             ] {
                 *value = weight(slot).unwrap_or(*value);
             }

@@ -420,7 +420,7 @@ pub fn gpu_materials(materials: &[Material]) -> Vec<shaders::Material> {
                     slot(shaders::TEXTURE_SLOT_CLEARCOAT),
                     slot(shaders::TEXTURE_SLOT_CLEARCOAT_GLOSS),
                     slot(shaders::TEXTURE_SLOT_ANISOTROPIC),
-                    slot(shaders::TEXTURE_SLOT_SPEC_TRANS),
+                    slot(shaders::TEXTURE_SLOT_TRANSMISSION),
                 ],
                 ..Default::default()
             });
@@ -1614,7 +1614,7 @@ pub struct Loader<'a> {
 pub const MITSUBA_UNLIMITED_DEPTH: u32 = 1024;
 
 /// Texture slots a material has (`TEXTURE_SLOT_*`).
-pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_SPEC_TRANS as usize + 1;
+pub const TEXTURE_SLOTS: usize = shaders::TEXTURE_SLOT_TRANSMISSION as usize + 1;
 
 /// Most triangles a scene may have: about 3 GiB of host memory while it
 /// loads (BVH nodes are 128 bytes a triangle); devices allow fewer, and

@@ -9,7 +9,7 @@ use crate::shaders::{
     TEXTURE_SLOT_ACROSS, TEXTURE_SLOT_ALPHA, TEXTURE_SLOT_ANISOTROPIC, TEXTURE_SLOT_BITS,
     TEXTURE_SLOT_CLEARCOAT, TEXTURE_SLOT_CLEARCOAT_GLOSS, TEXTURE_SLOT_COLOR,
     TEXTURE_SLOT_FLATNESS, TEXTURE_SLOT_HIGHLIGHT_TINT, TEXTURE_SLOT_SECOND, TEXTURE_SLOT_SHEEN,
-    TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_SPEC_TRANS,
+    TEXTURE_SLOT_SHEEN_TINT, TEXTURE_SLOT_TRANSMISSION,
 };
 use glam::{Mat3, Vec3};
 use std::collections::HashMap;
@@ -74,7 +74,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("clearcoat", TEXTURE_SLOT_CLEARCOAT),
             ("clearcoat_gloss", TEXTURE_SLOT_CLEARCOAT_GLOSS),
             ("anisotropic", TEXTURE_SLOT_ANISOTROPIC),
-            ("spec_trans", TEXTURE_SLOT_SPEC_TRANS),
+            ("spec_trans", TEXTURE_SLOT_TRANSMISSION),
         ],
         // Its diffuse transmission in metallic's place.
         "principledthin" => &[
@@ -86,7 +86,7 @@ pub fn slots(kind: &str) -> &'static [(&'static str, u32)] {
             ("sheen_tint", TEXTURE_SLOT_SHEEN_TINT),
             ("flatness", TEXTURE_SLOT_FLATNESS),
             ("anisotropic", TEXTURE_SLOT_ANISOTROPIC),
-            ("spec_trans", TEXTURE_SLOT_SPEC_TRANS),
+            ("spec_trans", TEXTURE_SLOT_TRANSMISSION),
         ],
         // A normal map's texture, and a mask's or blend's weight, which
         // they keep apart from the slots.
