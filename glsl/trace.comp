@@ -830,12 +830,6 @@ bool scatter(inout Path path, inout Trail trail) {
     if ((MATERIAL_FEATURES & FEATURE_CHOICES) != 0u) {
         mat = chosen_material(mat, front, hit.triangle, tri, s.point, path.rng);
     }
-    Bsdf bsdf = bsdf_of(mat, front);
-    // (An emitter's colour slot holds its radiance's texture.)
-    if (scene_textured() && !scatters) {
-        vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
-        bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, surface_uv(hit.triangle, b));
-    }
     s.unmapped = s.ns;
     s.map_alpha2 = -1.0;
     if (NORMAL_MAPS) {
@@ -866,16 +860,17 @@ bool scatter(inout Path path, inout Trail trail) {
                 bool mapped_front = dot(v, m) > 0.0;
                 s.ns = mapped_front ? m : -m;
                 s.unmapped = mapped_front ? n0 : -n0;
-                if (mapped_front != front) {
-                    front = mapped_front;
-                    bsdf = bsdf_of(mat, front);
-                    if (scene_textured()) {
-                        bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, at.uv);
-                    }
-                }
+                front = mapped_front;
             }
             s.map_alpha2 = clamp(0.125 * (1.0 - c * c) / (c * c), 0.0, 1.0);
         }
+    }
+    // The BSDF of the side a normal map leaves the ray on. (An emitter's
+    // colour slot holds its radiance's texture.)
+    Bsdf bsdf = bsdf_of(mat, front);
+    if (scene_textured() && !scatters) {
+        vec2 b = clamp(barycentric(tri, s.point), vec2(0.0), vec2(1.0));
+        bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, surface_uv(hit.triangle, b));
     }
     bool delta = bsdf_is_delta(bsdf);
     // Rough glass: sampled and reached by NEE on both sides, not guided.
