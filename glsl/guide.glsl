@@ -78,13 +78,19 @@ float guide_density(vec3 wi, float p_sector) {
 }
 
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
-// probability p_sector; pure BSDF sampling where the guide has nothing.
-float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
+// probability p_sector and where the BSDF's own pdf is p_bsdf; pure BSDF
+// sampling where the guide has nothing. (Callers evaluate the BSDF's pdf
+// once: lavapipe inlines each call, a principled BSDF's pdf at length.)
+float mixture_pdf_of(GuideVertex g, Bsdf bsdf, float p_bsdf, vec3 wi, float p_sector) {
     if (!guide_covers(g)) {
-        return bsdf_pdf(bsdf, wo, wi);
+        return p_bsdf;
     }
     float eps = mixture_bsdf_share(g, bsdf);
-    return eps * bsdf_pdf(bsdf, wo, wi) + (1.0 - eps) * guide_density(wi, p_sector);
+    return eps * p_bsdf + (1.0 - eps) * guide_density(wi, p_sector);
+}
+
+float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
+    return mixture_pdf_of(g, bsdf, bsdf_pdf(bsdf, wo, wi), wi, p_sector);
 }
 
 float mixture_pdf(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi) {
@@ -128,13 +134,14 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
 // which the path estimates), of the gradient of the second
 // moment of f cos L / p with respect to theta: d/dtheta E[(f cos L / p)^2]
 // = -E[(f cos L)^2 dp/dtheta / p^3]. wi was drawn from the mixture, whose
-// pdf there is `pdf` and whose f cos / pdf is `weight`.
-float mixture_gradient(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector, float pdf, vec3 weight) {
+// pdf there is `pdf` (the BSDF's own p_bsdf) and whose f cos / pdf is
+// `weight`.
+float mixture_gradient(GuideVertex g, Bsdf bsdf, float p_bsdf, vec3 wi, float p_sector, float pdf, vec3 weight) {
     if (!guide_covers(g) || pdf <= 0.0) {
         return 0.0;
     }
     float e = guide_bsdf_share(g);
-    float dp = (bsdf_pdf(bsdf, wo, wi) - guide_density(wi, p_sector)) * mixture_guide_reach(bsdf) * e * (1.0 - e);
+    float dp = (p_bsdf - guide_density(wi, p_sector)) * mixture_guide_reach(bsdf) * e * (1.0 - e);
     float w = luminance(weight);
     return -w * w * dp / pdf;
 }

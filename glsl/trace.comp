@@ -652,9 +652,11 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
         }
         uint sector = 0u;
         float p_sector = 0.0;
+        float p_bsdf = 0.0;
         if (GUIDED) {
             local = mixture_sample(sampled_from, bsdf, s.wo, vec3(rng_next2(path.rng), rng_next(path.rng)), sector, p_sector);
-            pdf = mixture_pdf_in(sampled_from, bsdf, s.wo, local, p_sector);
+            p_bsdf = bsdf_pdf(bsdf, s.wo, local);
+            pdf = mixture_pdf_of(sampled_from, bsdf, p_bsdf, local, p_sector);
             trail.prev_vertex = here;
             trail.prev_sector = sector;
             trail.prev_q = guide_q(here, sector, p_sector);
@@ -677,7 +679,7 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             // delta vertex.
             follow_unguided(trail, here, local, weight);
         }
-        mix = learn ? mixture_gradient(sampled_from, bsdf, s.wo, local, p_sector, pdf, weight) : 0.0;
+        mix = learn ? mixture_gradient(sampled_from, bsdf, p_bsdf, local, p_sector, pdf, weight) : 0.0;
         if (glossy && (learn || path.depth == 0u)) {
             // What a glossy lobe reflects of the light the guide expects,
             // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
