@@ -258,7 +258,7 @@ Bsdf bsdf_textured(Bsdf bsdf, Material m, bool front, uint i, vec2 b, vec2 uv) {
 // attribute's, interpolated), else its radiance.
 vec3 emitted(Material m, uint i, vec2 b) {
     uint t = texture_slot(m, TEXTURE_SLOT_COLOR);
-    if (!scene_textured() || t == 0u) {
+    if ((MATERIAL_FEATURES & FEATURE_TEXTURED_LIGHTS) == 0u || t == 0u) {
         return m.emission.rgb;
     }
     b = clamp(b, vec2(0.0), vec2(1.0));

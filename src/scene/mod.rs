@@ -839,7 +839,15 @@ impl Scene {
             } else {
                 0
             };
-            acc | (code & flags) | feature | textured | mapped | chooses | anisotropic
+            // An emitter's colour slot holds its radiance's texture.
+            let emits_image = m.emission.max_element() > 0.0
+                && m.textures[shaders::TEXTURE_SLOT_COLOR as usize].is_some();
+            let light = if emits_image {
+                shaders::FEATURE_TEXTURED_LIGHTS
+            } else {
+                0
+            };
+            acc | (code & flags) | feature | textured | mapped | chooses | anisotropic | light
         }) | if self.attributes.is_empty() {
             0
         } else {
@@ -1790,7 +1798,18 @@ fn load_obj(
             normal_map: None,
             choice: None,
         };
-        if let (Some(file), Surface::Diffuse { .. }) = (&m.diffuse_map, material.surface) {
+        let emits = material.emission.max_element() > 0.0;
+        if emits && m.diffuse_map.is_some() {
+            // Its colour slot would hold its radiance's texture.
+            log::warn!(
+                "{}: material '{}' emits: ignoring map_Kd (an emitter ends paths, as a black surface would)",
+                obj_path.display(),
+                m.name
+            );
+        }
+        if let (Some(file), Surface::Diffuse { .. }, false) =
+            (&m.diffuse_map, material.surface, emits)
+        {
             let t = diffuse_map(dir, file, loader).map_err(|message| SceneError::Mtl {
                 path: obj_path.to_path_buf(),
                 message: format!("material '{}': {message}", m.name),
@@ -1803,7 +1822,7 @@ fn load_obj(
         }
         // An emitter of a TOML scene ends paths (docs/scenes.md), as a black
         // BSDF would; Mitsuba's scatter them as their BSDF says.
-        if material.emission.max_element() > 0.0 {
+        if emits {
             material.surface = Surface::Diffuse { albedo: Vec3::ZERO };
         }
         materials.push(material);
@@ -1936,6 +1955,11 @@ mod tests {
         // Not a diffuse material: ignored with a warning, as Kd is.
         let metal = load("Pm 1\nmap_Kd t.png\n").unwrap();
         assert_eq!(metal.materials[0].textures, [None; TEXTURE_SLOTS]);
+        // An emitter's: ignored, or the device would read the image as its
+        // radiance.
+        let lamp = load("Kd 0.5\nKe 4 4 4\nmap_Kd t.png\n").unwrap();
+        assert_eq!(lamp.materials[0].textures, [None; TEXTURE_SLOTS]);
+        assert_eq!(lamp.materials[0].emission, Vec3::splat(4.0));
     }
 
     #[test]
