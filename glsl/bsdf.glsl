@@ -678,6 +678,26 @@ vec3 thin_sample(Bsdf bsdf, vec3 wo, vec3 u, out vec2 square) {
     return r.z > 0.0 && dot(wo, m) > 0.0 && (dot(wi, m) > 0.0) == reflect ? wi : vec3(0.0);
 }
 
+// The share of the BSDF's scattering from wo that stays on wo's side, as
+// its sampler chooses lobes (a refraction's Fresnel term taken at the
+// surface's normal rather than a microfacet's): how a vertex that lets
+// light through splits the guide's half of the mixture between the two
+// sides (guide.glsl). 1 where nothing passes.
+float bsdf_reflect_share(Bsdf bsdf, vec3 wo) {
+    if (bsdf_rough_glass(bsdf)) {
+        return fresnel_dielectric(wo.z, bsdf.eta);
+    }
+    if (principled_transmits(bsdf)) {
+        vec2 share = principled_shares(bsdf);
+        return 1.0 - (1.0 - share.x - share.y) * principled_weights(bsdf).y * (1.0 - fresnel_dielectric(wo.z, bsdf.eta));
+    }
+    if (thin_transmits(bsdf)) {
+        vec3 share = thin_shares(bsdf);
+        return share.x + share.z;
+    }
+    return 1.0;
+}
+
 // The probability that a bounce from wo takes the BSDF's delta lobe: 1 for
 // a mirror or glass, a plastic's Fresnel-weighted share of its coat's
 // reflection, 0 for the rest. bsdf_sample_delta draws that lobe;

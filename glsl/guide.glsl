@@ -1,6 +1,8 @@
 // The guide seam. A guide (sarsa.glsl, neural.glsl, neural_table.glsl, or
 // unguided.glsl for plain path tracing; included before this file) provides:
 //   GUIDED                   const bool: whether it samples directions at all
+//   GUIDE_TWO_SIDED          const bool: whether two of its vertices may be
+//       held at once (a vertex that lets light through samples both sides)
 //   struct GuideVertex       what it knows at a path vertex
 //   guide_none()             the vertex before the camera ray: learns nothing
 //   guide_at(triangle index, triangle, p, n, front side?)
@@ -60,62 +62,140 @@ float guide_q(GuideVertex g, uint k, float p) {
 // diffuse lobe, alpha of it for a glossy one: the guide's sectors are
 // uniform inside, so a lobe narrower than they are gains little from them
 // (the roughest GGX, alpha 1, is as broad as a diffuse lobe). Delta lobes
-// do not mix (bsdf_sample_delta).
+// do not mix (bsdf_sample_delta). A principled BSDF that lets light through
+// keeps all for its diffuse share, alpha for the rest.
 float mixture_guide_reach(Bsdf bsdf) {
-    return bsdf_is(bsdf, MATERIAL_CONDUCTOR) ? min(bsdf.alpha, 1.0) : 1.0;
+    if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || bsdf_rough_glass(bsdf)) {
+        return min(bsdf.alpha, 1.0);
+    }
+    float diffuse = 1.0;
+    if (principled_transmits(bsdf)) {
+        diffuse = principled_shares(bsdf).x;
+    } else if (thin_transmits(bsdf)) {
+        vec3 share = thin_shares(bsdf);
+        diffuse = 1.0 - share.x - share.y;
+    } else {
+        return 1.0;
+    }
+    return diffuse + (1.0 - diffuse) * min(principled_specular(bsdf).alpha, 1.0);
 }
 
-// The share of BSDF sampling in the mixture at g: the guide's share there
-// (guide_epsilon, or learned), less for the guide where the lobe is narrow.
-float mixture_bsdf_share(GuideVertex g, Bsdf bsdf) {
-    return 1.0 - (1.0 - guide_bsdf_share(g)) * mixture_guide_reach(bsdf);
+// The guide's half of the one-sample mixture at a vertex: the sector
+// distribution of the side the path arrives on (`front`) and, where the
+// BSDF lets light through (GUIDE_TWO_SIDED), that of the other side
+// (`back`), each given the part of the guide's half that the BSDF sends to
+// its side (bsdf_reflect_share), times the lobe's reach. A side the guide
+// does not cover leaves its part to BSDF sampling. The back's sectors are
+// those of a path arriving there: in its frame, make_frame(-n) = (t, -b),
+// a direction (x, y, z) of the front's is (x, -y, -z).
+struct Mixture {
+    GuideVertex front;
+    GuideVertex back;
+    float e;  // the guide's own share of BSDF sampling (the front's, or the back's where only it covers)
+    float kf; // the parts of the guide's half: the front's
+    float kb; // and the back's
+};
+
+Mixture mixture_at(GuideVertex front, GuideVertex back, Bsdf bsdf, vec3 wo) {
+    float reach = mixture_guide_reach(bsdf);
+    bool two = GUIDE_TWO_SIDED && guide_covers(back);
+    float a = two ? bsdf_reflect_share(bsdf, wo) : 1.0;
+    Mixture m;
+    m.front = front;
+    m.back = back;
+    m.e = guide_covers(front) || !two ? guide_bsdf_share(front) : guide_bsdf_share(back);
+    m.kf = guide_covers(front) ? reach * a : 0.0;
+    m.kb = two ? reach * (1.0 - a) : 0.0;
+    return m;
 }
 
-// Solid-angle density of the guide's side at wi, in a sector of probability
-// p_sector: uniform within the sector, p n / (2 pi), on the upper side.
-float guide_density(vec3 wi, float p_sector) {
-    return wi.z > 0.0 ? p_sector * float(sector_count()) * 0.5 * INV_PI : 0.0;
+// The mixture of a vertex whose guide covers one side (the probes').
+Mixture mixture_one_sided(GuideVertex g, Bsdf bsdf) {
+    return mixture_at(g, guide_none(), bsdf, vec3(0.0, 0.0, 1.0));
+}
+
+// The vertex whose share of BSDF sampling the mixture takes (and learns).
+GuideVertex mixture_share_vertex(Mixture m) {
+    return guide_covers(m.front) || !GUIDE_TWO_SIDED ? m.front : m.back;
+}
+
+// The share of BSDF sampling in the mixture: the guide's own share, and
+// the rest where the lobe's reach or a side the guide does not cover
+// leaves it.
+float mixture_bsdf_share(Mixture m) {
+    return 1.0 - (1.0 - m.e) * (m.kf + m.kb);
+}
+
+// Whether local direction wi lies on the back's side, and wi in the frame
+// of the side it lies on.
+bool mixture_back(vec3 wi) {
+    return GUIDE_TWO_SIDED && wi.z < 0.0;
+}
+
+vec3 mixture_side_direction(vec3 wi) {
+    return mixture_back(wi) ? vec3(wi.x, -wi.y, -wi.z) : wi;
+}
+
+// The guide vertex of the side wi lies on.
+GuideVertex mixture_side(Mixture m, vec3 wi) {
+    return mixture_back(wi) ? m.back : m.front;
+}
+
+// Solid-angle density of the guide's half at wi, in a sector of probability
+// p_sector of its side's distribution: uniform within the sector,
+// p n / (2 pi), times the side's part of the guide's half.
+float guide_density(Mixture m, vec3 wi, float p_sector) {
+    float part = wi.z > 0.0 ? m.kf : mixture_back(wi) ? m.kb : 0.0;
+    return part / max(m.kf + m.kb, 1e-30) * (p_sector * float(sector_count()) * 0.5 * INV_PI);
 }
 
 // Solid-angle pdf of the mixture at wi, which lies in a sector of
-// probability p_sector and where the BSDF's own pdf is p_bsdf; pure BSDF
-// sampling where the guide has nothing. (Callers evaluate the BSDF's pdf
-// once: lavapipe inlines each call, a principled BSDF's pdf at length.)
-float mixture_pdf_of(GuideVertex g, Bsdf bsdf, float p_bsdf, vec3 wi, float p_sector) {
-    if (!guide_covers(g)) {
+// probability p_sector (of its side's distribution) and where the BSDF's
+// own pdf is p_bsdf; pure BSDF sampling where the guide has nothing.
+// (Callers evaluate the BSDF's pdf once: lavapipe inlines each call, a
+// principled BSDF's pdf at length.)
+float mixture_pdf_of(Mixture m, float p_bsdf, vec3 wi, float p_sector) {
+    if (m.kf + m.kb <= 0.0) {
         return p_bsdf;
     }
-    float eps = mixture_bsdf_share(g, bsdf);
-    return eps * p_bsdf + (1.0 - eps) * guide_density(wi, p_sector);
+    float eps = mixture_bsdf_share(m);
+    return eps * p_bsdf + (1.0 - eps) * guide_density(m, wi, p_sector);
 }
 
-float mixture_pdf_in(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
-    return mixture_pdf_of(g, bsdf, bsdf_pdf(bsdf, wo, wi), wi, p_sector);
+float mixture_pdf_in(Mixture m, Bsdf bsdf, vec3 wo, vec3 wi, float p_sector) {
+    return mixture_pdf_of(m, bsdf_pdf(bsdf, wo, wi), wi, p_sector);
 }
 
-float mixture_pdf(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 wi) {
-    float p = guide_covers(g) ? guide_sector_probability(g, hemisphere_sector(wi, grid_a(), grid_b())) : 0.0;
-    return mixture_pdf_in(g, bsdf, wo, wi, p);
+float mixture_pdf(Mixture m, Bsdf bsdf, vec3 wo, vec3 wi) {
+    GuideVertex g = mixture_side(m, wi);
+    float p = guide_covers(g) ? guide_sector_probability(g, hemisphere_sector(mixture_side_direction(wi), grid_a(), grid_b())) : 0.0;
+    return mixture_pdf_in(m, bsdf, wo, wi, p);
 }
 
-// A direction from the mixture, the sector it lies in and that sector's
-// probability; u = three uniform numbers.
-vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, out float p_sector) {
-    float eps = mixture_bsdf_share(g, bsdf);
+// A direction from the mixture, the sector it lies in (of its side's
+// distribution) and that sector's probability; u = three uniform numbers.
+vec3 mixture_sample(Mixture m, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, out float p_sector) {
+    float eps = mixture_bsdf_share(m);
     uint a = grid_a();
     uint b = grid_b();
-    bool guided = guide_covers(g) && u.z >= eps;
-    // Both sides are worked out (lavapipe runs both sides of a branch
+    bool guided = u.z >= eps;
+    // Both halves are worked out (lavapipe runs both sides of a branch
     // anyway), so that one read of the guide's table serves either.
     vec2 square;
     // Where BSDF sampling is chosen, u.z / eps is uniform again: it picks
-    // among the lobes.
-    float lobe_u = guide_covers(g) ? min(u.z / max(eps, 1e-30), 0.99999994) : u.z;
+    // among the lobes; where the guide is, (u.z - eps) / (1 - eps) picks
+    // its side, then, uniform again, the sector.
+    float lobe_u = min(u.z / max(eps, 1e-30), 0.99999994);
     vec3 wi = bsdf_sample(bsdf, wo, vec3(u.xy, lobe_u), square);
-    sector = square_sector(square, a, b);
+    float t = guided ? (u.z - eps) / (1.0 - eps) : 0.0;
+    float front_part = m.kf / max(m.kf + m.kb, 1e-30);
+    bool back = GUIDE_TWO_SIDED && (guided ? t >= front_part : wi.z < 0.0);
+    t = back ? (t - front_part) / max(1.0 - front_part, 1e-30) : t / max(front_part, 1e-30);
+    GuideVertex g = back ? m.back : m.front;
+    sector = back ? hemisphere_sector(mixture_side_direction(wi), a, b) : square_sector(square, a, b);
     p_sector = 0.0;
     if (guide_covers(g)) {
-        sector = guide_choose_sector(g, guided, guided ? (u.z - eps) / (1.0 - eps) : 0.0, sector, p_sector);
+        sector = guide_choose_sector(g, guided, min(t, 0.99999994), sector, p_sector);
     }
     if (guided) {
         // Uniform within the sector, clear of its edges: rounding in the map
@@ -123,8 +203,9 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
         // the sector is the one a pdf lookup finds. (The strip left out is
         // 2e-5 of the cell.)
         vec2 inner = clamp(u.xy, vec2(1e-5), vec2(1.0 - 1e-5));
-        return square_to_hemisphere(vec2((float(sector % a) + inner.x) / float(a),
-                                         (float(sector / a) + inner.y) / float(b)));
+        vec3 w = square_to_hemisphere(vec2((float(sector % a) + inner.x) / float(a),
+                                           (float(sector / a) + inner.y) / float(b)));
+        return back ? vec3(w.x, -w.y, -w.z) : w;
     }
     return wi;
 }
@@ -136,12 +217,12 @@ vec3 mixture_sample(GuideVertex g, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, 
 // = -E[(f cos L)^2 dp/dtheta / p^3]. wi was drawn from the mixture, whose
 // pdf there is `pdf` (the BSDF's own p_bsdf) and whose f cos / pdf is
 // `weight`.
-float mixture_gradient(GuideVertex g, Bsdf bsdf, float p_bsdf, vec3 wi, float p_sector, float pdf, vec3 weight) {
-    if (!guide_covers(g) || pdf <= 0.0) {
+float mixture_gradient(Mixture m, float p_bsdf, vec3 wi, float p_sector, float pdf, vec3 weight) {
+    if (m.kf + m.kb <= 0.0 || pdf <= 0.0) {
         return 0.0;
     }
-    float e = guide_bsdf_share(g);
-    float dp = (p_bsdf - guide_density(wi, p_sector)) * mixture_guide_reach(bsdf) * e * (1.0 - e);
+    float e = m.e;
+    float dp = (p_bsdf - guide_density(m, wi, p_sector)) * (m.kf + m.kb) * e * (1.0 - e);
     float w = luminance(weight);
     return -w * w * dp / pdf;
 }

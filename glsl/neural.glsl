@@ -13,6 +13,10 @@
 // the sector weights it inferred into neural_w (negative: the vertex before
 // the camera ray, which has no state) and (2 pi / n) sum_j Q_j cos(theta_j)
 // (expected target), or max_j Q_j cos(theta_j) (Q-learning).
+// One network inference a vertex (neural_w holds it): a vertex that lets
+// light through is not guided (guide.glsl's Mixture).
+const bool GUIDE_TWO_SIDED = false;
+
 struct GuideVertex {
     vec3 p;
     vec3 n;

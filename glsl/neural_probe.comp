@@ -28,6 +28,7 @@ void main() {
     vec3 wo = vec3(0.0, 0.0, 1.0);
     uint sector;
     float p_sector;
-    vec3 w = mixture_sample(g, white, wo, probe_in[2u + i].xyz, sector, p_sector);
-    probe_out[i] = vec4(w, mixture_pdf_in(g, white, wo, w, p_sector));
+    Mixture m = mixture_one_sided(g, white);
+    vec3 w = mixture_sample(m, white, wo, probe_in[2u + i].xyz, sector, p_sector);
+    probe_out[i] = vec4(w, mixture_pdf_in(m, white, wo, w, p_sector));
 }

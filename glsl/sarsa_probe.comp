@@ -29,17 +29,19 @@ void main() {
         uint v = nearest_volume(t, load_triangle(t), probe_in[2u * i].xyz, probe_in[2u * i + 1u].y > 0.0);
         probe_out[i] = vec4(uintBitsToFloat(v), 0.0, 0.0, 0.0);
     } else if (params.selector == PROBE_GUIDE_SAMPLE) {
-        // in[0..4] = a Material, in[4] = (wo, front side? 1 : 0),
-        // in[5 + i] = (volume bits, u1, u2, u3); out = (local direction, pdf)
-        // of the mixture with that material's BSDF
-        vec4 q = probe_in[5u + i];
-        GuideVertex g = guide_vertex(floatBitsToUint(q.x));
+        // in[0..4] = a Material, in[4] = (wo, front side? 1 : 0), in[5].x =
+        // the volume on the far side (bits; NO_VOLUME: none), in[6 + i] =
+        // (volume bits, u1, u2, u3); out = (local direction, pdf) of the
+        // mixture with that material's BSDF, and the pdf NEE's MIS finds
+        vec4 q = probe_in[6u + i];
         Bsdf bsdf = bsdf_of(Material(probe_in[0], probe_in[1], probe_in[2], probe_in[3]), probe_in[4].w > 0.5);
         vec3 wo = probe_in[4].xyz;
+        Mixture m = mixture_at(guide_vertex(floatBitsToUint(q.x)), guide_vertex(floatBitsToUint(probe_in[5].x)), bsdf, wo);
         uint sector;
         float p_sector;
-        vec3 w = mixture_sample(g, bsdf, wo, q.yzw, sector, p_sector);
-        probe_out[i] = vec4(w, mixture_pdf_in(g, bsdf, wo, w, p_sector));
+        vec3 w = mixture_sample(m, bsdf, wo, q.yzw, sector, p_sector);
+        probe_out[2u * i] = vec4(w, mixture_pdf_in(m, bsdf, wo, w, p_sector));
+        probe_out[2u * i + 1u] = vec4(mixture_pdf(m, bsdf, wo, w), 0.0, 0.0, 0.0);
     } else if (params.selector == PROBE_SARSA_UPDATE) {
         // in[2i] = (volume bits, sector bits, next volume bits, albedo or
         // -emitted), in[2i+1].x = the share of an emitted target NEE carries;

@@ -535,10 +535,9 @@ float normal_map_weight(Shading s, vec3 d) {
 
 // NEE at shading point `s`: one light (the guide's choice where it learns
 // one, else by power), one point or direction on it, a shadow ray, and
-// the sample weighed by MIS against the bounce's density (the mixture at
-// `sampled_from`). Adds it to the path's radiance and returns its luminance
+// the sample weighed by MIS against the bounce's density (the mixture `m`). Adds it to the path's radiance and returns its luminance
 // (what the transition that reached s learns NEE brought there).
-float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from, bool transmits) {
+float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixture m, bool transmits) {
     float direct_lum = 0.0;
     float pick_pdf;
     uint light = nee_choose_light(here, rng_next(path.rng), pick_pdf);
@@ -605,7 +604,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
         }
         if (!occluded(from, shadow_dir, reach * (1.0 - 1e-4) - eps)) {
             vec3 wi_local = vec3(dot(wi, s.t), dot(wi, s.b), cos_x);
-            float scatter_pdf = mixture_pdf(sampled_from, bsdf, s.wo, wi_local);
+            float scatter_pdf = mixture_pdf(m, bsdf, s.wo, wi_local);
             // A plastic's coat takes some bounces as a mirror.
             scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
             float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
@@ -624,11 +623,11 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, GuideV
 
 // The bounce at shading point `s`: a delta lobe's one direction (no MIS for
 // what it hits, as NEE skipped it), or a direction from the mixture at
-// `sampled_from` (BSDF sampling alone without a guide) with its density.
+// `m` (BSDF sampling alone without a guide) with its density.
 // Sets the path's next ray and throughput; false when the path ends (a
 // direction of zero density). `mix`: the sample's gradient for the share of
 // BSDF sampling, in a pass that learns.
-bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, GuideVertex here, GuideVertex sampled_from,
+bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, GuideVertex here, Mixture m,
                    bool delta, bool transmits, bool glossy, out float mix) {
     vec3 local;
     vec3 weight;
@@ -653,14 +652,18 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
         uint sector = 0u;
         float p_sector = 0.0;
         float p_bsdf = 0.0;
+        // The guide vertex of the side the bounce leaves on: the other
+        // side's, through a surface that lets light through (Mixture).
+        GuideVertex side = here;
         if (GUIDED) {
-            local = mixture_sample(sampled_from, bsdf, s.wo, vec3(rng_next2(path.rng), rng_next(path.rng)), sector, p_sector);
+            local = mixture_sample(m, bsdf, s.wo, vec3(rng_next2(path.rng), rng_next(path.rng)), sector, p_sector);
             p_bsdf = bsdf_pdf(bsdf, s.wo, local);
-            pdf = mixture_pdf_of(sampled_from, bsdf, p_bsdf, local, p_sector);
-            trail.prev_vertex = here;
+            pdf = mixture_pdf_of(m, p_bsdf, local, p_sector);
+            side = mixture_side(m, local);
+            trail.prev_vertex = side;
             trail.prev_sector = sector;
-            trail.prev_q = guide_q(here, sector, p_sector);
-            trail.guided_roulette = guide_covers(here);
+            trail.prev_q = guide_q(side, sector, p_sector);
+            trail.guided_roulette = guide_covers(side);
         } else {
             vec2 square;
             // The third number picks a lobe (of rough glass, a rough plastic, a
@@ -674,12 +677,12 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             return false;
         }
         weight = bsdf_eval(bsdf, s.wo, local) / pdf;
-        if (transmits) {
-            // Rough glass: sampled by its BSDF alone, learned through as a
-            // delta vertex.
+        if (transmits && !GUIDE_TWO_SIDED) {
+            // Rough glass where the guide holds one vertex at a time:
+            // sampled by its BSDF alone, learned through as a delta vertex.
             follow_unguided(trail, here, local, weight);
         }
-        mix = learn ? mixture_gradient(sampled_from, bsdf, p_bsdf, local, p_sector, pdf, weight) : 0.0;
+        mix = learn ? mixture_gradient(m, p_bsdf, local, p_sector, pdf, weight) : 0.0;
         if (glossy && (learn || path.depth == 0u)) {
             // What a glossy lobe reflects of the light the guide expects,
             // (2 pi / n) sum_j Q_j f cos(theta_j): one sample's estimate from
@@ -687,7 +690,7 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             // (unbiased for Q constant over each sector). Q itself, not the
             // sampling table's weight (prev_q), which with NEE leaves out
             // NEE's share.
-            float estimate = luminance(weight) * guide_sector_q(here, sector);
+            float estimate = luminance(weight) * guide_sector_q(side, sector);
             trail.land_reflected = estimate * trail.land_scale;
             if (path.depth == 0u) {
                 trail.path_estimate = estimate;
@@ -875,7 +878,7 @@ bool scatter(inout Path path, inout Trail trail) {
         bsdf = bsdf_textured(bsdf, mat, front, hit.triangle, b, surface_uv(hit.triangle, b));
     }
     bool delta = bsdf_is_delta(bsdf);
-    // Rough glass: sampled and reached by NEE on both sides, not guided.
+    // Rough glass: sampled and reached by NEE on both sides.
     bool transmits = bsdf_transmits(bsdf);
     make_frame(s.ns, s.t, s.b);
     if (bsdf_anisotropic(bsdf)) {
@@ -887,14 +890,20 @@ bool scatter(inout Path path, inout Trail trail) {
         bsdf.tangent = at.valid && dot(t, t) > 0.0 ? normalize(t) : vec2(1.0, 0.0);
     }
     s.wo = vec3(-dot(path.dir, s.t), -dot(path.dir, s.b), SHADING_FRAME ? -dot(path.dir, s.ns) : abs(cos_out));
-    // A delta vertex or rough glass is never guided: unless it learns, the
-    // guide's lookup there (a network inference, for neural) would only tune
-    // the roulette. Its bounces learn as a delta vertex's (chaining).
-    bool unguided = delta || transmits;
+    // A delta vertex is never guided, nor is rough glass where the guide
+    // holds one vertex at a time: unless it learns, the guide's lookup there
+    // (a network inference, for neural) would only tune the roulette. Its
+    // bounces learn as a delta vertex's (chaining).
+    bool unguided = delta || (transmits && !GUIDE_TWO_SIDED);
     GuideVertex here = unguided && !learn ? guide_none() : guide_at(hit.triangle, tri, s.position, s.ng, cos_out > 0.0);
     // What the bounce and NEE's MIS sample from: BSDF sampling alone where
-    // the guide does not sample.
-    GuideVertex sampled_from = transmits ? guide_none() : here;
+    // the guide does not sample; through a surface that lets light through,
+    // the guide on both sides.
+    GuideVertex beyond = guide_none();
+    if (GUIDE_TWO_SIDED && transmits && !delta) {
+        beyond = guide_at(hit.triangle, tri, s.point - eps * s.ng, -s.ng, cos_out <= 0.0);
+    }
+    Mixture mixture = mixture_at(unguided ? guide_none() : here, beyond, bsdf, s.wo);
     // What this vertex is expected to send back along the ray: the landed
     // bounce's target, which NEE here adds to (see guide_learn). A glossy
     // lobe's (0 here) is estimated from the bounce's own direction
@@ -921,7 +930,7 @@ bool scatter(inout Path path, inout Trail trail) {
         return false;
     }
 
-    float direct_lum = nee && !delta ? next_event(path, s, bsdf, here, sampled_from, transmits) : 0.0;
+    float direct_lum = nee && !delta ? next_event(path, s, bsdf, here, mixture, transmits) : 0.0;
     if (learn) {
         if (unguided && (trail.chaining || guide_covers(trail.prev_vertex))) {
             pass_through_delta(trail);
@@ -930,11 +939,11 @@ bool scatter(inout Path path, inout Trail trail) {
         }
     }
     float mix;
-    if (!sample_bounce(path, trail, s, bsdf, here, sampled_from, delta, transmits, glossy, mix) || !survives_roulette(path, trail)) {
+    if (!sample_bounce(path, trail, s, bsdf, here, mixture, delta, transmits, glossy, mix) || !survives_roulette(path, trail)) {
         return false;
     }
     if (mix != 0.0) {
-        keep_share_sample(trail, path, here, mix);
+        keep_share_sample(trail, path, mixture_share_vertex(mixture), mix);
     }
     path.depth += 1u;
     return true;

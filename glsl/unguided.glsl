@@ -10,6 +10,8 @@
 const bool GUIDED = false;
 const bool GUIDE_LIGHTS = false;
 
+const bool GUIDE_TWO_SIDED = false;
+
 struct GuideVertex {
     uint none;
 };

@@ -96,6 +96,10 @@ struct GuideVertex {
     vec3 n;
 };
 
+// Whether a vertex that lets light through samples the other side's table
+// too (guide.glsl's Mixture): a lookup finds a volume for either side.
+const bool GUIDE_TWO_SIDED = true;
+
 GuideVertex guide_vertex(uint volume) {
     return GuideVertex(volume, volume_sums_of(volume), vec3(0.0), vec3(0.0));
 }

@@ -251,15 +251,228 @@ fn guided_sampler_matches_its_pdf() {
             normal_map: None,
             choice: None,
         };
-        let samples =
-            probe::guide_samples(&ctx, &scene, &guide, v as u32, (&material, wo), &uniforms)
-                .unwrap();
+        // A far side's volume, which a BSDF that lets no light through leaves out.
+        let samples = probe::guide_samples(
+            &ctx,
+            &scene,
+            &guide,
+            (v as u32, 1),
+            (&material, wo),
+            &uniforms,
+        )
+        .unwrap();
         common::assert_no_validation_errors(&ctx);
+        // NEE's MIS finds the sample's pdf from its direction alone, but
+        // where the BSDF's draw lies within rounding of a sector's edge.
+        let misplaced = samples
+            .iter()
+            .filter(|(w, pdf, mis)| w.z > 0.0 && (pdf - mis).abs() > 1e-3 * pdf + 1e-6)
+            .count();
+        assert!(
+            misplaced <= draws / 10_000,
+            "{misplaced} draws whose pdf NEE finds otherwise"
+        );
+        let samples: Vec<(Vec3, f32)> = samples.into_iter().map(|(w, pdf, _)| (w, pdf)).collect();
         let bsdf = Bsdf::new(surface, true, Sampling::Cosine);
         common::assert_mixture_sampler_with(&samples, &p, share as f64, s.common.grid, &|w| {
             bsdf.pdf(wo, w) as f64
         });
     }
+}
+
+/// χ² test through rough glass: the guide's half of the mixture splits
+/// between the side the path arrives on and the far side (its own volume,
+/// its sectors mirrored as a path arriving there sees them) by the
+/// Fresnel term at wo, and takes α of the mixture; the sampler follows the
+/// pdf it reports, which NEE's MIS finds again from the direction alone.
+#[test]
+fn guided_sampler_through_glass_matches_its_pdf() {
+    let ctx = common::gpu();
+    let scene = common::scene("cornell-box");
+    let s = SarsaSettings {
+        volumes: Some(4),
+        common: Common {
+            epsilon: Some(0.25),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let grid = s.common.grid;
+    let (a, b) = (grid[0] as usize, grid[1] as usize);
+    let n = a * b;
+    let guide = SarsaGuide::new(&ctx, &scene, &s, 1, true).unwrap();
+    let mut rng = Lcg(11);
+    let q: Vec<f32> = (0..4 * n)
+        .map(|i| match i % 5 {
+            0 => 40.0 * rng.next(),
+            1 => 0.0,
+            _ => rng.next(),
+        })
+        .collect();
+    guide.upload_q(&ctx, &q).unwrap();
+    let probs = guide.download_probabilities().unwrap();
+    let (front, back) = (2usize, 1usize);
+    let (pf, pb) = (
+        probabilities(&probs, front, n),
+        probabilities(&probs, back, n),
+    );
+    let draws = 1_000_000;
+    let uniforms: Vec<Vec3> = (0..draws)
+        .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    let eps = s.epsilon() as f64;
+    let alpha = 0.6f32;
+    let surface = Surface::RoughDielectric {
+        ior: 1.5,
+        reflectance: Vec3::ONE,
+        transmittance: Vec3::ONE,
+        alpha,
+        alpha_v: None,
+        distribution: qtrace::bsdf::Distribution::Ggx,
+    };
+    let material = Material {
+        name: "probe".into(),
+        surface,
+        emission: Vec3::ZERO,
+        one_sided: false,
+        textures: [None; qtrace::scene::TEXTURE_SLOTS],
+        normal_map: None,
+        choice: None,
+    };
+    let wo = Vec3::new(0.5, 0.2, 0.75).normalize();
+    let samples = probe::guide_samples(
+        &ctx,
+        &scene,
+        &guide,
+        (front as u32, back as u32),
+        (&material, wo),
+        &uniforms,
+    )
+    .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let bsdf = Bsdf::new(surface, true, Sampling::Cosine);
+    let reflect = qtrace::bsdf::fresnel_dielectric(wo.z, 1.5).0 as f64;
+    let guide_half = (1.0 - eps) * alpha as f64;
+    // A direction's side (0 front, 1 back), its point of the square in that
+    // side's frame, and the pdf the mixture should have there.
+    let side_square = |w: Vec3| -> (usize, Vec2) {
+        if w.z > 0.0 {
+            (0, sampling::hemisphere_to_square(w))
+        } else {
+            (
+                1,
+                sampling::hemisphere_to_square(Vec3::new(w.x, -w.y, -w.z)),
+            )
+        }
+    };
+    let sector_of = |u: Vec2| {
+        ((u.x * a as f32) as usize).min(a - 1) + a * ((u.y * b as f32) as usize).min(b - 1)
+    };
+    let guided_pdf = |side: usize, k: usize| -> f64 {
+        let (part, p) = if side == 0 {
+            (reflect, &pf)
+        } else {
+            (1.0 - reflect, &pb)
+        };
+        part * p[k] * n as f64 / (2.0 * PI)
+    };
+    let sub = 2usize;
+    let (ba, bb) = (a * sub, b * sub);
+    let mut observed = vec![0f64; 2 * ba * bb];
+    let mut misplaced = 0;
+    let mut lost = 0;
+    for (w, pdf, mis) in &samples {
+        if *pdf <= 0.0 {
+            // A BSDF draw that leaves on the wrong side: no direction.
+            lost += 1;
+            continue;
+        }
+        assert!((w.length() - 1.0).abs() < 1e-4, "bad direction {w}");
+        if (pdf - mis).abs() > 1e-3 * pdf + 1e-6 {
+            misplaced += 1;
+        }
+        let (side, u) = side_square(*w);
+        let (i, j) = (
+            ((u.x * ba as f32) as usize).min(ba - 1),
+            ((u.y * bb as f32) as usize).min(bb - 1),
+        );
+        observed[side * ba * bb + i + ba * j] += 1.0;
+        let want = |k: usize| {
+            (1.0 - guide_half) * bsdf.pdf(wo, *w) as f64 + guide_half * guided_pdf(side, k)
+        };
+        let near = [
+            (0.0, 0.0),
+            (1e-5, 0.0),
+            (-1e-5, 0.0),
+            (0.0, 1e-5),
+            (0.0, -1e-5),
+        ]
+        .map(|(dx, dy)| {
+            sector_of((u + Vec2::new(dx, dy)).clamp(Vec2::ZERO, Vec2::splat(0.999_999)))
+        });
+        assert!(
+            near.iter()
+                .any(|&k| (*pdf as f64 - want(k)).abs() <= 1e-3 * want(k) + 1e-6),
+            "pdf {pdf} vs {} at {w}",
+            want(near[0])
+        );
+    }
+    assert!(
+        misplaced <= draws / 10_000,
+        "{misplaced} draws whose pdf NEE finds otherwise"
+    );
+    assert!(lost < draws / 10, "{lost} draws lost");
+    // Expected bins: the BSDF's part integrated over each (dω = 2π du dv
+    // under the equal-area map), the guide's uniform in its sector.
+    let m = 8;
+    let mut chi2 = 0.0;
+    let mut bins = 0;
+    for side in 0..2 {
+        for j in 0..bb {
+            for i in 0..ba {
+                let mut integral = 0.0;
+                for y in 0..m {
+                    for x in 0..m {
+                        let u = Vec2::new(
+                            (i as f32 + (x as f32 + 0.5) / m as f32) / ba as f32,
+                            (j as f32 + (y as f32 + 0.5) / m as f32) / bb as f32,
+                        );
+                        let h = sampling::square_to_hemisphere(u);
+                        let w = if side == 0 {
+                            h
+                        } else {
+                            Vec3::new(h.x, -h.y, -h.z)
+                        };
+                        integral += bsdf.pdf(wo, w) as f64;
+                    }
+                }
+                let bsdf_prob = 2.0 * PI * integral / (m * m) as f64 / (ba * bb) as f64;
+                let k = (i / sub) + a * (j / sub);
+                let part = if side == 0 {
+                    reflect * pf[k]
+                } else {
+                    (1.0 - reflect) * pb[k]
+                };
+                let prob = (1.0 - guide_half) * bsdf_prob + guide_half * part / (sub * sub) as f64;
+                let e = prob * draws as f64;
+                let o = observed[side * ba * bb + i + ba * j];
+                if e < 5.0 {
+                    assert!(
+                        o <= 5.0 * e.max(1.0) + 10.0,
+                        "side {side} bin ({i}, {j}): {o} draws where {e} expected"
+                    );
+                    continue;
+                }
+                chi2 += (o - e) * (o - e) / e;
+                bins += 1;
+            }
+        }
+    }
+    let p_value = common::chi2_survival(chi2, (bins - 1) as f64);
+    assert!(
+        p_value > 1e-3,
+        "chi-square {chi2:.1} over {bins} bins: p = {p_value:.2e}"
+    );
 }
 
 /// cos θ at the centre of each sector.

@@ -1,6 +1,6 @@
 //! The probes only tests and examples use (the `probes` feature).
 
-use super::{launch, run};
+use super::{launch, run, run_outputs};
 use crate::gpu::{Buffer, ComputePipeline, DescriptorSet, GpuContext, Pass};
 use crate::guide::{DeviceGuide, NeuralGuide, SarsaGuide};
 use crate::render::{pass_params, GpuScene, RenderError, RenderSettings};
@@ -50,32 +50,42 @@ fn material_texels(m: shaders::Material, wo: Vec3, front: bool) -> [Vec4; 5] {
 
 /// Directions the GPU guide sampler draws for volume `volume` from the given
 /// uniform triples, at a vertex of `material` (front side) seen from `wo`,
-/// with the pdf it reports for each.
+/// with `back` the volume on the surface's far side (NO_VOLUME: none), and
+/// for each the pdf it reports and the pdf NEE's MIS finds there.
 pub fn guide_samples(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     guide: &SarsaGuide,
-    volume: u32,
+    (volume, back): (u32, u32),
     (material, wo): (&crate::scene::Material, Vec3),
     uniforms: &[Vec3],
-) -> Result<Vec<(Vec3, f32)>, RenderError> {
+) -> Result<Vec<(Vec3, f32, f32)>, RenderError> {
     let input: Vec<Vec4> = shading_texels(material, wo, true)
         .into_iter()
+        .chain(std::iter::once(Vec4::new(
+            f32::from_bits(back),
+            0.0,
+            0.0,
+            0.0,
+        )))
         .chain(
             uniforms
                 .iter()
                 .map(|u| Vec4::new(f32::from_bits(volume), u.x, u.y, u.z)),
         )
         .collect();
-    let out = run(
+    let out = run_outputs(
         ctx,
         scene,
         Some(guide),
         shaders::PROBE_GUIDE_SAMPLE,
         &input,
-        uniforms.len(),
+        (uniforms.len(), 2),
     )?;
-    Ok(out.iter().map(|v| (v.truncate(), v.w)).collect())
+    Ok(out
+        .chunks(2)
+        .map(|v| (v[0].truncate(), v[0].w, v[1].x))
+        .collect())
 }
 
 /// The lights NEE picks at volume `volume` (NO_VOLUME: where there is
