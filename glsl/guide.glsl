@@ -58,6 +58,14 @@ float guide_q(GuideVertex g, uint k, float p) {
     return !EXPERIMENT(FLAG_Q_DISTRIBUTION) ? w / sector_cos(k, grid_a(), grid_b()) : w;
 }
 
+// Whether a vertex may sample both sides' tables: where the guide can hold
+// two vertices and some material of the scene lets light through without a
+// delta lobe (a constant: other scenes' kernels carry none of its code,
+// which costs lavapipe time even where no lane runs it).
+bool mixture_two_sided() {
+    return GUIDE_TWO_SIDED && (MATERIAL_FEATURES & (FEATURE_ROUGH_GLASS | FEATURE_PRINCIPLED_THIN)) != 0u;
+}
+
 // How much of the guide's side of the mixture a lobe keeps: all for a
 // diffuse lobe, alpha of it for a glossy one: the guide's sectors are
 // uniform inside, so a lobe narrower than they are gains little from them
@@ -69,7 +77,9 @@ float mixture_guide_reach(Bsdf bsdf) {
         return min(bsdf.alpha, 1.0);
     }
     float diffuse = 1.0;
-    if (principled_transmits(bsdf)) {
+    if (!mixture_two_sided()) {
+        return 1.0;
+    } else if (principled_transmits(bsdf)) {
         diffuse = principled_shares(bsdf).x;
     } else if (thin_transmits(bsdf)) {
         vec3 share = thin_shares(bsdf);
@@ -82,7 +92,7 @@ float mixture_guide_reach(Bsdf bsdf) {
 
 // The guide's half of the one-sample mixture at a vertex: the sector
 // distribution of the side the path arrives on (`front`) and, where the
-// BSDF lets light through (GUIDE_TWO_SIDED), that of the other side
+// BSDF lets light through (mixture_two_sided), that of the other side
 // (`back`), each given the part of the guide's half that the BSDF sends to
 // its side (bsdf_reflect_share), times the lobe's reach. A side the guide
 // does not cover leaves its part to BSDF sampling. The back's sectors are
@@ -98,7 +108,7 @@ struct Mixture {
 
 Mixture mixture_at(GuideVertex front, GuideVertex back, Bsdf bsdf, vec3 wo) {
     float reach = mixture_guide_reach(bsdf);
-    bool two = GUIDE_TWO_SIDED && guide_covers(back);
+    bool two = mixture_two_sided() && guide_covers(back);
     float a = two ? bsdf_reflect_share(bsdf, wo) : 1.0;
     Mixture m;
     m.front = front;
@@ -116,7 +126,7 @@ Mixture mixture_one_sided(GuideVertex g, Bsdf bsdf) {
 
 // The vertex whose share of BSDF sampling the mixture takes (and learns).
 GuideVertex mixture_share_vertex(Mixture m) {
-    return guide_covers(m.front) || !GUIDE_TWO_SIDED ? m.front : m.back;
+    return guide_covers(m.front) || !mixture_two_sided() ? m.front : m.back;
 }
 
 // The share of BSDF sampling in the mixture: the guide's own share, and
@@ -129,7 +139,7 @@ float mixture_bsdf_share(Mixture m) {
 // Whether local direction wi lies on the back's side, and wi in the frame
 // of the side it lies on.
 bool mixture_back(vec3 wi) {
-    return GUIDE_TWO_SIDED && wi.z < 0.0;
+    return mixture_two_sided() && wi.z < 0.0;
 }
 
 vec3 mixture_side_direction(vec3 wi) {
@@ -189,7 +199,7 @@ vec3 mixture_sample(Mixture m, Bsdf bsdf, vec3 wo, vec3 u, out uint sector, out 
     vec3 wi = bsdf_sample(bsdf, wo, vec3(u.xy, lobe_u), square);
     float t = guided ? (u.z - eps) / (1.0 - eps) : 0.0;
     float front_part = m.kf / max(m.kf + m.kb, 1e-30);
-    bool back = GUIDE_TWO_SIDED && (guided ? t >= front_part : wi.z < 0.0);
+    bool back = mixture_two_sided() && (guided ? t >= front_part : wi.z < 0.0);
     t = back ? (t - front_part) / max(1.0 - front_part, 1e-30) : t / max(front_part, 1e-30);
     GuideVertex g = back ? m.back : m.front;
     sector = back ? hemisphere_sector(mixture_side_direction(wi), a, b) : square_sector(square, a, b);

@@ -677,7 +677,7 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             return false;
         }
         weight = bsdf_eval(bsdf, s.wo, local) / pdf;
-        if (transmits && !GUIDE_TWO_SIDED) {
+        if (transmits && !mixture_two_sided()) {
             // Rough glass where the guide holds one vertex at a time:
             // sampled by its BSDF alone, learned through as a delta vertex.
             follow_unguided(trail, here, local, weight);
@@ -894,13 +894,13 @@ bool scatter(inout Path path, inout Trail trail) {
     // holds one vertex at a time: unless it learns, the guide's lookup there
     // (a network inference, for neural) would only tune the roulette. Its
     // bounces learn as a delta vertex's (chaining).
-    bool unguided = delta || (transmits && !GUIDE_TWO_SIDED);
+    bool unguided = delta || (transmits && !mixture_two_sided());
     GuideVertex here = unguided && !learn ? guide_none() : guide_at(hit.triangle, tri, s.position, s.ng, cos_out > 0.0);
     // What the bounce and NEE's MIS sample from: BSDF sampling alone where
     // the guide does not sample; through a surface that lets light through,
     // the guide on both sides.
     GuideVertex beyond = guide_none();
-    if (GUIDE_TWO_SIDED && transmits && !delta) {
+    if (mixture_two_sided() && transmits && !delta) {
         beyond = guide_at(hit.triangle, tri, s.point - eps * s.ng, -s.ng, cos_out <= 0.0);
     }
     Mixture mixture = mixture_at(unguided ? guide_none() : here, beyond, bsdf, s.wo);
