@@ -218,8 +218,8 @@ bool thin_transmits(Bsdf bsdf) {
 
 // Whether the BSDF sends light through the surface without a delta lobe
 // (rough glass, a principled BSDF's refraction): its directions below the
-// surface are sampled, evaluated and reached by NEE; the guides, whose
-// sectors cover the side the path arrives on, do not sample there.
+// surface are sampled, evaluated and reached by NEE, and the guides sample
+// there from the tables of both sides (guide.glsl's Mixture).
 bool bsdf_transmits(Bsdf bsdf) {
     return bsdf_rough_glass(bsdf) || principled_transmits(bsdf) || thin_transmits(bsdf);
 }

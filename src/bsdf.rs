@@ -1098,8 +1098,7 @@ impl Bsdf {
 
     /// Whether the lobe sends light through the surface without being a
     /// delta lobe (rough glass): sampled, evaluated and reached by NEE
-    /// below the surface too, and not guided (the guides' sectors cover
-    /// the side the path arrives on).
+    /// below the surface too, and guided from the tables of both sides.
     pub fn transmits(&self) -> bool {
         match self.lobe {
             Lobe::RoughDielectric { .. } => true,
