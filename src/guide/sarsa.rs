@@ -99,8 +99,10 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
     let n = scene.lights.len() + usize::from(sky);
     // Delta lights are NEE's alone: the tables choose among triangles and
     // the sky, which follows them in NEE's list. At
-    // rough glass, which has no table of its own, NEE picks as it would
-    // unguided, and the MIS weights of what its bounces hit must agree.
+    // rough glass NEE picks from the table of the side the path arrives
+    // on, while its bounce may leave by the other side's table, whose
+    // choice the MIS weight of what the bounce hits would take: no choice
+    // in such scenes.
     let rough_glass = scene
         .materials
         .iter()
