@@ -191,9 +191,20 @@ fn alias_tables_give_each_sector_its_probability() {
     }
 }
 
-/// χ² test: directions the GPU sampler draws follow the pdf it reports.
-#[test]
-fn guided_sampler_matches_its_pdf() {
+/// A Sarsa guide of 4 volumes over the Cornell box (ε 0.25) whose Q is
+/// lumpy: a few bright sectors, many dim ones, some zero (drawn from
+/// `seed`). Returns it with its sector probabilities and a million uniform
+/// triples to sample with.
+fn lumpy_guide(
+    seed: u64,
+) -> (
+    std::sync::Arc<qtrace::gpu::GpuContext>,
+    qtrace::scene::Scene,
+    SarsaSettings,
+    SarsaGuide,
+    Vec<f32>,
+    Vec<Vec3>,
+) {
     let ctx = common::gpu();
     let scene = common::scene("cornell-box");
     let s = SarsaSettings {
@@ -204,11 +215,9 @@ fn guided_sampler_matches_its_pdf() {
         },
         ..Default::default()
     };
-    let (a, b) = (s.common.grid[0] as usize, s.common.grid[1] as usize);
-    let n = a * b;
+    let n = (s.common.grid[0] * s.common.grid[1]) as usize;
     let guide = SarsaGuide::new(&ctx, &scene, &s, 1, true).unwrap();
-    // A lumpy distribution: a few bright sectors, many dim ones, some zero.
-    let mut rng = Lcg(9);
+    let mut rng = Lcg(seed);
     let q: Vec<f32> = (0..4 * n)
         .map(|i| match i % 7 {
             0 => 50.0 * rng.next(),
@@ -218,13 +227,34 @@ fn guided_sampler_matches_its_pdf() {
         .collect();
     guide.upload_q(&ctx, &q).unwrap();
     let probs = guide.download_probabilities().unwrap();
-    let v = 2usize;
-    let p = probabilities(&probs, v, n);
-
-    let draws = 1_000_000;
-    let uniforms: Vec<Vec3> = (0..draws)
+    let uniforms = (0..1_000_000)
         .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
         .collect();
+    (ctx, scene, s, guide, probs, uniforms)
+}
+
+/// A material of `surface` for the guide sampler's probe.
+fn probe_material(surface: Surface) -> Material {
+    Material {
+        name: "probe".into(),
+        surface,
+        emission: Vec3::ZERO,
+        one_sided: false,
+        textures: [None; qtrace::scene::TEXTURE_SLOTS],
+        normal_map: None,
+        choice: None,
+    }
+}
+
+/// χ² test: directions the GPU sampler draws follow the pdf it reports.
+#[test]
+fn guided_sampler_matches_its_pdf() {
+    let (ctx, scene, s, guide, probs, uniforms) = lumpy_guide(9);
+    let (a, b) = (s.common.grid[0] as usize, s.common.grid[1] as usize);
+    let n = a * b;
+    let v = 2usize;
+    let p = probabilities(&probs, v, n);
+    let draws = uniforms.len();
     let eps = s.epsilon();
     // A diffuse vertex seen along its normal, and rough conductors seen at
     // 40°, whose mixture gives the guide (1 − ε) α.
@@ -242,15 +272,7 @@ fn guided_sampler_matches_its_pdf() {
             1.0 - (1.0 - eps) * 0.8,
         ),
     ] {
-        let material = Material {
-            name: "probe".into(),
-            surface,
-            emission: Vec3::ZERO,
-            one_sided: false,
-            textures: [None; qtrace::scene::TEXTURE_SLOTS],
-            normal_map: None,
-            choice: None,
-        };
+        let material = probe_material(surface);
         // A far side's volume, which a BSDF that lets no light through leaves out.
         let samples = probe::guide_samples(
             &ctx,
@@ -287,39 +309,16 @@ fn guided_sampler_matches_its_pdf() {
 /// pdf it reports, which NEE's MIS finds again from the direction alone.
 #[test]
 fn guided_sampler_through_glass_matches_its_pdf() {
-    let ctx = common::gpu();
-    let scene = common::scene("cornell-box");
-    let s = SarsaSettings {
-        volumes: Some(4),
-        common: Common {
-            epsilon: Some(0.25),
-            ..Default::default()
-        },
-        ..Default::default()
-    };
+    let (ctx, scene, s, guide, probs, uniforms) = lumpy_guide(11);
     let grid = s.common.grid;
     let (a, b) = (grid[0] as usize, grid[1] as usize);
     let n = a * b;
-    let guide = SarsaGuide::new(&ctx, &scene, &s, 1, true).unwrap();
-    let mut rng = Lcg(11);
-    let q: Vec<f32> = (0..4 * n)
-        .map(|i| match i % 5 {
-            0 => 40.0 * rng.next(),
-            1 => 0.0,
-            _ => rng.next(),
-        })
-        .collect();
-    guide.upload_q(&ctx, &q).unwrap();
-    let probs = guide.download_probabilities().unwrap();
     let (front, back) = (2usize, 1usize);
     let (pf, pb) = (
         probabilities(&probs, front, n),
         probabilities(&probs, back, n),
     );
-    let draws = 1_000_000;
-    let uniforms: Vec<Vec3> = (0..draws)
-        .map(|_| Vec3::new(rng.next(), rng.next(), rng.next()))
-        .collect();
+    let draws = uniforms.len();
     let eps = s.epsilon() as f64;
     let alpha = 0.6f32;
     let surface = Surface::RoughDielectric {
@@ -330,15 +329,7 @@ fn guided_sampler_through_glass_matches_its_pdf() {
         alpha_v: None,
         distribution: qtrace::bsdf::Distribution::Ggx,
     };
-    let material = Material {
-        name: "probe".into(),
-        surface,
-        emission: Vec3::ZERO,
-        one_sided: false,
-        textures: [None; qtrace::scene::TEXTURE_SLOTS],
-        normal_map: None,
-        choice: None,
-    };
+    let material = probe_material(surface);
     let wo = Vec3::new(0.5, 0.2, 0.75).normalize();
     let samples = probe::guide_samples(
         &ctx,
