@@ -535,8 +535,9 @@ float normal_map_weight(Shading s, vec3 d) {
 
 // NEE at shading point `s`: one light (the guide's choice where it learns
 // one, else by power), one point or direction on it, a shadow ray, and
-// the sample weighed by MIS against the bounce's density (the mixture `m`). Adds it to the path's radiance and returns its luminance
-// (what the transition that reached s learns NEE brought there).
+// the sample weighed by MIS against the bounce's density (the mixture `m`).
+// Adds it to the path's radiance and returns its luminance (what the
+// transition that reached s learns NEE brought there).
 float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixture m, bool transmits) {
     float direct_lum = 0.0;
     float pick_pdf;
