@@ -17,13 +17,14 @@ layout(push_constant) uniform Push { PassParams params; };
 WORDS(sample_texels, B_SAMPLES)
 layout(std430, set = 0, binding = B_ACCUM) buffer Accums { Accum accum[]; };
 // PassStats as words: paths, zero_paths, length_sum, rays, nan_paths,
-// td_count, td_sq_bits, dev_bits; STATS_COPIES copies of MAX_BATCH slots.
+// td_count, td_sq_bits, dev_bits, then a race's lap_bits[4]; STATS_COPIES
+// copies of MAX_BATCH slots.
 layout(std430, set = 0, binding = B_STATS) buffer Stats { uint stats_words[]; };
 layout(std430, set = 0, binding = B_RACE_REF) readonly buffer RaceRef { Accum race_ref[]; };
 
 #define COUNTERS 6
-// Float totals after the counters: td_sq, dev.
-#define FLOATS 2
+// Float totals after the counters: td_sq, dev, and in a race lap's four.
+#define FLOATS 6
 // Subgroups hold at least 4 invocations.
 #define MAX_SUBGROUPS (TILE_X * TILE_Y / 4)
 // Each subgroup's totals per sample of the dispatch, summed once at the end:
@@ -53,6 +54,10 @@ void main() {
         uint c[COUNTERS] = uint[COUNTERS](0u, 0u, 0u, 0u, 0u, 0u);
         float td = 0.0;
         float dev = 0.0;
+        // In a race (src/render/race.rs, "missed light"): the sample's value
+        // (the mean of its channels), its square, its pixel's reference
+        // mean's value and a bound on that mean's variance.
+        vec4 lap = vec4(0.0);
         if (inside) {
             uvec4 t0 = FETCH(sample_texels, int(2u * (s * pixels + index)));
             uvec4 t1 = FETCH(sample_texels, int(2u * (s * pixels + index) + 1u));
@@ -71,12 +76,23 @@ void main() {
                     // In a race, less the reference mean's own variance
                     // (the sample variance over its count), which would
                     // otherwise add alike to every lap and hide their ratio.
+                    if (race) {
+                        lap.z = dot(mean, vec3(1.0 / 3.0));
+                        lap.w = lap.z * lap.z;
+                    }
                     if (race && ref.w > 1.0) {
                         vec3 sq = race_ref[index].sum_sq.rgb;
-                        dd -= max(sq - ref.w * mean * mean, 0.0) / (ref.w * (ref.w - 1.0));
+                        vec3 mean_variance = max(sq - ref.w * mean * mean, 0.0) / (ref.w * (ref.w - 1.0));
+                        dd -= mean_variance;
+                        // The channels' mean varies at most as their
+                        // deviations' mean squared.
+                        lap.w = dot(sqrt(mean_variance), vec3(1.0 / 3.0));
+                        lap.w *= lap.w;
                     }
                     dev = dot(dd / (mean * mean + 0.01), vec3(1.0 / 3.0));
                 }
+                lap.x = race ? dot(radiance, vec3(1.0 / 3.0)) : 0.0;
+                lap.y = lap.x * lap.x;
                 a.sum += vec4(radiance, 1.0);
                 ref = race ? ref : a.sum;
                 a.sum_sq += vec4(radiance * radiance, 0.0);
@@ -95,12 +111,16 @@ void main() {
         }
         td = subgroupAdd(td);
         dev = subgroupAdd(dev);
+        lap = race ? subgroupAdd(lap) : lap;
         if (subgroupElect()) {
             for (uint k = 0u; k < COUNTERS; ++k) {
                 s_counts[s][gl_SubgroupID][k] = c[k];
             }
             s_f[s][gl_SubgroupID][0] = td;
             s_f[s][gl_SubgroupID][1] = dev;
+            for (uint k = 0u; k < 4u; ++k) {
+                s_f[s][gl_SubgroupID][2u + k] = lap[k];
+            }
         }
     }
     if (inside) {

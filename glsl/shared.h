@@ -227,7 +227,7 @@
 // Bytes of the structs GLSL code needs the size of; build.rs checks each
 // against the struct's std430 layout, and every struct's fields against
 // its Rust mirror.
-#define SIZEOF_PASS_STATS 32
+#define SIZEOF_PASS_STATS 48
 
 // A BVH node holds its two children. A child is another node's index (its
 // box is a = min, b = max), BVH_LEAF | the index of its one triangle (held
@@ -527,6 +527,7 @@ struct PassStats {
     uint td_count;     // guide updates this pass
     uint td_sq_bits;   // float bits: their summed squared TD error (the pass's loss)
     uint dev_bits;     // float bits: summed relative squared deviation from pixel means
+    uint lap_bits[4];  // float bits, a race's passes only (accumulate.comp)
 };
 
 // Push constants shared by every pass of a render.

@@ -125,13 +125,17 @@ pub struct PassStats {
     /// Bits of an f32: each sample's squared deviation from its pixel's
     /// mean before it, relative as relMSE weighs it, summed.
     pub dev_bits: u32,
+    /// Bits of f32s, in a race's passes only, each summed over the samples:
+    /// the sample's value (the mean of its channels), its square, its
+    /// pixel's reference mean's value and a bound on that mean's variance.
+    pub lap_bits: [u32; 4],
 }
 
 impl PassStats {
     /// The totals of several copies of a pass's stats (see STATS_COPIES).
     pub fn sum<'a>(copies: impl Iterator<Item = &'a PassStats>) -> PassStats {
         let mut total = PassStats::default();
-        let (mut td_sq, mut dev) = (0.0f64, 0.0f64);
+        let (mut td_sq, mut dev, mut lap) = (0.0f64, 0.0f64, [0.0f64; 4]);
         for c in copies {
             total.paths += c.paths;
             total.zero_paths += c.zero_paths;
@@ -141,10 +145,19 @@ impl PassStats {
             total.td_count += c.td_count;
             td_sq += f32::from_bits(c.td_sq_bits) as f64;
             dev += f32::from_bits(c.dev_bits) as f64;
+            for (total, bits) in lap.iter_mut().zip(c.lap_bits) {
+                *total += f32::from_bits(bits) as f64;
+            }
         }
         total.td_sq_bits = (td_sq as f32).to_bits();
         total.dev_bits = (dev as f32).to_bits();
+        total.lap_bits = lap.map(|v| (v as f32).to_bits());
         total
+    }
+
+    /// A race pass's totals (see `lap_bits`), summed over its samples.
+    pub fn lap(&self) -> [f64; 4] {
+        self.lap_bits.map(|b| f32::from_bits(b) as f64)
     }
 
     /// Mean relative squared deviation of the pass's samples (see `dev_bits`).
@@ -264,6 +277,7 @@ mod tests {
             td_count: 5,
             td_sq_bits: td.to_bits(),
             dev_bits: dev.to_bits(),
+            lap_bits: [dev, 2.0 * dev, 0.0, 1.0].map(f32::to_bits),
         };
         let copies = [copy(10, 0.5, 1.0), copy(0, 0.0, 0.0), copy(7, 0.25, 2.5)];
         let total = PassStats::sum(copies.iter());
@@ -279,6 +293,7 @@ mod tests {
         );
         assert_eq!(f32::from_bits(total.td_sq_bits), 0.75);
         assert_eq!(f32::from_bits(total.dev_bits), 3.5);
+        assert_eq!(total.lap(), [3.5, 7.0, 0.0, 3.0]);
         assert_eq!(PassStats::sum([].iter()), PassStats::default());
     }
 

@@ -803,7 +803,9 @@ impl Renderer {
         let Some(r) = self.race.as_mut() else {
             return;
         };
-        r.record(seconds, stats.deviation());
+        let lap = race::LapNoise::new(seconds, stats.deviation(), stats.paths as f64, stats.lap());
+        log::debug!("race lap: {lap:?}");
+        r.record(lap);
         if r.next().is_some() {
             return;
         }

@@ -19,6 +19,18 @@
 //! swells both entrants' noise alike and so pulls their ratio toward 1,
 //! where plain path tracing, whose passes are cheaper, wins: plain path
 //! tracing wins a race only where it wins in each pair of laps.
+//!
+//! A lap's noise is measured on its samples alone, so light that plain path
+//! tracing finds too rarely to show in one lap (a sun seen through a window
+//! pane, which only a bounce's direction can find) leaves its noise looking
+//! small: in a 64x64 sky room with a glass pane its laps measured 0.0002-0.002x
+//! the guide's noise times time, and the guide stood back, where it reaches
+//! 0.12x plain path tracing's error at equal time. Every lap estimates the
+//! same image, so a plain lap whose image mean falls short of the image's
+//! mean by more than its own noise and that mean's allow has missed such
+//! light, and its pair is not plain path tracing's. The image's mean is
+//! the accumulation's when the race began together with the guided laps',
+//! weighed by their variances.
 
 use serde::{Deserialize, Serialize};
 
@@ -57,6 +69,77 @@ pub const FIRST: u32 = 16;
 /// tracing has won two races in a row.
 pub const MARGIN: f64 = 1.25;
 
+/// A plain lap missed light where its image mean falls short of the image's
+/// by this many standard errors of their difference, and by [`MISSED_SHARE`]
+/// of the image's mean (see the module's notes).
+pub const MISSED_SIGMAS: f64 = 3.0;
+pub const MISSED_SHARE: f64 = 0.1;
+
+/// What one lap measured: a pass of one sample per pixel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LapNoise {
+    pub seconds: f64,
+    /// Mean relative squared deviation of its samples (see the module's notes).
+    pub deviation: f64,
+    /// Its image's mean value (the mean of the channels), and the variance
+    /// of a sample's value.
+    pub mean: f64,
+    pub variance: f64,
+    /// Its samples, one per pixel.
+    pub samples: f64,
+    /// The image's mean value when the race began, and a bound on that
+    /// mean's variance.
+    pub reference: f64,
+    pub reference_variance: f64,
+}
+
+impl LapNoise {
+    /// From a pass's totals of its samples' values, their squares, their
+    /// pixels' reference means and those means' variances (one sample a pixel).
+    pub fn new(seconds: f64, deviation: f64, samples: f64, totals: [f64; 4]) -> Self {
+        let n = samples.max(1.0);
+        let mean = totals[0] / n;
+        Self {
+            seconds,
+            deviation,
+            mean,
+            variance: (totals[1] / n - mean * mean).max(0.0),
+            samples,
+            reference: totals[2] / n,
+            reference_variance: totals[3] / (n * n),
+        }
+    }
+
+    /// The variance of the lap's image mean.
+    fn mean_variance(&self) -> f64 {
+        self.variance / self.samples.max(1.0)
+    }
+
+    /// Whether this (plain) lap missed light: its image mean is too far below
+    /// the image's, `image` (mean, variance), for either's noise to explain.
+    fn missed_light(&self, image: (f64, f64)) -> bool {
+        let error = (self.mean_variance() + image.1).sqrt();
+        image.0 - self.mean > (MISSED_SIGMAS * error).max(MISSED_SHARE * image.0)
+    }
+}
+
+/// The image's mean and its variance from the race's reference and guided
+/// laps: the guided laps' mean weighed against the reference's by their
+/// variances.
+fn image_mean(guided: &[LapNoise]) -> (f64, f64) {
+    let Some(first) = guided.first() else {
+        return (0.0, 0.0);
+    };
+    let n = guided.len() as f64;
+    let laps = guided.iter().map(|l| l.mean).sum::<f64>() / n;
+    let laps_variance = guided.iter().map(LapNoise::mean_variance).sum::<f64>() / (n * n);
+    let (a, b) = (
+        first.reference_variance.max(1e-30),
+        laps_variance.max(1e-30),
+    );
+    ((first.reference * b + laps * a) / (a + b), a * b / (a + b))
+}
+
 /// What a race measured and what it decided (kept in the render's stats).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RaceRecord {
@@ -76,8 +159,12 @@ pub struct RaceRecord {
     /// race's seconds); empty in records from before it was kept.
     #[serde(default)]
     pub plain_over_guide_pairs: Vec<f64>,
+    /// Each pair whose plain lap missed light (see [`MISSED_SIGMAS`]); such a
+    /// pair is not plain path tracing's.
+    #[serde(default)]
+    pub plain_missed_pairs: Vec<bool>,
     /// Plain path tracing won this race (its cost lower by [`MARGIN`] in
-    /// every pair of laps)...
+    /// every pair of laps, none of which missed light)...
     pub plain_wins: bool,
     /// ...and the one before, so the guide stands back.
     pub stands_back: bool,
@@ -106,8 +193,8 @@ pub struct Race {
     /// The check after which it runs.
     pub after: u32,
     window: Window,
-    /// (seconds, mean deviation) of each lap run so far.
-    laps: Vec<(f64, f64)>,
+    /// Each lap run so far.
+    laps: Vec<LapNoise>,
 }
 
 impl Race {
@@ -128,8 +215,8 @@ impl Race {
         })
     }
 
-    pub fn record(&mut self, seconds: f64, deviation: f64) {
-        self.laps.push((seconds, deviation));
+    pub fn record(&mut self, lap: LapNoise) {
+        self.laps.push(lap);
     }
 
     /// The verdict, once every lap has run: `future_learning` is the share of
@@ -138,9 +225,12 @@ impl Race {
     pub fn verdict(&self, future_learning: f64, won_before: bool) -> RaceRecord {
         let of = |who: Entrant| {
             let laps = LAPS.iter().zip(&self.laps).filter(move |(&e, _)| e == who);
-            let seconds = laps.clone().map(|(_, l)| l.0).fold(f64::INFINITY, f64::min);
+            let seconds = laps
+                .clone()
+                .map(|(_, l)| l.seconds)
+                .fold(f64::INFINITY, f64::min);
             let n = laps.clone().count().max(1) as f64;
-            (seconds, laps.map(|(_, l)| l.1).sum::<f64>() / n)
+            (seconds, laps.map(|(_, l)| l.deviation).sum::<f64>() / n)
         };
         let (plain_seconds, plain_deviation) = of(Entrant::Plain);
         let (guide_seconds, guide_deviation) = of(Entrant::Guide);
@@ -150,23 +240,34 @@ impl Race {
         };
         let plain_over_guide = ratio(plain_deviation, guide_deviation);
         // Each pair is one plain lap and one guided lap on the same numbers.
-        let plain_over_guide_pairs: Vec<f64> = LAPS
+        let pairs: Vec<(LapNoise, LapNoise)> = LAPS
             .chunks(2)
             .zip(self.laps.chunks(2))
             .map(|(entrants, laps)| {
-                let deviation = |who: Entrant| {
+                let lap = |who: Entrant| {
                     entrants
                         .iter()
                         .zip(laps)
                         .find(|(&e, _)| e == who)
-                        .map_or(0.0, |(_, l)| l.1)
+                        .map_or(LapNoise::default(), |(_, l)| *l)
                 };
-                ratio(deviation(Entrant::Plain), deviation(Entrant::Guide))
+                (lap(Entrant::Plain), lap(Entrant::Guide))
             })
             .collect();
+        let plain_over_guide_pairs: Vec<f64> = pairs
+            .iter()
+            .map(|(p, g)| ratio(p.deviation, g.deviation))
+            .collect();
+        let guided: Vec<LapNoise> = pairs.iter().map(|(_, g)| *g).collect();
+        let image = image_mean(&guided);
+        let plain_missed_pairs: Vec<bool> =
+            pairs.iter().map(|(p, _)| p.missed_light(image)).collect();
         // The pooled ratio lies between the pairs' (the seconds are shared),
         // so winning both pairs wins it too.
-        let plain_wins = plain_over_guide_pairs.iter().all(|r| r * MARGIN < 1.0);
+        let plain_wins = plain_over_guide_pairs
+            .iter()
+            .zip(&plain_missed_pairs)
+            .all(|(r, &missed)| r * MARGIN < 1.0 && !missed);
         RaceRecord {
             after: self.after,
             plain_deviation,
@@ -176,6 +277,7 @@ impl Race {
             guide_future_seconds,
             plain_over_guide,
             plain_over_guide_pairs,
+            plain_missed_pairs,
             plain_wins,
             stands_back: won_before && plain_wins,
         }
@@ -198,12 +300,31 @@ fn future_seconds(frozen: f64, window: &Window, future_learning: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// Laps whose means agree with the reference's.
     fn race(laps: [(f64, f64); 4], window: Window) -> Race {
+        race_with_means(laps.map(|(s, d)| (s, d, 1.0)), window)
+    }
+
+    /// Laps of (seconds, deviation, mean), each of 10^4 samples of variance
+    /// 1; the reference's mean 1, its variance 10^-4.
+    fn race_with_means(laps: [(f64, f64, f64); 4], window: Window) -> Race {
+        race_with_variances(laps, 1.0, 1e-4, window)
+    }
+
+    /// The same with each sample's `variance` and the reference's own.
+    fn race_with_variances(
+        laps: [(f64, f64, f64); 4],
+        variance: f64,
+        reference: f64,
+        window: Window,
+    ) -> Race {
         let mut r = Race::new(8, window);
-        for (i, (s, d)) in laps.into_iter().enumerate() {
+        for (i, (seconds, deviation, mean)) in laps.into_iter().enumerate() {
             let lap = r.next().expect("four laps");
             assert_eq!(lap.repeat, i % 2 == 1);
-            r.record(s, d);
+            let n = 1e4;
+            let totals = [mean * n, (variance + mean * mean) * n, n, n * n * reference];
+            r.record(LapNoise::new(seconds, deviation, n, totals));
         }
         assert_eq!(r.next(), None);
         r
@@ -236,6 +357,37 @@ mod tests {
         // One race won is not enough.
         let first = r.verdict(0.0, false);
         assert!(first.plain_wins && !first.stands_back);
+    }
+
+    #[test]
+    fn plain_laps_that_missed_light_do_not_win() {
+        // Plain path tracing's noise looks a hundredth of the guide's, but
+        // its second lap's mean falls 0.15 short of the image's, where the
+        // standard error of their difference is 0.012: it missed light.
+        let laps = |second: f64| {
+            [
+                (1e-3, 0.01, 1.0),
+                (2e-3, 1.0, 1.0),
+                (2e-3, 1.0, 1.0),
+                (1e-3, 0.01, second),
+            ]
+        };
+        let v = race_with_means(laps(0.85), Window::default()).verdict(0.0, true);
+        assert!(v.plain_over_guide_pairs.iter().all(|r| r * MARGIN < 1.0));
+        assert_eq!(v.plain_missed_pairs, [false, true]);
+        assert!(!v.plain_wins && !v.stands_back);
+        // Short by less than a tenth of the light, or by 2.4 standard errors
+        // (every lap's variance 30, the reference's 2.8e-3), it wins.
+        assert!(
+            race_with_means(laps(0.91), Window::default())
+                .verdict(0.0, true)
+                .stands_back
+        );
+        let v = race_with_variances(laps(0.85), 30.0, 2.8e-3, Window::default()).verdict(0.0, true);
+        assert_eq!(v.plain_missed_pairs, [false, false]);
+        // A plain lap above the reference missed nothing.
+        let v = race_with_means(laps(1.5), Window::default()).verdict(0.0, true);
+        assert_eq!(v.plain_missed_pairs, [false, false]);
     }
 
     #[test]
