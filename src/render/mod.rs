@@ -782,7 +782,9 @@ impl Renderer {
             }
         }
         let laps = race::LAPS.len() as u32;
+        let pixels = u64::from(self.settings.width) * u64::from(self.settings.height);
         let room = done >= race::FIRST
+            && pixels >= race::MIN_PIXELS
             && match self.settings.budget {
                 Budget::Samples(n) => n.saturating_sub(done) >= 2 * laps,
                 Budget::Seconds(_) => true,

@@ -23,14 +23,14 @@
 //! A lap's noise is measured on its samples alone, so light that plain path
 //! tracing finds too rarely to show in one lap (a sun seen through a window
 //! pane, which only a bounce's direction can find) leaves its noise looking
-//! small: in a 64x64 sky room with a glass pane its laps measured 0.0002-0.002x
-//! the guide's noise times time, and the guide stood back, where it reaches
-//! 0.12x plain path tracing's error at equal time. Every lap estimates the
-//! same image, so a plain lap whose image mean falls short of the image's
-//! mean by more than its own noise and that mean's allow has missed such
-//! light, and its pair is not plain path tracing's. The image's mean is
-//! the accumulation's when the race began together with the guided laps',
-//! weighed by their variances.
+//! small: in a 128x128 sky room with a glass pane, a plain lap that met no
+//! sun measured 0.001x the guide's noise times time, and one render in six
+//! stood back, where the guide reaches 0.11-0.13x plain path tracing's
+//! error at equal time. Every lap estimates the same image, so a plain lap
+//! whose image mean falls short of the image's mean by more than its own
+//! noise and that mean's allow has missed such light, and its pair is not
+//! plain path tracing's. The image's mean is the accumulation's when the
+//! race began together with the guided laps', weighed by their variances.
 
 use serde::{Deserialize, Serialize};
 
@@ -62,6 +62,14 @@ pub struct Lap {
 /// a race after 8 passes put the guide at 0.91-1.08x plain path tracing's
 /// noise per second, and after 16 at 1.37-1.41x (later 1.6-5x).
 pub const FIRST: u32 = 16;
+
+/// The fewest pixels (one sample each a pass) of an image whose renders race:
+/// a pass of fewer samples shows too little of light found rarely. At 64x64
+/// the glass scene's races (`neural --nee`) put plain path tracing's noise
+/// times time at 0.18x and 0.27x the guide's and it stood back, where kept
+/// the guide has 0.74x the error at equal time; at 128x128 its races read
+/// 1.4-2.4x and none stood back (2026-12-07).
+pub const MIN_PIXELS: u64 = 128 * 128;
 
 /// Plain path tracing wins a race where its cost is lower by this factor,
 /// in each pair of laps: the guide keeps learning after the race, and one
