@@ -76,10 +76,11 @@ float mixture_guide_reach(Bsdf bsdf) {
     if (bsdf_is(bsdf, MATERIAL_CONDUCTOR) || bsdf_rough_glass(bsdf)) {
         return min(bsdf.alpha, 1.0);
     }
-    float diffuse = 1.0;
     if (!mixture_two_sided()) {
         return 1.0;
-    } else if (principled_transmits(bsdf)) {
+    }
+    float diffuse;
+    if (principled_transmits(bsdf)) {
         diffuse = principled_shares(bsdf).x;
     } else if (thin_transmits(bsdf)) {
         vec3 share = thin_shares(bsdf);
@@ -101,9 +102,10 @@ float mixture_guide_reach(Bsdf bsdf) {
 struct Mixture {
     GuideVertex front;
     GuideVertex back;
-    float e;  // the guide's own share of BSDF sampling (the front's, or the back's where only it covers)
-    float kf; // the parts of the guide's half: the front's
-    float kb; // and the back's
+    float e;     // the guide's own share of BSDF sampling: the front's,
+    bool e_back; // or the back's where only it covers
+    float kf;    // the parts of the guide's half: the front's
+    float kb;    // and the back's
 };
 
 Mixture mixture_at(GuideVertex front, GuideVertex back, Bsdf bsdf, vec3 wo) {
@@ -113,7 +115,8 @@ Mixture mixture_at(GuideVertex front, GuideVertex back, Bsdf bsdf, vec3 wo) {
     Mixture m;
     m.front = front;
     m.back = back;
-    m.e = guide_covers(front) || !two ? guide_bsdf_share(front) : guide_bsdf_share(back);
+    m.e_back = two && !guide_covers(front);
+    m.e = guide_bsdf_share(m.e_back ? back : front);
     m.kf = guide_covers(front) ? reach * a : 0.0;
     m.kb = two ? reach * (1.0 - a) : 0.0;
     return m;
@@ -126,7 +129,7 @@ Mixture mixture_one_sided(GuideVertex g, Bsdf bsdf) {
 
 // The vertex whose share of BSDF sampling the mixture takes (and learns).
 GuideVertex mixture_share_vertex(Mixture m) {
-    return guide_covers(m.front) || !mixture_two_sided() ? m.front : m.back;
+    return m.e_back ? m.back : m.front;
 }
 
 // The share of BSDF sampling in the mixture: the guide's own share, and
