@@ -117,6 +117,11 @@ struct Trail {
     // The vertex the path's ray left from, the sector it took there and the
     // Q the guide gave that sector, to learn from once the ray lands.
     GuideVertex prev_vertex;
+    // The vertex whose choice of NEE's light the MIS weight of what that
+    // ray reaches takes: NEE picks from the table of the side the path
+    // arrives on, while a bounce through a surface that lets light through
+    // leaves by the other side's (pick_vertex_of; mixture_two_sided only).
+    GuideVertex pick_vertex;
     uint prev_sector;
     float prev_q;
     // Whether prev_q is what the guide expects along the path's ray (else
@@ -303,6 +308,9 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
     path.sky_hidden = HIDE_EMITTERS;
     guide_begin_path();
     trail.prev_vertex = guide_none();
+    if (mixture_two_sided()) {
+        trail.pick_vertex = guide_none();
+    }
     trail.prev_sector = 0u;
     trail.prev_q = 0.0;
     trail.guided_roulette = false;
@@ -388,6 +396,15 @@ void follow_unguided(inout Trail trail, GuideVertex g, vec3 local, vec3 weight) 
         }
     }
     trail.prev_vertex = up ? g : guide_none();
+    if (mixture_two_sided()) {
+        trail.pick_vertex = trail.prev_vertex;
+    }
+}
+
+// The vertex whose choice of NEE's light a ray from the trail's last vertex
+// weighs what it reaches by (Trail.pick_vertex).
+GuideVertex pick_vertex_of(Trail trail) {
+    return mixture_two_sided() ? trail.pick_vertex : trail.prev_vertex;
 }
 
 // NEE's light at g, drawn by u: the guide's choice where it learns one
@@ -412,7 +429,7 @@ void gather_sky(inout Path path, inout Trail trail) {
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky is the last of NEE's lights.
-        float pick = nee_pick_probability(trail.prev_vertex, params.light_count - 1u, params.environment.x);
+        float pick = nee_pick_probability(pick_vertex_of(trail), params.light_count - 1u, params.environment.x);
         weight = power_heuristic(path.prev_bsdf_pdf, pick * environment_pdf(path.dir));
     }
     path.radiance += path.throughput * le * weight;
@@ -430,7 +447,7 @@ vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Ma
     if (cos_out > 0.0) {
         le = emitted(mat, hit.triangle, barycentric(tri, path.origin + hit.t * path.dir));
         if (nee && path.prev_bsdf_pdf > 0.0) {
-            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(trail.prev_vertex, light_of(hit.triangle), 0.0) / tri.area
+            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(pick_vertex_of(trail), light_of(hit.triangle), 0.0) / tri.area
                                           : tri.light_pdf;
             float light_pdf = area_pdf * hit.t * hit.t / cos_out;
             weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);
@@ -662,6 +679,9 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
             pdf = mixture_pdf_of(m, p_bsdf, local, p_sector);
             side = mixture_side(m, local);
             trail.prev_vertex = side;
+            if (mixture_two_sided()) {
+                trail.pick_vertex = here;
+            }
             trail.prev_sector = sector;
             trail.prev_q = guide_q(side, sector, p_sector);
             trail.guided_roulette = guide_covers(side);
@@ -813,6 +833,9 @@ bool scatter(inout Path path, inout Trail trail) {
         path.origin = path.origin + hit.t * path.dir + (cos_out > 0.0 ? -eps : eps) * n;
         path.prev_bsdf_pdf = 0.0;
         trail.prev_vertex = guide_none();
+        if (mixture_two_sided()) {
+            trail.pick_vertex = guide_none();
+        }
         trail.chaining = false;
         path.depth += 1u;
         return true;

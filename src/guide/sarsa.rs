@@ -98,17 +98,8 @@ pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
     let sky = scene.environment_pick() > 0.0;
     let n = scene.lights.len() + usize::from(sky);
     // Delta lights are NEE's alone: the tables choose among triangles and
-    // the sky, which follows them in NEE's list. At
-    // rough glass NEE picks from the table of the side the path arrives
-    // on, while its bounce may leave by the other side's table, whose
-    // choice the MIS weight of what the bounce hits would take: no choice
-    // in such scenes.
-    let rough_glass = scene
-        .materials
-        .iter()
-        .any(|m| m.surface.rough_transmission());
+    // the sky, which follows them in NEE's list.
     if !scene.delta_lights.is_empty()
-        || rough_glass
         || n > shaders::MAX_GUIDED_LIGHTS as usize
         || separate_lights(scene) < 2
     {
