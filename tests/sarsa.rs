@@ -966,7 +966,7 @@ fn guides_stand_back_where_they_cannot_help() {
 /// lit room every race finds the guide's samples far less noisy. (Whether
 /// the room's guide stays also depends on the clock, so that is left to
 /// the verdict's unit tests.) Renders of fewer pixels than
-/// `race::MIN_PIXELS` (64×64) do not race.
+/// `race::MIN_PIXELS`, such as 64×64, do not race.
 #[test]
 fn races_measure_which_kernel_cuts_the_noise() {
     let fixed = [
