@@ -25,12 +25,17 @@ uint sector_column_units() {
     return column_units(sector_count());
 }
 
+// How many lights the guides pick NEE's among (LightGroup), where they do.
+uint light_groups() {
+    return params.flags >> LIGHT_GROUPS_SHIFT;
+}
+
 // Where volume v's alias table over the scene's lights starts in the
 // sector tables' buffer: after every volume's sectors. Row volume_count
 // (NO_VOLUME's) follows emitted power alone.
 uint light_row(uint v) {
     uint row = v == NO_VOLUME ? params.volume_count : v;
-    return params.volume_count * sector_count() + row * params.light_count;
+    return params.volume_count * sector_count() + row * light_groups();
 }
 
 #endif

@@ -27,12 +27,12 @@
 // and NEE's choice of light, which a guide may learn:
 //   GUIDE_LIGHTS             bool (a constant or a specialization constant):
 //       whether it picks NEE's light; else NEE picks by emitted power
-//   guide_choose_light(g, u, out p)  a light of NEE's list drawn by u at g,
+//   guide_choose_light(g, u, out p)  a light (LightGroup) drawn by u at g,
 //       and the probability p it had
 //   guide_light_probability(g, l)    the probability of light l at g
 //   guide_record_light(g, l, brought)  one NEE try of light l at g, in a
 //       pass that learns, that brought `brought` (luminance, before its MIS
-//       weight and pick probability; 0 where blocked)
+//       weight and the light's pick probability; 0 where blocked)
 // On it, this file builds the one-sample mixture of BSDF sampling and the
 // guide's sectors that every guided method samples, and the estimate of
 // what a vertex reflects that both guides learn from.

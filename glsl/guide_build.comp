@@ -228,7 +228,7 @@ layout(std430, set = 0, binding = B_LIGHT_POWER) readonly buffer LightPower { fl
 // LIGHT_MIN_TRIES tries. v = volume_count builds the row by power alone
 // that vertices without a volume use.
 void build_light_choice(uint v, bool learned) {
-    uint n = params.light_count;
+    uint n = light_groups();
     uint base = v * n;
     bool own = v < params.volume_count;
     float brought = 0.0;

@@ -31,7 +31,7 @@ layout(constant_id = CONSTANT_GUIDE_LIGHTS) const bool GUIDE_LIGHTS = false;
 // light faced away or was blocked).
 void guide_record_light(GuideVertex g, uint l, float brought) {
     if (g.volume != NO_VOLUME) {
-        uint index = g.volume * params.light_count + l;
+        uint index = g.volume * light_groups() + l;
         ADD_TALLY(light_sum[index], brought);
         atomicAdd(light_tries[index], 1u);
     }

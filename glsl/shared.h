@@ -160,11 +160,13 @@
 // Sarsa: each volume learns which light NEE should pick there, as an alias
 // table over the scene's lights after the sector tables (guide_build.comp).
 #define FLAG_GUIDE_LIGHTS 128
+// ... and flags >> this is how many lights they pick among (LightGroup).
+#define LIGHT_GROUPS_SHIFT 24
 // The film samples beyond its border (Mitsuba's sample_border): a pixel's
 // filter is not cut at the image's edge.
 #define FLAG_SAMPLE_BORDER 256
-// Scenes with several lights (src/guide/sarsa.rs, guided_light_power) of
-// at most this many emitting triangles get it.
+// Scenes with several lights (src/guide/sarsa.rs, guided_light_power), at
+// most this many, get it.
 #define MAX_GUIDED_LIGHTS 16
 // The share of a volume's choice that follows emitted power (as `pt` picks)
 // whatever was learned, so that every light keeps being tried.
@@ -471,12 +473,32 @@ struct Material {
 #define TEXTURE_MIRROR 16
 #define TEXTURE_CLAMP 32
 
-// Emissive triangle for next-event estimation; chosen by `cdf` (inclusive).
+// An entry of NEE's light list: an emissive triangle, a delta light
+// (LIGHT_DELTA) or the sky (LIGHT_ENVIRONMENT); chosen by `cdf` (inclusive).
 struct Light {
     uint triangle;
     float cdf;
     float pdf;         // P(choose this light)
-    float pad;
+    uint group;        // the light (LightGroup) it is part of
+};
+
+// What the guides pick for NEE (FLAG_GUIDE_LIGHTS): a light, which is an
+// emitter's connected triangles, a delta light or the sky; NEE then draws
+// one of its entries by power. Where the guides may pick, the light list's
+// buffer holds after NEE's list the lights (light_groups() of them), then
+// their members, each light's together.
+struct LightGroup {
+    uint first;        // its first member, counted from the first LightMember
+    uint count;
+    float power;       // its members' summed pdf
+    uint pad;
+};
+
+struct LightMember {
+    uint light;        // its entry in NEE's list
+    float cdf;         // inclusive, within its light
+    uint pad0;
+    uint pad1;
 };
 
 // A light only NEE reaches (Mitsuba's point, spot, directional and

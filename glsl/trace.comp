@@ -407,19 +407,62 @@ GuideVertex pick_vertex_of(Trail trail) {
     return mixture_two_sided() ? trail.pick_vertex : trail.prev_vertex;
 }
 
-// NEE's light at g, drawn by u: the guide's choice where it learns one
-// (GUIDE_LIGHTS), with its probability p; else by emitted power (p 0: the
-// light's own pdf holds it).
-uint nee_choose_light(GuideVertex g, float u, out float p) {
-    p = 0.0;
-    return GUIDE_LIGHTS ? guide_choose_light(g, u, p) : pick_light(u);
+// What MIS takes as the probability that NEE picks `entry` where it picked
+// it with probability p: at least power's, so that a light the guide picks
+// seldom does not make the bounces that find it fireflies (the two
+// weights still sum to one, as both sides take this).
+float mis_pick(float p, uvec4 entry) {
+    return max(p, uintBitsToFloat(entry.z));
 }
 
-// The probability that NEE at vertex `from` (the one the ray left) would
-// have picked light `light` (an index of NEE's list): the guide's learned
-// choice, else `by_power`, pt's.
-float nee_pick_probability(GuideVertex from, uint light, float by_power) {
-    return GUIDE_LIGHTS ? guide_light_probability(from, light) : by_power;
+// Light l (LightGroup) of those the guides pick among.
+uvec4 light_group(uint l) {
+    return FETCH(light_texels, int(params.light_count + l));
+}
+
+// The probability of NEE's list's `entry` within its light (LightGroup).
+float share_in_light(uvec4 entry) {
+    return uintBitsToFloat(entry.z) / uintBitsToFloat(light_group(entry.w).z);
+}
+
+// NEE's light at g, its index in NEE's list: where the guide learns the
+// choice (GUIDE_LIGHTS), a light (LightGroup) `group` drawn from the
+// guide's table with probability p_group, then one of its entries by
+// power, p the entry's probability; else an entry by emitted power (p 0:
+// its own pdf holds it).
+uint nee_choose_light(GuideVertex g, inout uint rng, out uint group, out float p_group, out float p) {
+    p = 0.0;
+    p_group = 0.0;
+    group = 0u;
+    if (!GUIDE_LIGHTS) {
+        return pick_light(rng_next(rng));
+    }
+    group = guide_choose_light(g, rng_next(rng), p_group);
+    uvec4 light = light_group(group);
+    // Its members follow the lights: a search of their CDF.
+    uint base = params.light_count + light_groups() + light.x;
+    float u = rng_next(rng);
+    uint lo = 0u;
+    uint hi = light.y - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (uintBitsToFloat(FETCH(light_texels, int(base + mid)).y) > u) {
+            hi = mid;
+        } else {
+            lo = mid + 1u;
+        }
+    }
+    uint entry = FETCH(light_texels, int(base + lo)).x;
+    p = p_group * share_in_light(FETCH(light_texels, int(entry)));
+    return entry;
+}
+
+// Where the guide picks NEE's light, the probability of picking entry
+// `light` of NEE's list that MIS weighs NEE by at vertex `from`: the larger
+// of the guide's choice and power's (`mis_pick`).
+float nee_mis_pick(GuideVertex from, uint light) {
+    uvec4 entry = FETCH(light_texels, int(light));
+    return mis_pick(guide_light_probability(from, entry.w) * share_in_light(entry), entry);
 }
 
 // The path's ray left the scene: the sky, weighed against NEE's draws of
@@ -429,7 +472,7 @@ void gather_sky(inout Path path, inout Trail trail) {
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky is the last of NEE's lights.
-        float pick = nee_pick_probability(pick_vertex_of(trail), params.light_count - 1u, params.environment.x);
+        float pick = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), params.light_count - 1u) : params.environment.x;
         weight = power_heuristic(path.prev_bsdf_pdf, pick * environment_pdf(path.dir));
     }
     path.radiance += path.throughput * le * weight;
@@ -439,7 +482,8 @@ void gather_sky(inout Path path, inout Trail trail) {
 }
 
 // The path's ray reached an emitter: its emission (on its front side only),
-// weighed against NEE's draws of it, added to the path's radiance; returns
+// weighed against NEE's draws of it (nee_mis_pick), added to the path's
+// radiance; returns
 // the emission's luminance and that weight, for the guide.
 vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
@@ -447,7 +491,7 @@ vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Ma
     if (cos_out > 0.0) {
         le = emitted(mat, hit.triangle, barycentric(tri, path.origin + hit.t * path.dir));
         if (nee && path.prev_bsdf_pdf > 0.0) {
-            float area_pdf = GUIDE_LIGHTS ? nee_pick_probability(pick_vertex_of(trail), light_of(hit.triangle), 0.0) / tri.area
+            float area_pdf = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), light_of(hit.triangle)) / tri.area
                                           : tri.light_pdf;
             float light_pdf = area_pdf * hit.t * hit.t / cos_out;
             weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);
@@ -558,7 +602,9 @@ float normal_map_weight(Shading s, vec3 d) {
 float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixture m, bool transmits) {
     float direct_lum = 0.0;
     float pick_pdf;
-    uint light = nee_choose_light(here, rng_next(path.rng), pick_pdf);
+    uint group;
+    float group_pdf;
+    uint light = nee_choose_light(here, path.rng, group, group_pdf, pick_pdf);
     uvec4 entry = FETCH(light_texels, int(light));
     float brought = 0.0;
     // A delta light: its one direction, its pick's probability as the
@@ -578,7 +624,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
         if (scene_textured() && projected.z > 0.0) {
             le *= texture_eval(uint(projected.z) - 1u, projected.xy);
         }
-        light_pdf = uintBitsToFloat(entry.z);
+        light_pdf = GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
     } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
         // The sky: a direction by its brightness, unbounded.
         wi = environment_sample(vec4(rng_next2(path.rng), rng_next2(path.rng)), light_pdf);
@@ -625,16 +671,25 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
             float scatter_pdf = mixture_pdf(m, bsdf, s.wo, wi_local);
             // A plastic's coat takes some bounces as a mirror.
             scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
-            float weight = delta_light ? 1.0 : power_heuristic(light_pdf, scatter_pdf);
+            // The light's density as MIS takes it (mis_pick).
+            float mis_pdf = GUIDE_LIGHTS ? light_pdf / pick_pdf * mis_pick(pick_pdf, entry) : light_pdf;
+            float weight = delta_light ? 1.0 : power_heuristic(mis_pdf, scatter_pdf);
             vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * normal_map_weight(s, wi) * le;
             vec3 direct = f_le * weight / light_pdf;
             path.radiance += path.throughput * direct;
             direct_lum = luminance(direct);
-            brought = luminance(f_le) / light_pdf * pick_pdf;
+            if (GUIDE_LIGHTS) {
+                // What its whole light brought, weighed as MIS would
+                // were NEE to pick by power (not by the guide's own
+                // choice, which would only confirm itself).
+                float by_power = light_pdf / pick_pdf * uintBitsToFloat(entry.z);
+                float mis = delta_light ? 1.0 : power_heuristic(by_power, scatter_pdf);
+                brought = luminance(f_le) * mis / light_pdf * group_pdf;
+            }
         }
     }
     if (GUIDE_LIGHTS && learn) {
-        guide_record_light(here, light, brought);
+        guide_record_light(here, group, brought);
     }
     return direct_lum;
 }

@@ -167,13 +167,13 @@ float guide_sector_probability(GuideVertex g, uint k) {
 // its volume's alias table (NO_VOLUME's row where it has none), and its
 // probability p.
 uint guide_choose_light(GuideVertex g, float u, out float p) {
-    return alias_read(light_row(g.volume), params.light_count, true, u, 0u, p);
+    return alias_read(light_row(g.volume), light_groups(), true, u, 0u, p);
 }
 
 // The probability that NEE at g picks light l.
 float guide_light_probability(GuideVertex g, uint l) {
     float p;
-    alias_read(light_row(g.volume), params.light_count, false, 0.0, l, p);
+    alias_read(light_row(g.volume), light_groups(), false, 0.0, l, p);
     return p;
 }
 

@@ -479,30 +479,18 @@ fn emitter_bsdfs(scene: &Scene) -> String {
     out
 }
 
-/// How many lights the emitters make and how NEE picks among them. (The
-/// lights are told apart only where the guides could pick among them: the
-/// grouping compares each emitting triangle with every light found so far.)
+/// How many lights the emitters make and how NEE picks among them.
 fn light_summary(scene: &Scene) -> String {
     let max = crate::shaders::MAX_GUIDED_LIGHTS;
-    let sky = usize::from(scene.environment_pick() > 0.0);
-    if scene.lights.len() + sky > max as usize {
-        return format!(
-            "NEE picks by emitted power (guides learn the choice up to {max} emitting triangles)"
-        );
-    }
-    let lights = crate::guide::sarsa::separate_lights(scene);
-    // As the guides decide it: not with delta lights or rough glass either.
-    let how = if !crate::guide::sarsa::guided_light_power(scene).is_empty() {
-        "guides learn which one NEE picks where (`pick_lights`)"
+    let lights = scene.light_group_count();
+    let how = if scene.lights_to_pick() {
+        "guides learn which one NEE picks where (`pick_lights`)".to_string()
+    } else if lights > max as usize {
+        format!("NEE picks by emitted power (guides learn the choice among up to {max})")
     } else {
-        "NEE picks by emitted power"
+        "NEE picks by emitted power".to_string()
     };
-    let what = if sky > 0 {
-        " (the sky one of them)"
-    } else {
-        ""
-    };
-    format!("{lights} by material and plane{what}; {how}")
+    format!("{lights} (each an emitter's connected triangles, a delta light or the sky); {how}")
 }
 
 /// The `qtrace inspect` summary of a scene.

@@ -90,7 +90,25 @@ pub struct Light {
     pub triangle: u32,
     pub cdf: f32,
     pub pdf: f32,
-    pub pad: f32,
+    pub group: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct LightGroup {
+    pub first: u32,
+    pub count: u32,
+    pub power: f32,
+    pub pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct LightMember {
+    pub light: u32,
+    pub cdf: f32,
+    pub pad0: u32,
+    pub pad1: u32,
 }
 
 #[repr(C)]

@@ -1079,6 +1079,77 @@ fn standing_back_survives_a_resume() {
     common::assert_no_validation_errors(&ctx);
 }
 
+/// The lights the guides pick NEE's among: an emitter's connected
+/// triangles are one light (a sphere's many, a quad's two halves), as are
+/// each delta light and the sky; each light's entries are together in the
+/// device's list of members, their pdfs summing to its power and their CDF
+/// rising to 1.
+#[test]
+fn lights_are_emitters_connected_triangles() {
+    let load = |path: &str| qtrace::scene::Scene::load(common::repo(path)).unwrap();
+    // Three sphere lights of hundreds of triangles each.
+    let veach = load("scenes/mitsuba/veach-mis/scene.xml");
+    // Point, spot and directional lights.
+    let delta = load("tests/fixtures/mitsuba/coverage-c.xml");
+    // A sky, a panel and two small squares.
+    let sky = load("tests/fixtures/mitsuba/coverage-u.xml");
+    for (scene, lights, entries) in [
+        (&veach, 3, veach.lights.len()),
+        (&delta, 3, 3),
+        (&sky, 4, 7),
+    ] {
+        assert_eq!(
+            scene.light_group_count(),
+            lights,
+            "{}",
+            scene.path.display()
+        );
+        assert_eq!(scene.nee_entries().count(), entries);
+        let (groups, members) = scene.light_groups();
+        assert_eq!(groups.len(), lights);
+        assert_eq!(members.len(), entries);
+        let power = sarsa::guided_light_power(scene);
+        assert!((power.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{power:?}");
+        let list: Vec<_> = scene.nee_entries().copied().collect();
+        for (g, light) in groups.iter().enumerate() {
+            let mine = &members[light.first as usize..(light.first + light.count) as usize];
+            let mut sum = 0.0f64;
+            for (k, m) in mine.iter().enumerate() {
+                let entry = list[m.light as usize];
+                assert_eq!(entry.group as usize, g);
+                sum += entry.pdf as f64;
+                assert!((m.cdf as f64 - sum / light.power as f64).abs() < 1e-5);
+                assert!(k == 0 || m.cdf >= mine[k - 1].cdf);
+            }
+            assert_eq!(mine.last().unwrap().cdf, 1.0);
+            assert!((sum - light.power as f64).abs() < 1e-6);
+            assert_eq!(light.power, power[g]);
+        }
+    }
+    // Veach's spheres: every triangle of a sphere with its own light.
+    let lights = |scene: &qtrace::scene::Scene| -> Vec<u32> {
+        scene.lights.iter().map(|l| l.group).collect()
+    };
+    let material_of = |l: &shaders::Light| veach.triangles[l.triangle as usize].material;
+    for (a, b) in veach.lights.iter().zip(&veach.lights[1..]) {
+        assert_eq!(a.group == b.group, material_of(a) == material_of(b));
+    }
+    assert!(veach.lights.len() > 300, "{}", veach.lights.len());
+    // Delta lights and the sky each a light of their own, after the
+    // emitters'.
+    for scene in [&delta, &sky] {
+        let first = lights(scene).into_iter().max().map_or(0, |g| g + 1);
+        for (k, e) in scene.delta_entries.iter().enumerate() {
+            assert_eq!(e.group, first + k as u32);
+        }
+    }
+    // The Cornell box's one quad light is one light: nothing to pick.
+    let cornell = common::scene("cornell-box");
+    assert_eq!(cornell.light_group_count(), 1);
+    assert!(!cornell.lights_to_pick());
+    assert!(sarsa::guided_light_power(&cornell).is_empty());
+}
+
 /// NEE's choice of light, after a `sarsa+nee` render with several lights:
 /// every volume's row gives each light at least LIGHT_POWER_SHARE of its
 /// share of emitted power (so every light keeps being tried), and most
@@ -1094,7 +1165,7 @@ fn volumes_learn_which_light_nee_picks() {
     }
     let ctx = common::gpu();
     let scene = common::scene("several-lights");
-    assert_eq!(sarsa::guided_light_power(&scene).len(), 6);
+    assert_eq!(sarsa::guided_light_power(&scene).len(), 3);
     let renderer = common::run_renderer(
         &ctx,
         &scene,
@@ -1121,7 +1192,10 @@ fn volumes_learn_which_light_nee_picks() {
         .and_then(|g| g.downcast::<SarsaGuide>())
         .unwrap();
     assert!(guide.chooses_lights());
-    let power: Vec<f64> = scene.lights.iter().map(|l| l.pdf as f64).collect();
+    let power: Vec<f64> = sarsa::guided_light_power(&scene)
+        .iter()
+        .map(|&p| p as f64)
+        .collect();
     let n = power.len();
     let choice = guide.download_light_choice().unwrap();
     let volumes = guide.volumes.len();
@@ -1137,10 +1211,15 @@ fn volumes_learn_which_light_nee_picks() {
             power[l]
         );
     }
-    let warm: Vec<usize> = (0..n)
-        .filter(|&l| scene.triangles[scene.lights[l].triangle as usize].v0[2] > 559.0)
+    let mut warm: Vec<usize> = scene
+        .lights
+        .iter()
+        .filter(|l| scene.triangles[l.triangle as usize].v0[2] > 559.0)
+        .map(|l| l.group as usize)
         .collect();
     assert_eq!(warm.len(), 2, "the warm light's two triangles");
+    warm.dedup();
+    assert_eq!(warm.len(), 1, "its two triangles one light");
     let mut back_wall = Vec::new();
     let mut learned = 0;
     for v in 0..volumes {
@@ -1245,7 +1324,10 @@ fn light_choice_follows_the_means_it_holds() {
         ..Default::default()
     };
     let guide = SarsaGuide::new(&ctx, &scene, &s, 4, true).unwrap();
-    let power: Vec<f64> = scene.lights.iter().map(|l| l.pdf as f64).collect();
+    let power: Vec<f64> = sarsa::guided_light_power(&scene)
+        .iter()
+        .map(|&p| p as f64)
+        .collect();
     let n = power.len();
     let volumes = guide.volumes.len();
     let mut rng = Lcg(11);
@@ -1260,9 +1342,9 @@ fn light_choice_follows_the_means_it_holds() {
         .collect();
     let tries: Vec<u32> = (0..volumes * n)
         .map(|i| match (i / n, i % n) {
-            (0, 0) => 5,
+            (0, 0) => 17 - 2 * n as u32,
             (0, _) => 2,
-            (2, 0) => 6,
+            (2, 0) => 18 - 2 * n as u32,
             (2, _) => 2,
             _ => 1 + rng.below(40),
         })
@@ -1324,7 +1406,7 @@ fn gpu_light_tallies_fold_into_running_means() {
         ..Default::default()
     };
     let guide = SarsaGuide::new(&ctx, &scene, &s, 6, true).unwrap();
-    let n = scene.lights.len();
+    let n = sarsa::guided_light_power(&scene).len();
     let cells = guide.volumes.len() * n;
     let mut rng = Lcg(23);
     let mut sums = vec![0.0f64; cells];

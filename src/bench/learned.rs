@@ -95,7 +95,7 @@ pub fn volume_pictures(
 }
 
 /// Colours of the lights in the light-choice picture, by light (see
-/// `sarsa::light_groups`), and their names.
+/// `shaders::LightGroup`), and their names.
 pub const LIGHT_COLOURS: [([f32; 3], &str); 6] = [
     ([1.0, 0.15, 0.1], "red"),
     ([0.1, 0.9, 0.15], "green"),
@@ -107,10 +107,10 @@ pub const LIGHT_COLOURS: [([f32; 3], &str); 6] = [
 
 /// Where the guide picks NEE's light: each volume's colour, then that of
 /// the row by power for points without one, the lights' colours
-/// (LIGHT_COLOURS, one per light, a light being an emitting material's
-/// triangles in one plane) mixed by the probabilities with which NEE picks
-/// them there; and a legend: which light each colour is. None where the
-/// guide picks no light.
+/// (LIGHT_COLOURS, one per light: an emitter's connected triangles, a delta
+/// light or the sky) mixed by the probabilities with which NEE picks them
+/// there; and a legend: which light each colour is. None where the guide
+/// picks no light.
 fn light_choice(
     scene: &Scene,
     guide: &SarsaGuide,
@@ -119,25 +119,25 @@ fn light_choice(
         return Ok(None);
     }
     let choice = guide.download_light_choice()?;
-    let groups = crate::guide::sarsa::light_groups(scene);
-    let colours: Vec<Vec3> = groups
-        .iter()
-        .map(|&g| Vec3::from(LIGHT_COLOURS[g % LIGHT_COLOURS.len()].0))
-        .collect();
+    let count = scene.light_group_count();
+    let colour = |g: usize| LIGHT_COLOURS[g % LIGHT_COLOURS.len()];
+    let colours: Vec<Vec3> = (0..count).map(|g| Vec3::from(colour(g).0)).collect();
     let mut legend: Vec<String> = Vec::new();
-    for (l, &g) in groups.iter().enumerate() {
+    for (l, entry) in scene.nee_entries().enumerate() {
+        let g = entry.group as usize;
         if g == legend.len() {
             let name = match scene.lights.get(l) {
                 Some(light) => {
                     let m = scene.triangles[light.triangle as usize].material;
-                    scene.materials[m as usize].name.as_str()
+                    scene.materials[m as usize].name.clone()
                 }
-                None => "the sky",
+                None if entry.triangle == crate::shaders::LIGHT_ENVIRONMENT => "the sky".into(),
+                None => format!(
+                    "delta light {}",
+                    entry.triangle & !crate::shaders::LIGHT_DELTA
+                ),
             };
-            legend.push(format!(
-                "{}: {name}",
-                LIGHT_COLOURS[g % LIGHT_COLOURS.len()].1
-            ));
+            legend.push(format!("{}: {name}", colour(g).1));
         }
     }
     let mixed = choice

@@ -669,8 +669,8 @@ impl DeviceGuide for NeuralGuide {
             // The flag and count its tables' updates need.
             let mut q = *p;
             t.guide.set_params(&mut q, learn);
-            p.flags |= q.flags & shaders::FLAG_GUIDE_LIGHTS;
-            p.light_count = q.light_count;
+            p.flags |=
+                q.flags & (shaders::FLAG_GUIDE_LIGHTS | u32::MAX << shaders::LIGHT_GROUPS_SHIFT);
         }
     }
 

@@ -11,7 +11,6 @@ use crate::gpu::{
 use crate::render::RenderError;
 use crate::scene::Scene;
 use crate::shaders::{self, spirv, PassParams, SectorEntry};
-use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -91,56 +90,11 @@ pub fn bytes_per_volume(sectors: u32, lights: u32) -> u64 {
 
 /// Each light's share of the scene's emitted power where a guide picks
 /// NEE's light, else none: where there are several lights to pick among
-/// (emitting triangles of at least two materials or planes; the two halves
-/// of one quad light are not worth a choice, which costs a pass about 7%
-/// on the Cornell box) and at most MAX_GUIDED_LIGHTS emitting triangles.
+/// (`Scene::lights_to_pick`; a light is an emitter's connected triangles,
+/// a delta light or the sky, so that the two halves of one quad light,
+/// not worth a choice, are one).
 pub fn guided_light_power(scene: &Scene) -> Vec<f32> {
-    let sky = scene.environment_pick() > 0.0;
-    let n = scene.lights.len() + usize::from(sky);
-    // Delta lights are NEE's alone: the tables choose among triangles and
-    // the sky, which follows them in NEE's list.
-    if !scene.delta_lights.is_empty()
-        || n > shaders::MAX_GUIDED_LIGHTS as usize
-        || separate_lights(scene) < 2
-    {
-        return Vec::new();
-    }
-    let mut power: Vec<f32> = scene.lights.iter().map(|l| l.pdf).collect();
-    if sky {
-        power.push(scene.environment_pick());
-    }
-    power
-}
-
-/// Lights told apart by material and plane.
-pub fn separate_lights(scene: &Scene) -> usize {
-    light_groups(scene).into_iter().max().map_or(0, |g| g + 1)
-}
-
-/// For each emitting triangle (in `scene.lights` order), the light it is
-/// part of: triangles of one material in one plane make one light; then
-/// the sky, a light of its own, where NEE draws one.
-pub fn light_groups(scene: &Scene) -> Vec<usize> {
-    let tolerance = 1e-4 * scene.extent.max(f32::MIN_POSITIVE);
-    let mut planes: Vec<(u32, Vec3, f32)> = Vec::new();
-    let mut groups = Vec::with_capacity(scene.lights.len());
-    for light in &scene.lights {
-        let t = &scene.triangles[light.triangle as usize];
-        let normal = Vec3::from(t.e1).cross(Vec3::from(t.e2)).normalize_or_zero();
-        let offset = normal.dot(Vec3::from(t.v0));
-        let same = |&(m, n, d): &(u32, Vec3, f32)| {
-            m == t.material && n.dot(normal) > 0.9999 && (d - offset).abs() <= tolerance
-        };
-        let group = planes.iter().position(same).unwrap_or_else(|| {
-            planes.push((t.material, normal, offset));
-            planes.len() - 1
-        });
-        groups.push(group);
-    }
-    if scene.environment_pick() > 0.0 {
-        groups.push(planes.len());
-    }
-    groups
+    scene.light_groups().0.iter().map(|g| g.power).collect()
 }
 
 impl SarsaSettings {
@@ -765,13 +719,13 @@ impl SarsaGuide {
         self.settings.common.set_params(p, learn);
         p.guide_epsilon = self.settings.epsilon();
         p.volume_count = self.volumes.len() as u32;
-        p.flags &= !(shaders::FLAG_LEARN_MIX | shaders::FLAG_GUIDE_LIGHTS);
+        p.flags &= !(shaders::FLAG_LEARN_MIX | shaders::FLAG_GUIDE_LIGHTS)
+            & ((1 << shaders::LIGHT_GROUPS_SHIFT) - 1);
         if self.settings.learns_epsilon() {
             p.flags |= shaders::FLAG_LEARN_MIX;
         }
         if self.lights > 0 {
-            p.flags |= shaders::FLAG_GUIDE_LIGHTS;
-            p.light_count = self.lights;
+            p.flags |= shaders::FLAG_GUIDE_LIGHTS | self.lights << shaders::LIGHT_GROUPS_SHIFT;
         }
     }
 

@@ -166,11 +166,18 @@ impl GpuScene {
             },
             triangles: Buffer::gpu_only_with(ctx, "triangles", &scene.triangles)?,
             materials: Buffer::gpu_only_with(ctx, "materials", &materials)?,
-            lights: Buffer::gpu_only_with(
-                ctx,
-                "lights",
-                &[&scene.lights[..], &scene.delta_entries[..]].concat(),
-            )?,
+            lights: {
+                // NEE's list, then the lights the guides may pick among
+                // and their members (shaders::LightGroup).
+                let (groups, members) = scene.light_groups();
+                let texels: Vec<[u32; 4]> = scene
+                    .nee_entries()
+                    .map(|l| bytemuck::cast(*l))
+                    .chain(groups.iter().map(|g| bytemuck::cast(*g)))
+                    .chain(members.iter().map(|m| bytemuck::cast(*m)))
+                    .collect();
+                Buffer::gpu_only_with(ctx, "lights", &texels)?
+            },
             delta_lights: if scene.delta_lights.is_empty() {
                 Buffer::gpu_only_with(ctx, "delta lights", &[shaders::DeltaLight::default()])?
             } else {

@@ -883,6 +883,62 @@ impl Scene {
             .map_or_else(|| EMPTY.get_or_init(toml::Table::new), |(_, t)| t)
     }
 
+    /// NEE's list: its emitting triangles, then delta lights and the sky.
+    pub fn nee_entries(&self) -> impl Iterator<Item = &shaders::Light> {
+        self.lights.iter().chain(&self.delta_entries)
+    }
+
+    /// How many lights NEE's entries make (`Light::group`): an emitter's
+    /// connected triangles, a delta light, the sky.
+    pub fn light_group_count(&self) -> usize {
+        self.nee_entries()
+            .map(|l| l.group as usize + 1)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Whether the guides may pick NEE's light: where there are at least
+    /// two lights and at most MAX_GUIDED_LIGHTS.
+    pub fn lights_to_pick(&self) -> bool {
+        (2..=shaders::MAX_GUIDED_LIGHTS as usize).contains(&self.light_group_count())
+    }
+
+    /// The lights (`LightGroup`) and their members, each light's together,
+    /// as the device reads them after NEE's list where the guides may pick
+    /// NEE's light; none elsewhere.
+    pub fn light_groups(&self) -> (Vec<shaders::LightGroup>, Vec<shaders::LightMember>) {
+        if !self.lights_to_pick() {
+            return (Vec::new(), Vec::new());
+        }
+        let mut members: Vec<Vec<(u32, f32)>> = vec![Vec::new(); self.light_group_count()];
+        for (i, l) in self.nee_entries().enumerate() {
+            members[l.group as usize].push((i as u32, l.pdf));
+        }
+        let mut groups = Vec::with_capacity(members.len());
+        let mut list = Vec::new();
+        for entries in &members {
+            let power: f64 = entries.iter().map(|&(_, p)| p as f64).sum();
+            groups.push(shaders::LightGroup {
+                first: list.len() as u32,
+                count: entries.len() as u32,
+                power: power as f32,
+                pad: 0,
+            });
+            let mut acc = 0.0f64;
+            for &(light, p) in entries {
+                acc += p as f64;
+                list.push(shaders::LightMember {
+                    light,
+                    cdf: (acc / power) as f32,
+                    ..Default::default()
+                });
+            }
+            // Rounding must leave no gap at the top.
+            list.last_mut().unwrap().cdf = 1.0;
+        }
+        (groups, list)
+    }
+
     /// The probability NEE picks the environment (0 without one).
     pub fn environment_pick(&self) -> f32 {
         self.delta_entries
@@ -1088,6 +1144,7 @@ impl Scene {
                 }
             })
             .collect();
+        let parts = emitter_parts(&positions, &material_of, &materials, &bvh.order);
         drop(positions);
         // NEE weighs the sky by the power it sends into the scene: its
         // radiance over a disk as wide as the scene.
@@ -1100,6 +1157,7 @@ impl Scene {
             .collect();
         let (lights, delta_entries) = build_lights(
             &mut triangles,
+            &parts,
             &materials,
             &emitted_means(&materials, &textures, &attributes),
             &delta_lights,
@@ -1420,14 +1478,65 @@ fn emitted_means<'a>(
         .collect()
 }
 
+/// For the emitting triangles (by index in `order`, the device's order),
+/// the part of an emitter each is: triangles of one material that share a
+/// corner are one part (a quad's two halves, a sphere's whole surface).
+fn emitter_parts(
+    positions: &[[Vec3; 3]],
+    material_of: &[u32],
+    materials: &[Material],
+    order: &[u32],
+) -> std::collections::HashMap<u32, u32> {
+    use std::collections::hash_map::Entry;
+    let emitting: Vec<u32> = (0..order.len() as u32)
+        .filter(|&k| {
+            let m = material_of[order[k as usize] as usize];
+            materials[m as usize].emission.max_element() > 0.0
+        })
+        .collect();
+    fn root(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            let up = parent[parent[i as usize] as usize];
+            parent[i as usize] = up;
+            i = up;
+        }
+        i
+    }
+    let mut parent: Vec<u32> = (0..emitting.len() as u32).collect();
+    let mut corners: std::collections::HashMap<(u32, [u32; 3]), u32> = Default::default();
+    for (e, &k) in emitting.iter().enumerate() {
+        let i = order[k as usize] as usize;
+        for corner in positions[i] {
+            // + 0.0 makes -0.0 the same corner as 0.0.
+            let key = (material_of[i], (corner + 0.0).to_array().map(f32::to_bits));
+            match corners.entry(key) {
+                Entry::Occupied(first) => {
+                    let (a, b) = (root(&mut parent, *first.get()), root(&mut parent, e as u32));
+                    parent[a.max(b) as usize] = a.min(b);
+                }
+                Entry::Vacant(slot) => {
+                    slot.insert(e as u32);
+                }
+            }
+        }
+    }
+    (0..emitting.len())
+        .map(|e| (emitting[e], root(&mut parent, e as u32)))
+        .collect()
+}
+
 /// Emissive triangles, chosen for next-event estimation in proportion to
 /// area × luminance(Le) (a mesh attribute's: the triangle's own mean, at
 /// least a thousandth of its light's, so that every triangle of a light
 /// stays one), and the delta lights by their weights; also stores each
 /// triangle's P(choose)/area on it. The delta lights' entries follow the
-/// triangles' in the one list NEE draws from.
+/// triangles' in the one list NEE draws from. Each entry names the light
+/// it is part of (`Light::group`, see `shaders::LightGroup`): an emitter's
+/// part (`parts`), or where those are more than the guides pick among, its
+/// material's triangles; each delta light; the sky.
 fn build_lights(
     triangles: &mut [shaders::Triangle],
+    parts: &std::collections::HashMap<u32, u32>,
     materials: &[Material],
     attributes: &[EmittedAttribute<'_>],
     delta: &[(shaders::DeltaLight, f32)],
@@ -1472,8 +1581,27 @@ fn build_lights(
             triangle: i,
             cdf: (acc / total) as f32,
             pdf,
-            pad: 0.0,
+            group: 0,
         });
+    }
+    // Lights numbered as NEE's list first meets them.
+    let number = |lights: &mut [shaders::Light], key: &dyn Fn(u32) -> u32| {
+        let mut seen = std::collections::HashMap::new();
+        let mut count = 0;
+        for l in lights.iter_mut() {
+            l.group = if l.triangle & (shaders::LIGHT_DELTA | shaders::LIGHT_ENVIRONMENT) == 0 {
+                *seen.entry(key(l.triangle)).or_insert(count)
+            } else {
+                // Each delta light and the sky a light of its own.
+                count
+            };
+            count = count.max(l.group + 1);
+        }
+        count as usize
+    };
+    let by_part = |t: u32| parts.get(&t).copied().unwrap_or(u32::MAX);
+    if number(&mut lights, &by_part) > shaders::MAX_GUIDED_LIGHTS as usize {
+        number(&mut lights, &|t: u32| triangles[t as usize].material);
     }
     if let Some(last) = lights.last_mut() {
         last.cdf = 1.0; // rounding must not leave a gap at the top
