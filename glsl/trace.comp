@@ -483,8 +483,8 @@ void gather_sky(inout Path path, inout Trail trail) {
 
 // The path's ray reached an emitter: its emission (on its front side only),
 // weighed against NEE's draws of it (nee_mis_pick), added to the path's
-// radiance; returns
-// the emission's luminance and that weight, for the guide.
+// radiance; returns the emission's luminance and that weight, for the
+// guide.
 vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
     vec3 le = vec3(0.0);
