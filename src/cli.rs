@@ -490,7 +490,7 @@ fn light_summary(scene: &Scene) -> String {
     } else {
         "NEE picks by emitted power".to_string()
     };
-    format!("{lights} (each an emitter's connected triangles, a delta light or the sky); {how}")
+    format!("{lights} (each an emitter's connected triangles, a delta light or the sky; beyond {max}, nearby ones together); {how}")
 }
 
 /// The `qtrace inspect` summary of a scene.

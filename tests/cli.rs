@@ -528,7 +528,7 @@ fn devices_and_inspect() {
         .expect("a triangle count");
     assert!(triangles >= 100_000, "{stdout}");
     assert!(
-        stdout.contains("lights       1 (each an emitter's connected triangles, a delta light or the sky); NEE picks by emitted power"),
+        stdout.contains("lights       1 (each an emitter's connected triangles, a delta light or the sky; beyond 16, nearby ones together); NEE picks by emitted power"),
         "{stdout}"
     );
     let output = qtrace()
@@ -538,7 +538,7 @@ fn devices_and_inspect() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(
-        stdout.contains("lights       3 (each an emitter's connected triangles, a delta light or the sky); guides learn which one NEE picks"),
+        stdout.contains("lights       3 (each an emitter's connected triangles, a delta light or the sky; beyond 16, nearby ones together); guides learn which one NEE picks"),
         "{stdout}"
     );
     // A TOML scene's emitters end paths, whatever their Kd.

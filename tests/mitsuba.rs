@@ -1591,6 +1591,21 @@ fn lights_whose_radiance_is_a_mesh_attribute_agree_with_mitsuba() {
 }
 
 #[test]
+fn many_lights_agree_with_mitsuba() {
+    // 24 lights in four rooms, more than the guides choose among one by
+    // one: they choose among nearby ones together.
+    let scene = common::repo("tests/fixtures/mitsuba/many-lights.xml");
+    for m in [Method::PT, Method::SARSA, Method::NEURAL] {
+        check(
+            "many-lights",
+            &scene,
+            &[("res", "64")],
+            method(m, true, 1024),
+        );
+    }
+}
+
+#[test]
 fn projectors_agree_with_mitsuba() {
     // A bitmap cast from above the camera, a flat colour from the side.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-z.xml");

@@ -1093,10 +1093,14 @@ fn lights_are_emitters_connected_triangles() {
     let delta = load("tests/fixtures/mitsuba/coverage-c.xml");
     // A sky, a panel and two small squares.
     let sky = load("tests/fixtures/mitsuba/coverage-u.xml");
+    // 24 small quad lights in four rooms, more than the guides choose
+    // among: nearby ones together.
+    let many = load("tests/fixtures/mitsuba/many-lights.xml");
     for (scene, lights, entries) in [
         (&veach, 3, veach.lights.len()),
         (&delta, 3, 3),
         (&sky, 4, 7),
+        (&many, 16, 48),
     ] {
         assert_eq!(
             scene.light_group_count(),
@@ -1141,6 +1145,20 @@ fn lights_are_emitters_connected_triangles() {
         let first = lights(scene).into_iter().max().map_or(0, |g| g + 1);
         for (k, e) in scene.delta_entries.iter().enumerate() {
             assert_eq!(e.group, first + k as u32);
+        }
+    }
+    // Never lights of two rooms together (walls at x = -4, 0, 4), and a
+    // quad's two halves always together.
+    let room = |l: &shaders::Light| (many.triangles[l.triangle as usize].v0[0] / 4.0).floor();
+    for a in &many.lights {
+        for b in &many.lights {
+            if a.group == b.group {
+                assert_eq!(room(a), room(b), "{a:?} {b:?}");
+            }
+            let material = |l: &shaders::Light| many.triangles[l.triangle as usize].material;
+            if material(a) == material(b) {
+                assert_eq!(a.group, b.group);
+            }
         }
     }
     // The Cornell box's one quad light is one light: nothing to pick.

@@ -1525,6 +1525,54 @@ fn emitter_parts(
         .collect()
 }
 
+/// Points split into at most `groups` groups of nearby ones: in turn the
+/// group spread widest is split at its median along its longest axis. For
+/// each point, its group.
+fn nearby(points: &[Vec3], groups: usize) -> Vec<u32> {
+    let mut clusters: Vec<Vec<usize>> = vec![(0..points.len()).collect()];
+    while clusters.len() < groups {
+        let spread = |c: &Vec<usize>| {
+            let (lo, hi) = c
+                .iter()
+                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &i| {
+                    (lo.min(points[i]), hi.max(points[i]))
+                });
+            hi - lo
+        };
+        let widest = clusters
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                let e = spread(c);
+                let axis = if e.x >= e.y && e.x >= e.z {
+                    0
+                } else if e.y >= e.z {
+                    1
+                } else {
+                    2
+                };
+                (k, axis, e[axis])
+            })
+            .filter(|&(_, _, width)| width > 0.0)
+            .max_by(|a, b| a.2.total_cmp(&b.2));
+        let Some((k, axis, _)) = widest else {
+            break;
+        };
+        let mut c = clusters.swap_remove(k);
+        c.sort_by(|&a, &b| points[a][axis].total_cmp(&points[b][axis]));
+        let far = c.split_off(c.len() / 2);
+        clusters.push(c);
+        clusters.push(far);
+    }
+    let mut of = vec![0; points.len()];
+    for (k, c) in clusters.iter().enumerate() {
+        for &i in c {
+            of[i] = k as u32;
+        }
+    }
+    of
+}
+
 /// Emissive triangles, chosen for next-event estimation in proportion to
 /// area × luminance(Le) (a mesh attribute's: the triangle's own mean, at
 /// least a thousandth of its light's, so that every triangle of a light
@@ -1532,8 +1580,8 @@ fn emitter_parts(
 /// triangle's P(choose)/area on it. The delta lights' entries follow the
 /// triangles' in the one list NEE draws from. Each entry names the light
 /// it is part of (`Light::group`, see `shaders::LightGroup`): an emitter's
-/// part (`parts`), or where those are more than the guides pick among, its
-/// material's triangles; each delta light; the sky.
+/// part (`parts`), each delta light, the sky; where those are more than the
+/// guides pick among, nearby parts and delta lights together (`nearby`).
 fn build_lights(
     triangles: &mut [shaders::Triangle],
     parts: &std::collections::HashMap<u32, u32>,
@@ -1584,24 +1632,72 @@ fn build_lights(
             group: 0,
         });
     }
-    // Lights numbered as NEE's list first meets them.
-    let number = |lights: &mut [shaders::Light], key: &dyn Fn(u32) -> u32| {
+    // Lights numbered as NEE's list first meets them; `key` None: a light
+    // of its own.
+    let number = |lights: &mut [shaders::Light], key: &dyn Fn(u32) -> Option<u32>| {
         let mut seen = std::collections::HashMap::new();
         let mut count = 0;
         for l in lights.iter_mut() {
-            l.group = if l.triangle & (shaders::LIGHT_DELTA | shaders::LIGHT_ENVIRONMENT) == 0 {
-                *seen.entry(key(l.triangle)).or_insert(count)
-            } else {
-                // Each delta light and the sky a light of its own.
-                count
+            l.group = match key(l.triangle) {
+                Some(k) => *seen.entry(k).or_insert(count),
+                None => count,
             };
             count = count.max(l.group + 1);
         }
         count as usize
     };
-    let by_part = |t: u32| parts.get(&t).copied().unwrap_or(u32::MAX);
-    if number(&mut lights, &by_part) > shaders::MAX_GUIDED_LIGHTS as usize {
-        number(&mut lights, &|t: u32| triangles[t as usize].material);
+    let emits = |t: u32| t & (shaders::LIGHT_DELTA | shaders::LIGHT_ENVIRONMENT) == 0;
+    let part = |t: u32| parts.get(&t).copied().unwrap_or(u32::MAX);
+    let max = shaders::MAX_GUIDED_LIGHTS as usize;
+    if number(&mut lights, &|t| emits(t).then(|| part(t))) > max {
+        // More than the guides choose among: nearby ones together (the
+        // emitters' parts, and the delta lights that have a place).
+        let mut places: Vec<(Vec3, f32)> = Vec::new();
+        let mut item: std::collections::HashMap<u32, u32> = Default::default();
+        for l in &lights {
+            let key = if emits(l.triangle) {
+                part(l.triangle)
+            } else if l.triangle & shaders::LIGHT_DELTA != 0 {
+                let d = &delta[(l.triangle & !shaders::LIGHT_DELTA) as usize].0;
+                if d.position[3] as u32 & 3 == shaders::DELTA_DIRECTIONAL {
+                    continue;
+                }
+                l.triangle
+            } else {
+                continue;
+            };
+            let (at, weight) = if emits(l.triangle) {
+                let t = &triangles[l.triangle as usize];
+                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
+                (centre * t.area, t.area)
+            } else {
+                let d = &delta[(l.triangle & !shaders::LIGHT_DELTA) as usize].0;
+                (Vec3::from_slice(&d.position[..3]), 1.0)
+            };
+            let i = *item.entry(key).or_insert_with(|| {
+                places.push((Vec3::ZERO, 0.0));
+                places.len() as u32 - 1
+            });
+            places[i as usize].0 += at;
+            places[i as usize].1 += weight;
+        }
+        let on_their_own = lights.len()
+            - lights
+                .iter()
+                .filter(|l| emits(l.triangle) || item.contains_key(&l.triangle))
+                .count();
+        if max > on_their_own + 1 {
+            let centres: Vec<Vec3> = places
+                .iter()
+                .map(|&(at, w)| at / w.max(f32::MIN_POSITIVE))
+                .collect();
+            let near = nearby(&centres, max - on_their_own);
+            let key = |t: u32| {
+                let k = if emits(t) { part(t) } else { t };
+                item.get(&k).map(|&i| near[i as usize])
+            };
+            number(&mut lights, &key);
+        }
     }
     if let Some(last) = lights.last_mut() {
         last.cdf = 1.0; // rounding must not leave a gap at the top
