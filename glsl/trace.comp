@@ -52,19 +52,25 @@ float power_heuristic(float a, float b) {
     return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0;
 }
 
-// Index of the light whose inclusive CDF first exceeds u.
-uint pick_light(float u) {
+// Of the `count` light texels from `base`, whose .y is an inclusive CDF,
+// the index (from base) of the first that exceeds u.
+uint search_cdf(uint base, uint count, float u) {
     uint lo = 0u;
-    uint hi = params.light_count - 1u;
+    uint hi = count - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (uintBitsToFloat(FETCH(light_texels, int(mid)).y) > u) {
+        if (uintBitsToFloat(FETCH(light_texels, int(base + mid)).y) > u) {
             hi = mid;
         } else {
             lo = mid + 1u;
         }
     }
     return lo;
+}
+
+// Index of the light whose inclusive CDF first exceeds u.
+uint pick_light(float u) {
+    return search_cdf(0u, params.light_count, u);
 }
 
 // Index of the light that is triangle `triangle` (lights are in triangle order).
@@ -439,20 +445,9 @@ uint nee_choose_light(GuideVertex g, inout uint rng, out uint group, out float p
     }
     group = guide_choose_light(g, rng_next(rng), p_group);
     uvec4 light = light_group(group);
-    // Its members follow the lights: a search of their CDF.
+    // Its members follow the lights.
     uint base = params.light_count + light_groups() + light.x;
-    float u = rng_next(rng);
-    uint lo = 0u;
-    uint hi = light.y - 1u;
-    while (lo < hi) {
-        uint mid = (lo + hi) / 2u;
-        if (uintBitsToFloat(FETCH(light_texels, int(base + mid)).y) > u) {
-            hi = mid;
-        } else {
-            lo = mid + 1u;
-        }
-    }
-    uint entry = FETCH(light_texels, int(base + lo)).x;
+    uint entry = FETCH(light_texels, int(base + search_cdf(base, light.y, rng_next(rng)))).x;
     p = p_group * share_in_light(FETCH(light_texels, int(entry)));
     return entry;
 }
@@ -672,7 +667,8 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
             // A plastic's coat takes some bounces as a mirror.
             scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
             // The light's density as MIS takes it (mis_pick).
-            float mis_pdf = GUIDE_LIGHTS ? light_pdf / pick_pdf * mis_pick(pick_pdf, entry) : light_pdf;
+            float per_pick = GUIDE_LIGHTS ? light_pdf / pick_pdf : 0.0;
+            float mis_pdf = GUIDE_LIGHTS ? per_pick * mis_pick(pick_pdf, entry) : light_pdf;
             float weight = delta_light ? 1.0 : power_heuristic(mis_pdf, scatter_pdf);
             vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * normal_map_weight(s, wi) * le;
             vec3 direct = f_le * weight / light_pdf;
@@ -682,7 +678,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
                 // What its whole light brought, weighed as MIS would
                 // were NEE to pick by power (not by the guide's own
                 // choice, which would only confirm itself).
-                float by_power = light_pdf / pick_pdf * uintBitsToFloat(entry.z);
+                float by_power = per_pick * uintBitsToFloat(entry.z);
                 float mis = delta_light ? 1.0 : power_heuristic(by_power, scatter_pdf);
                 brought = luminance(f_le) * mis / light_pdf * group_pdf;
             }

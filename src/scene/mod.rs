@@ -1655,24 +1655,19 @@ fn build_lights(
         let mut places: Vec<(Vec3, f32)> = Vec::new();
         let mut item: std::collections::HashMap<u32, u32> = Default::default();
         for l in &lights {
-            let key = if emits(l.triangle) {
-                part(l.triangle)
+            // Its item, and its place (an emitter's, area-weighted).
+            let (key, at, weight) = if emits(l.triangle) {
+                let t = &triangles[l.triangle as usize];
+                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
+                (part(l.triangle), centre * t.area, t.area)
             } else if l.triangle & shaders::LIGHT_DELTA != 0 {
                 let d = &delta[(l.triangle & !shaders::LIGHT_DELTA) as usize].0;
                 if d.position[3] as u32 & 3 == shaders::DELTA_DIRECTIONAL {
                     continue;
                 }
-                l.triangle
+                (l.triangle, Vec3::from_slice(&d.position[..3]), 1.0)
             } else {
                 continue;
-            };
-            let (at, weight) = if emits(l.triangle) {
-                let t = &triangles[l.triangle as usize];
-                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
-                (centre * t.area, t.area)
-            } else {
-                let d = &delta[(l.triangle & !shaders::LIGHT_DELTA) as usize].0;
-                (Vec3::from_slice(&d.position[..3]), 1.0)
             };
             let i = *item.entry(key).or_insert_with(|| {
                 places.push((Vec3::ZERO, 0.0));
