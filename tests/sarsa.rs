@@ -1130,6 +1130,37 @@ fn lights_are_emitters_connected_triangles() {
             assert_eq!(light.power, power[g]);
         }
     }
+    // Each light's name (the bench's legend) tells it apart: by kind, by
+    // material, or where lights share a name, by where they are.
+    let mut names = delta.light_names();
+    names.sort();
+    assert_eq!(names, ["directional light", "point light", "spot light"]);
+    assert!(sky.light_names().iter().any(|n| n == "the sky"));
+    let names = many.light_names();
+    let mut unique = names.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(unique.len(), 16, "{names:?}");
+    assert!(names.iter().any(|n| n.contains(" more")), "{names:?}");
+    let two = common::scratch("two-points").join("scene.xml");
+    std::fs::write(
+        &two,
+        r#"<scene version="3.0.0">
+            <sensor type="perspective"/>
+            <emitter type="point"><point name="position" x="0" y="1" z="0"/></emitter>
+            <emitter type="point"><point name="position" x="2" y="1" z="0"/></emitter>
+            <shape type="rectangle"/>
+        </scene>"#,
+    )
+    .unwrap();
+    let two = qtrace::scene::Scene::load(&two).unwrap();
+    assert_eq!(
+        two.light_names(),
+        [
+            "point light near (0.00, 1.00, 0.00)",
+            "point light near (2.00, 1.00, 0.00)"
+        ]
+    );
     // Veach's spheres: every triangle of a sphere with its own light.
     let lights = |scene: &qtrace::scene::Scene| -> Vec<u32> {
         scene.lights.iter().map(|l| l.group).collect()

@@ -95,22 +95,33 @@ pub fn volume_pictures(
 }
 
 /// Colours of the lights in the light-choice picture, by light (see
-/// `shaders::LightGroup`), and their names.
-pub const LIGHT_COLOURS: [([f32; 3], &str); 6] = [
+/// `shaders::LightGroup`), and their names: as many as the guides pick
+/// among (`shaders::MAX_GUIDED_LIGHTS`), so that no two lights share one.
+pub const LIGHT_COLOURS: [([f32; 3], &str); 16] = [
     ([1.0, 0.15, 0.1], "red"),
     ([0.1, 0.9, 0.15], "green"),
     ([0.15, 0.3, 1.0], "blue"),
     ([1.0, 0.85, 0.1], "yellow"),
     ([0.9, 0.15, 0.9], "magenta"),
     ([0.1, 0.9, 0.9], "cyan"),
+    ([1.0, 0.5, 0.0], "orange"),
+    ([0.5, 0.2, 0.9], "purple"),
+    ([0.6, 1.0, 0.3], "lime"),
+    ([1.0, 0.6, 0.75], "pink"),
+    ([0.0, 0.5, 0.5], "teal"),
+    ([0.55, 0.3, 0.1], "brown"),
+    ([0.1, 0.1, 0.5], "navy"),
+    ([0.5, 0.5, 0.0], "olive"),
+    ([0.5, 0.0, 0.1], "maroon"),
+    ([0.95, 0.95, 0.95], "white"),
 ];
 
 /// Where the guide picks NEE's light: each volume's colour, then that of
 /// the row by power for points without one, the lights' colours
 /// (LIGHT_COLOURS, one per light: an emitter's connected triangles, a delta
-/// light or the sky) mixed by the probabilities with which NEE picks them
-/// there; and a legend: which light each colour is. None where the guide
-/// picks no light.
+/// light, the sky, or nearby ones together) mixed by the probabilities with
+/// which NEE picks them there; and a legend: which light each colour is.
+/// None where the guide picks no light.
 fn light_choice(
     scene: &Scene,
     guide: &SarsaGuide,
@@ -122,24 +133,12 @@ fn light_choice(
     let count = scene.light_group_count();
     let colour = |g: usize| LIGHT_COLOURS[g % LIGHT_COLOURS.len()];
     let colours: Vec<Vec3> = (0..count).map(|g| Vec3::from(colour(g).0)).collect();
-    let mut legend: Vec<String> = Vec::new();
-    for (l, entry) in scene.nee_entries().enumerate() {
-        let g = entry.group as usize;
-        if g == legend.len() {
-            let name = match scene.lights.get(l) {
-                Some(light) => {
-                    let m = scene.triangles[light.triangle as usize].material;
-                    scene.materials[m as usize].name.clone()
-                }
-                None if entry.triangle == crate::shaders::LIGHT_ENVIRONMENT => "the sky".into(),
-                None => format!(
-                    "delta light {}",
-                    entry.triangle & !crate::shaders::LIGHT_DELTA
-                ),
-            };
-            legend.push(format!("{}: {name}", colour(g).1));
-        }
-    }
+    let names = scene.light_names();
+    let legend: Vec<String> = names
+        .iter()
+        .enumerate()
+        .map(|(g, name)| format!("{}: {name}", colour(g).1))
+        .collect();
     let mixed = choice
         .chunks(colours.len())
         .map(|p| p.iter().zip(&colours).map(|(&p, &c)| p * c).sum())

@@ -897,6 +897,73 @@ impl Scene {
             .unwrap_or(0)
     }
 
+    /// A name for each light NEE's entries make (`Light::group`): its
+    /// emitters' material name (the first's, and how many more where nearby
+    /// ones go together), the kind of delta light, or the sky; with where it
+    /// is (its members' centre by power) wherever a name would not tell it
+    /// apart from another light's.
+    pub fn light_names(&self) -> Vec<String> {
+        use shaders::{DELTA_DIRECTIONAL, DELTA_POINT, DELTA_SPOT, LIGHT_DELTA, LIGHT_ENVIRONMENT};
+        let count = self.light_group_count();
+        // Per light: its members' names (each once, in order), centre weight and sum.
+        let mut kinds: Vec<Vec<String>> = vec![Vec::new(); count];
+        let mut centres = vec![(0.0f64, Vec3::ZERO); count];
+        for (i, entry) in self.nee_entries().enumerate() {
+            let g = entry.group as usize;
+            let (name, at) = if let Some(light) = self.lights.get(i) {
+                let t = &self.triangles[light.triangle as usize];
+                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
+                (
+                    self.materials[t.material as usize].name.clone(),
+                    Some(centre),
+                )
+            } else if entry.triangle == LIGHT_ENVIRONMENT {
+                ("the sky".to_string(), None)
+            } else {
+                let d = &self.delta_lights[(entry.triangle & !LIGHT_DELTA) as usize];
+                let kind = d.position[3] as u32 % 4;
+                let name = match kind {
+                    DELTA_POINT => "point light",
+                    DELTA_SPOT => "spot light",
+                    DELTA_DIRECTIONAL => "directional light",
+                    _ => "projector",
+                };
+                let at = (kind != DELTA_DIRECTIONAL)
+                    .then(|| Vec3::new(d.position[0], d.position[1], d.position[2]));
+                (name.to_string(), at)
+            };
+            if !kinds[g].contains(&name) {
+                kinds[g].push(name);
+            }
+            if let Some(at) = at {
+                let w = f64::from(entry.pdf).max(1e-12);
+                centres[g].0 += w;
+                centres[g].1 += at * w as f32;
+            }
+        }
+        let names: Vec<String> = kinds
+            .iter()
+            .map(|k| match k.len() {
+                1 => k[0].clone(),
+                n => format!("{} and {} more", k[0], n - 1),
+            })
+            .collect();
+        names
+            .iter()
+            .enumerate()
+            .map(|(g, name)| {
+                let (w, sum) = centres[g];
+                let shared = names.iter().filter(|n| *n == name).count() > 1;
+                if shared && w > 0.0 {
+                    let c = sum / w as f32;
+                    format!("{name} near ({:.2}, {:.2}, {:.2})", c.x, c.y, c.z)
+                } else {
+                    name.clone()
+                }
+            })
+            .collect()
+    }
+
     /// Whether the guides may pick NEE's light: where there are at least
     /// two lights and at most MAX_GUIDED_LIGHTS.
     pub fn lights_to_pick(&self) -> bool {
