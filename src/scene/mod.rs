@@ -855,8 +855,8 @@ impl Scene {
         } | self.delta_lights.iter().fold(0, |acc, l| {
             // A projector, or a spot light casting an image, and its image.
             let code = l.position[3] as u32;
-            let casts = code & 3 == shaders::DELTA_SPOT && code >> 2 != 0;
-            let projector = if code & 3 == shaders::DELTA_PROJECTOR || casts {
+            let casts = delta_kind(l) == shaders::DELTA_SPOT && code >> 2 != 0;
+            let projector = if delta_kind(l) == shaders::DELTA_PROJECTOR || casts {
                 shaders::FEATURE_PROJECTORS
             } else {
                 0
@@ -912,25 +912,21 @@ impl Scene {
             let g = entry.group as usize;
             let (name, at) = if let Some(light) = self.lights.get(i) {
                 let t = &self.triangles[light.triangle as usize];
-                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
                 (
                     self.materials[t.material as usize].name.clone(),
-                    Some(centre),
+                    Some(triangle_centre(t)),
                 )
             } else if entry.triangle == LIGHT_ENVIRONMENT {
                 ("the sky".to_string(), None)
             } else {
                 let d = &self.delta_lights[(entry.triangle & !LIGHT_DELTA) as usize];
-                let kind = d.position[3] as u32 % 4;
-                let name = match kind {
+                let name = match delta_kind(d) {
                     DELTA_POINT => "point light",
                     DELTA_SPOT => "spot light",
                     DELTA_DIRECTIONAL => "directional light",
                     _ => "projector",
                 };
-                let at = (kind != DELTA_DIRECTIONAL)
-                    .then(|| Vec3::new(d.position[0], d.position[1], d.position[2]));
-                (name.to_string(), at)
+                (name.to_string(), delta_place(d))
             };
             if !kinds[g].contains(&name) {
                 kinds[g].push(name);
@@ -1592,6 +1588,21 @@ fn emitter_parts(
         .collect()
 }
 
+/// A triangle's centre.
+fn triangle_centre(t: &shaders::Triangle) -> Vec3 {
+    Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0
+}
+
+/// A delta light's kind (`shaders::DELTA_*`), from its position's w.
+fn delta_kind(d: &shaders::DeltaLight) -> u32 {
+    d.position[3] as u32 & 3
+}
+
+/// Where a delta light is; none for a directional light.
+fn delta_place(d: &shaders::DeltaLight) -> Option<Vec3> {
+    (delta_kind(d) != shaders::DELTA_DIRECTIONAL).then(|| Vec3::from_slice(&d.position[..3]))
+}
+
 /// Points split into at most `groups` groups of nearby ones: in turn the
 /// group spread widest is split at its median along its longest axis. For
 /// each point, its group.
@@ -1725,14 +1736,13 @@ fn build_lights(
             // Its item, and its place (an emitter's, area-weighted).
             let (key, at, weight) = if emits(l.triangle) {
                 let t = &triangles[l.triangle as usize];
-                let centre = Vec3::from(t.v0) + (Vec3::from(t.e1) + Vec3::from(t.e2)) / 3.0;
-                (part(l.triangle), centre * t.area, t.area)
+                (part(l.triangle), triangle_centre(t) * t.area, t.area)
             } else if l.triangle & shaders::LIGHT_DELTA != 0 {
                 let d = &delta[(l.triangle & !shaders::LIGHT_DELTA) as usize].0;
-                if d.position[3] as u32 & 3 == shaders::DELTA_DIRECTIONAL {
+                let Some(place) = delta_place(d) else {
                     continue;
-                }
-                (l.triangle, Vec3::from_slice(&d.position[..3]), 1.0)
+                };
+                (l.triangle, place, 1.0)
             } else {
                 continue;
             };
