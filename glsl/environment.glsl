@@ -131,24 +131,40 @@ vec3 environment_eval(vec3 d) {
     return mix(top, bottom, f.y);
 }
 
-// The solid-angle density NEE draws direction d with.
-float environment_pdf(vec3 d) {
+// The solid-angle density NEE draws direction d with, picking the sky's
+// parts by power, and the part d lies in.
+float environment_pdf(vec3 d, out uint part) {
     uvec4 h = FETCH(environment_texels, 0);
     uint c = environment_cell(environment_texel_cell(environment_data(d, h), h));
-    return uintBitsToFloat(FETCH(environment_texels, int(h.w + c)).z);
+    uvec4 cell = FETCH(environment_texels, int(h.w + c));
+    part = cell.y;
+    return uintBitsToFloat(cell.x);
 }
 
-// A direction for NEE from four uniform numbers (the cell, its alias, the
-// point in it: uniform in azimuth and in cos theta), with its density.
-vec3 environment_sample(vec4 u, out float pdf) {
+// How many of NEE's lights the sky is (1 or 2), and part k's share of its power.
+uint environment_parts() {
+    return FETCH(environment_texels, 4).y == 0u ? 1u : 2u;
+}
+
+float environment_share(uint k) {
+    return uintBitsToFloat(FETCH(environment_texels, 4)[2u + k]);
+}
+
+// A direction of part `part` for NEE from four uniform numbers (the cell,
+// its alias, the point in it: uniform in azimuth and cos theta), with the
+// density environment_pdf gives it.
+vec3 environment_sample(vec4 u, uint part, out float pdf) {
     uvec4 h = FETCH(environment_texels, 0);
-    uint c = min(uint(u.x * float(h.z)), h.z - 1u);
-    uvec4 cell = FETCH(environment_texels, int(h.w + c));
-    if (u.y >= uintBitsToFloat(cell.x)) {
-        c = cell.y;
-        cell = FETCH(environment_texels, int(h.w + c));
+    uvec4 parts = FETCH(environment_texels, 4);
+    uint n = part == 0u ? parts.x : parts.y;
+    uint table = h.w + h.z + (part == 0u ? 0u : parts.x);
+    uint slot = min(uint(u.x * float(n)), n - 1u);
+    uvec4 entry = FETCH(environment_texels, int(table + slot));
+    if (u.y >= uintBitsToFloat(entry.x)) {
+        entry = FETCH(environment_texels, int(table + entry.y));
     }
-    pdf = uintBitsToFloat(cell.z);
+    uint c = entry.z;
+    pdf = uintBitsToFloat(entry.w);
     uint bw = FETCH(environment_texels, 1).w;
     uint bh = FETCH(environment_texels, 2).w;
     uint columns = FETCH(environment_texels, 3).w;

@@ -87,11 +87,17 @@ void main() {
         // (its radiance, its density); out[count + i] = (the direction they
         // draw, its density); out[2 count + i] = (the radiance there, the
         // density looked up there).
+        // The part is drawn by power with u.x, which then picks the cell.
         vec3 d = probe_in[2u * i].xyz;
-        probe_out[i] = vec4(environment_eval(d), environment_pdf(d));
+        uint part;
+        probe_out[i] = vec4(environment_eval(d), environment_pdf(d, part));
+        vec4 u = probe_in[2u * i + 1u];
+        float share = environment_share(0u);
+        part = u.x < share || environment_parts() == 1u ? 0u : 1u;
+        u.x = min(part == 0u ? u.x / share : (u.x - share) / environment_share(1u), 0.99999994);
         float pdf;
-        vec3 w = environment_sample(probe_in[2u * i + 1u], pdf);
+        vec3 w = environment_sample(u, part, pdf);
         probe_out[params.item_count + i] = vec4(w, pdf);
-        probe_out[2u * params.item_count + i] = vec4(environment_eval(w), environment_pdf(w));
+        probe_out[2u * params.item_count + i] = vec4(environment_eval(w), environment_pdf(w, part));
     }
 }

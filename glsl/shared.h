@@ -113,10 +113,13 @@
 // the rows of to_local, whose w hold NEE's cells' block width and height
 // and their columns), its texels (RGB radiance, a word each, or with
 // SKY_DENSE floats one after another: four texels in three words), then
-// per cell (alias threshold, alias, density) for NEE. NEE's light list names it by LIGHT_ENVIRONMENT;
-// PassParams.environment.x is the probability it does.
+// for NEE per cell (density, part), then each part's alias table (a slot
+// each: threshold, alias slot, cell, its density). Its fifth header word: the cells of
+// its two parts (the second 0 where there is one) and their shares of its
+// power. NEE's light list names its parts by LIGHT_ENVIRONMENT | part;
+// PassParams.environment.x is the probability NEE picks the sky at all.
 #define B_ENVIRONMENT 49
-#define ENVIRONMENT_HEADER_WORDS 4
+#define ENVIRONMENT_HEADER_WORDS 5
 // NEE's cells of a sky: at most this many columns, half as many rows (a
 // block of the cells between texels each, on larger maps).
 #define MAX_SKY_CELLS 1024

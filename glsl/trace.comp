@@ -466,9 +466,13 @@ void gather_sky(inout Path path, inout Trail trail) {
     vec3 le = ENVIRONMENT && !(HIDE_EMITTERS && path.sky_hidden) ? environment_eval(path.dir) : vec3(0.0);
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
-        // The sky is the last of NEE's lights.
-        float pick = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), params.light_count - 1u) : params.environment.x;
-        weight = power_heuristic(path.prev_bsdf_pdf, pick * environment_pdf(path.dir));
+        // The sky's parts are the last of NEE's lights.
+        uint part;
+        float density = environment_pdf(path.dir, part);
+        uint light = params.light_count - environment_parts() + part;
+        float pick = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), light)
+                                  : uintBitsToFloat(FETCH(light_texels, int(light)).z);
+        weight = power_heuristic(path.prev_bsdf_pdf, pick * density / environment_share(part));
     }
     path.radiance += path.throughput * le * weight;
     if (learn) {
@@ -620,10 +624,11 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
             le *= texture_eval(uint(projected.z) - 1u, projected.xy);
         }
         light_pdf = GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
-    } else if (ENVIRONMENT && entry.x == LIGHT_ENVIRONMENT) {
-        // The sky: a direction by its brightness, unbounded.
-        wi = environment_sample(vec4(rng_next2(path.rng), rng_next2(path.rng)), light_pdf);
-        light_pdf *= GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z);
+    } else if (ENVIRONMENT && (entry.x & ~1u) == LIGHT_ENVIRONMENT) {
+        // A part of the sky: a direction by its brightness, unbounded.
+        uint part = entry.x & 1u;
+        wi = environment_sample(vec4(rng_next2(path.rng), rng_next2(path.rng)), part, light_pdf);
+        light_pdf *= (GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z)) / environment_share(part);
         le = environment_eval(wi);
         dist = 3.0e38;
         faces = light_pdf > 0.0;

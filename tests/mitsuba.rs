@@ -1955,13 +1955,17 @@ fn a_mitsuba_0_6_scene_with_what_scenes_carry_agrees_with_mitsuba() {
 fn a_sun_and_sky_agree_with_mitsuba() {
     // sunsky by place and time, turned to y up, with turbidity, a coloured
     // ground albedo, limb darkening and both scales.
+    // 2048 samples: the sun's part of the sky is a light of its own, and at
+    // 1024 one block of `sarsa`'s image at seed 3 lay 5.0 sigma off, where
+    // renders of 4096 samples at other seeds scatter both ways (+0.35%,
+    // -0.10%).
     let scene = common::repo("tests/fixtures/mitsuba/coverage-t.xml");
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-t",
             &scene,
             &[("res", "64")],
-            method(m, true, 1024),
+            method(m, true, 2048),
         );
     }
 }

@@ -1091,7 +1091,8 @@ fn lights_are_emitters_connected_triangles() {
     let veach = load("scenes/mitsuba/veach-mis/scene.xml");
     // Point, spot and directional lights.
     let delta = load("tests/fixtures/mitsuba/coverage-c.xml");
-    // A sky, a panel and two small squares.
+    // A sky with a sun (two lights: the sun's cells and the rest), a
+    // panel and two small squares.
     let sky = load("tests/fixtures/mitsuba/coverage-u.xml");
     // 24 small quad lights in four rooms, more than the guides choose
     // among: nearby ones together.
@@ -1099,7 +1100,7 @@ fn lights_are_emitters_connected_triangles() {
     for (scene, lights, entries) in [
         (&veach, 3, veach.lights.len()),
         (&delta, 3, 3),
-        (&sky, 4, 7),
+        (&sky, 5, 8),
         (&many, 16, 48),
     ] {
         assert_eq!(
@@ -1135,7 +1136,12 @@ fn lights_are_emitters_connected_triangles() {
     let mut names = delta.light_names();
     names.sort();
     assert_eq!(names, ["directional light", "point light", "spot light"]);
-    assert!(sky.light_names().iter().any(|n| n == "the sky"));
+    let names = sky.light_names();
+    assert!(names.iter().any(|n| n == "the sky"), "{names:?}");
+    assert!(
+        names.iter().any(|n| n == "the sky's brightest part"),
+        "{names:?}"
+    );
     let names = many.light_names();
     let mut unique = names.clone();
     unique.sort();
@@ -1170,8 +1176,8 @@ fn lights_are_emitters_connected_triangles() {
         assert_eq!(a.group == b.group, material_of(a) == material_of(b));
     }
     assert!(veach.lights.len() > 300, "{}", veach.lights.len());
-    // Delta lights and the sky each a light of their own, after the
-    // emitters'.
+    // Delta lights and the sky's parts each a light of their own, after
+    // the emitters'.
     for scene in [&delta, &sky] {
         let first = lights(scene).into_iter().max().map_or(0, |g| g + 1);
         for (k, e) in scene.delta_entries.iter().enumerate() {

@@ -26,9 +26,15 @@ pub struct Environment {
     pub block: (usize, usize),
     pub grid: (usize, usize),
     /// Per cell: the probability NEE draws it over its solid angle (the
-    /// density of its directions), and its alias table entry.
+    /// density of its directions, where NEE picks the parts by power), and
+    /// its part (0 the sky, 1 its brightest cells; see [`BRIGHT`]).
     pub density: Vec<f32>,
-    pub alias: Vec<(f32, u32)>,
+    pub part: Vec<u8>,
+    /// Per part: its share of the power, and its alias table (threshold,
+    /// alias slot, cell) over its cells; part 1 has none where the sky is
+    /// not split.
+    pub shares: [f32; 2],
+    pub tables: [Vec<(f32, u32, u32)>; 2],
     /// ∫ luminance dω over the sphere (by cells): NEE's weight of the sky.
     pub power: f32,
     /// An analytic sky (Mitsuba's `sunsky`) that `eval` computes, as
@@ -38,6 +44,14 @@ pub struct Environment {
 
 /// The most columns of NEE's cells; rows at most half as many.
 const MAX_SKY_CELLS: usize = shaders::MAX_SKY_CELLS as usize;
+
+/// A sky whose brightest cells, each at least `BRIGHT` times its mean
+/// radiance, hold at least a twentieth of its power in at most a fiftieth
+/// of the sphere (a sun, a studio's lamps) is two of NEE's lights: those
+/// cells and the rest. Drawn by power, the two are the one distribution;
+/// apart, the guides learn where the sun is hidden and draw the rest of the
+/// sky there instead.
+pub const BRIGHT: f64 = 32.0;
 
 impl Environment {
     /// A map of `width` x `height` texels (rows from the top) seen through
@@ -64,7 +78,9 @@ impl Environment {
             block,
             grid,
             density: Vec::new(),
-            alias: Vec::new(),
+            part: Vec::new(),
+            shares: [1.0, 0.0],
+            tables: [Vec::new(), Vec::new()],
             power: 0.0,
             model: None,
         };
@@ -187,26 +203,35 @@ impl Environment {
         } else {
             vec![1.0 / n as f64; n]
         };
-        self.density = (0..n)
-            .map(|c| (p[c] / self.cell_solid_angle(c) as f64) as f32)
-            .collect();
-        // Vose's alias method.
-        let mut scaled: Vec<f64> = p.iter().map(|x| x * n as f64).collect();
-        let mut alias = vec![(1.0f32, 0u32); n];
-        let (mut small, mut large): (Vec<usize>, Vec<usize>) =
-            (0..n).partition(|&i| scaled[i] < 1.0);
-        while let (Some(s), Some(&l)) = (small.pop(), large.last()) {
-            alias[s] = (scaled[s] as f32, l as u32);
-            scaled[l] -= 1.0 - scaled[s];
-            if scaled[l] < 1.0 {
-                large.pop();
-                small.push(l);
-            }
+        let angles: Vec<f64> = (0..n).map(|c| self.cell_solid_angle(c) as f64).collect();
+        self.density = (0..n).map(|c| (p[c] / angles[c]) as f32).collect();
+        // The bright cells: a density of the sky's whole power (1) at least
+        // BRIGHT times its mean, 1 / 4 pi.
+        let bright = |c: usize| p[c] / angles[c] >= BRIGHT / (4.0 * std::f64::consts::PI);
+        let (mut bright_share, mut bright_angle) = (0.0f64, 0.0f64);
+        for c in (0..n).filter(|&c| bright(c)) {
+            bright_share += p[c];
+            bright_angle += angles[c];
         }
-        for i in small.into_iter().chain(large) {
-            alias[i] = (1.0, i as u32);
-        }
-        self.alias = alias;
+        // (The rest must keep some power: NEE divides by its share.)
+        let split = total > 0.0
+            && (0.05..1.0 - 1e-6).contains(&bright_share)
+            && bright_angle <= 4.0 * std::f64::consts::PI / 50.0;
+        self.part = (0..n).map(|c| u8::from(split && bright(c))).collect();
+        self.shares = if split {
+            [(1.0 - bright_share) as f32, bright_share as f32]
+        } else {
+            [1.0, 0.0]
+        };
+        self.tables = [0u8, 1].map(|k| {
+            let cells: Vec<usize> = (0..n).filter(|&c| self.part[c] == k).collect();
+            let table = alias_table(&cells.iter().map(|&c| p[c]).collect::<Vec<_>>());
+            table
+                .into_iter()
+                .zip(&cells)
+                .map(|((q, a), &c)| (q, a, c as u32))
+                .collect()
+        });
     }
 
     /// (u, v) of a direction in the map's frame (Mitsuba's convention).
@@ -254,20 +279,49 @@ impl Environment {
         top.lerp(bottom, f.y)
     }
 
-    /// The solid-angle density NEE draws `d` with.
+    /// The solid-angle density NEE draws `d` with, picking the parts by
+    /// power.
     pub fn pdf(&self, d: Vec3) -> f32 {
         self.density[self.cell(self.data(self.uv(d)))]
     }
 
-    /// A direction drawn by `u` (four uniform numbers: the cell, its alias,
-    /// the point in it, uniform in azimuth and cos θ), with its density.
-    pub fn sample(&self, u: [f32; 4]) -> (Vec3, f32) {
-        let n = self.cells();
-        let mut c = ((u[0] * n as f32) as usize).min(n - 1);
-        let (threshold, alias) = self.alias[c];
-        if u[1] >= threshold {
-            c = alias as usize;
+    /// The part `d` lies in.
+    pub fn part_of(&self, d: Vec3) -> usize {
+        self.part[self.cell(self.data(self.uv(d)))] as usize
+    }
+
+    /// Whether the sky is two of NEE's lights.
+    pub fn parts(&self) -> usize {
+        if self.tables[1].is_empty() {
+            1
+        } else {
+            2
         }
+    }
+
+    /// A direction drawn by `u` (four uniform numbers: the part, by power,
+    /// and its cell, the cell's alias, the point in it, uniform in azimuth
+    /// and cos θ), with its density (`pdf`'s).
+    pub fn sample(&self, u: [f32; 4]) -> (Vec3, f32) {
+        let (part, x) = if u[0] < self.shares[0] || self.parts() == 1 {
+            (0, u[0] / self.shares[0])
+        } else {
+            (1, (u[0] - self.shares[0]) / self.shares[1])
+        };
+        self.sample_part(part, [x.min(1.0 - 0.5 * f32::EPSILON), u[1], u[2], u[3]])
+    }
+
+    /// A direction of part `part` drawn by `u` (its cell, the cell's
+    /// alias, the point in it), with the density `pdf` gives it (over the
+    /// part's share, the density within the part).
+    pub fn sample_part(&self, part: usize, u: [f32; 4]) -> (Vec3, f32) {
+        let table = &self.tables[part];
+        let n = table.len();
+        let mut slot = ((u[0] * n as f32) as usize).min(n - 1);
+        if u[1] >= table[slot].0 {
+            slot = table[slot].1 as usize;
+        }
+        let c = table[slot].2 as usize;
         let (xs, ys) = self.span(c % self.grid.0, c / self.grid.0);
         let (w, h) = (self.width as f32, (self.height - 1) as f32);
         let x = xs.start as f32 + u[2] * xs.len() as f32;
@@ -302,16 +356,18 @@ impl Environment {
         } else {
             self.texels.len()
         };
-        shaders::ENVIRONMENT_HEADER_WORDS as usize + texel_words + self.cells()
+        shaders::ENVIRONMENT_HEADER_WORDS as usize + texel_words + 2 * self.cells()
     }
 
     /// The environment buffer glsl/environment.glsl reads: a header (width,
     /// height, cells, first cell word; the three rows of to_local, with
     /// the cells' block width, block height and columns), the texels (RGB floats: a word each, or `dense`, one after another,
     /// four texels in three words and a word to spare, 25% less memory for
-    /// two reads a texel), then per cell (alias threshold, alias, density).
+    /// two reads a texel), its parts (cells in each, share of the power of
+    /// each), then per cell (density, part), then each part's alias table,
+    /// a slot each (threshold, alias slot, cell, its density).
     pub fn pack(&self, dense: bool) -> Vec<[u32; 4]> {
-        let first_cell = self.words(dense) - self.cells();
+        let first_cell = self.words(dense) - 2 * self.cells();
         let texel_words = first_cell - shaders::ENVIRONMENT_HEADER_WORDS as usize;
         let mut out = Vec::with_capacity(self.words(dense));
         out.push([
@@ -330,6 +386,12 @@ impl Environment {
                 e,
             ]);
         }
+        out.push([
+            self.tables[0].len() as u32,
+            self.tables[1].len() as u32,
+            self.shares[0].to_bits(),
+            self.shares[1].to_bits(),
+        ]);
         let bits = |t: &Vec3| t.to_array().map(f32::to_bits);
         if let Some(words) = &self.model {
             out.extend(words.iter().map(|w| w.map(f32::to_bits)));
@@ -344,13 +406,42 @@ impl Environment {
             }));
         }
         out.extend(
-            self.alias
+            self.density
                 .iter()
-                .zip(&self.density)
-                .map(|(&(q, a), &d)| [q.to_bits(), a, d.to_bits(), 0]),
+                .zip(&self.part)
+                .map(|(&d, &k)| [d.to_bits(), k as u32, 0, 0]),
         );
+        for table in &self.tables {
+            out.extend(
+                table
+                    .iter()
+                    .map(|&(q, a, c)| [q.to_bits(), a, c, self.density[c as usize].to_bits()]),
+            );
+        }
         out
     }
+}
+
+/// Walker's alias table (Vose's method) of weights `p` (any scale): per
+/// slot, the threshold below which it keeps itself, and its alias.
+fn alias_table(p: &[f64]) -> Vec<(f32, u32)> {
+    let n = p.len();
+    let total: f64 = p.iter().sum();
+    let mut scaled: Vec<f64> = p.iter().map(|x| x * n as f64 / total).collect();
+    let mut alias = vec![(1.0f32, 0u32); n];
+    let (mut small, mut large): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| scaled[i] < 1.0);
+    while let (Some(s), Some(&l)) = (small.pop(), large.last()) {
+        alias[s] = (scaled[s] as f32, l as u32);
+        scaled[l] -= 1.0 - scaled[s];
+        if scaled[l] < 1.0 {
+            large.pop();
+            small.push(l);
+        }
+    }
+    for i in small.into_iter().chain(large) {
+        alias[i] = (1.0, i as u32);
+    }
+    alias
 }
 
 /// Mitsuba's `sunsky` at unit direction `l` of the map's frame (y up), from
@@ -534,6 +625,34 @@ mod tests {
             near_sun as f32 > 0.95 * n as f32,
             "{near_sun} of {n} near the sun"
         );
+    }
+
+    /// A sky with a sun is two of NEE's lights: the sun's cells and the
+    /// rest, each drawn from its own table with the density `pdf` gives;
+    /// a sky without one stays one.
+    #[test]
+    fn a_sun_is_a_part_of_its_own() {
+        let (w, h) = (64, 33);
+        let mut texels = vec![Vec3::new(0.4, 0.5, 0.7); w * h];
+        texels[10 * w + 20] = Vec3::splat(2.0e4);
+        let env = Environment::new("sun".into(), w, h, texels, Mat3::IDENTITY);
+        assert_eq!(env.parts(), 2);
+        assert!((env.shares[0] + env.shares[1] - 1.0).abs() < 1e-6);
+        assert!(env.shares[1] > 0.9, "{:?}", env.shares);
+        // The four cells around the sun's texel, and no others.
+        assert_eq!(env.tables[1].len(), 4);
+        let mut rng = crate::fuzz::Rng::new(9);
+        let mut u = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32;
+        for part in 0..2 {
+            for _ in 0..2_000 {
+                let (d, pdf) = env.sample_part(part, [u(), u(), u(), u()]);
+                assert_eq!(env.part_of(d), part, "{d}");
+                assert!((env.pdf(d) - pdf).abs() <= 1e-3 * pdf, "{d}");
+            }
+        }
+        assert_densities_integrate_to_one(&env, 1e-4);
+        assert_eq!(map(Mat3::IDENTITY).parts(), 1);
+        assert_eq!(Environment::constant(Vec3::ONE).parts(), 1);
     }
 
     #[test]

@@ -918,6 +918,8 @@ impl Scene {
                 )
             } else if entry.triangle == LIGHT_ENVIRONMENT {
                 ("the sky".to_string(), None)
+            } else if entry.triangle == LIGHT_ENVIRONMENT | 1 {
+                ("the sky's brightest part".to_string(), None)
             } else {
                 let d = &self.delta_lights[(entry.triangle & !LIGHT_DELTA) as usize];
                 let name = match delta_kind(d) {
@@ -1006,8 +1008,9 @@ impl Scene {
     pub fn environment_pick(&self) -> f32 {
         self.delta_entries
             .iter()
-            .find(|l| l.triangle == shaders::LIGHT_ENVIRONMENT)
-            .map_or(0.0, |l| l.pdf)
+            .filter(|l| l.triangle & !1 == shaders::LIGHT_ENVIRONMENT)
+            .map(|l| l.pdf)
+            .sum()
     }
 
     /// How far rays start off the surface they leave: small against the
@@ -1211,9 +1214,15 @@ impl Scene {
         drop(positions);
         // NEE weighs the sky by the power it sends into the scene: its
         // radiance over a disk as wide as the scene.
-        let sky_weight = environment
-            .as_ref()
-            .map(|e| e.power * std::f32::consts::PI * 0.25 * extent * extent);
+        // Its parts (a sun and the rest) are lights of their own.
+        let sky_weights: Vec<f32> = environment
+            .iter()
+            .filter(|e| e.power > 0.0)
+            .flat_map(|e| {
+                let power = e.power * std::f32::consts::PI * 0.25 * extent * extent;
+                e.shares[..e.parts()].iter().map(move |s| power * s)
+            })
+            .collect();
         let attributes: Attributes = attributes
             .into_iter()
             .map(|(n, v)| (n, in_order(v, &bvh.order)))
@@ -1224,7 +1233,7 @@ impl Scene {
             &materials,
             &emitted_means(&materials, &textures, &attributes),
             &delta_lights,
-            sky_weight,
+            &sky_weights,
         );
         // Each attribute texture reads its values at its place among
         // the triangle's.
@@ -1666,7 +1675,7 @@ fn build_lights(
     materials: &[Material],
     attributes: &[EmittedAttribute<'_>],
     delta: &[(shaders::DeltaLight, f32)],
-    sky: Option<f32>,
+    sky: &[f32],
 ) -> (Vec<shaders::Light>, Vec<shaders::Light>) {
     let weights: Vec<(u32, f32)> = triangles
         .iter()
@@ -1690,8 +1699,9 @@ fn build_lights(
                 .map(|(i, &(_, w))| (shaders::LIGHT_DELTA | i as u32, w)),
         )
         .chain(
-            sky.filter(|w| *w > 0.0)
-                .map(|w| (shaders::LIGHT_ENVIRONMENT, w)),
+            sky.iter()
+                .enumerate()
+                .map(|(k, &w)| (shaders::LIGHT_ENVIRONMENT | k as u32, w)),
         )
         .collect();
     let total: f64 = weights.iter().map(|&(_, w)| w as f64).sum();
@@ -1774,7 +1784,7 @@ fn build_lights(
     if let Some(last) = lights.last_mut() {
         last.cdf = 1.0; // rounding must not leave a gap at the top
     }
-    let first_delta = lights.len() - delta.len() - usize::from(sky.is_some_and(|w| w > 0.0));
+    let first_delta = lights.len() - delta.len() - sky.len();
     let delta_entries = lights.split_off(first_delta);
     (lights, delta_entries)
 }
