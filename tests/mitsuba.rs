@@ -1940,13 +1940,18 @@ fn a_mitsuba_0_6_scene_with_what_scenes_carry_agrees_with_mitsuba() {
     // Mitsuba 0.6's names, a <path>, a mirrored sky, spectrum plugins,
     // colour tints, nested references and an alias, a mitchell of other B
     // and C, the prb integrator.
+    // 2048 samples: the block at (32, 32) has rare, bright paths (four
+    // renders of 4096 samples put it 6.9% under, 0.8% under, 0.04% and 0.8%
+    // over Mitsuba's), and at 1024 the draws of `sarsa`'s image at seed 3
+    // since the sun's part of the sky is a light of its own put it 6.6 sigma
+    // off by its own noise estimate.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-s.xml");
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
         check(
             "coverage-s",
             &scene,
             &[("res", "64")],
-            method(m, true, 1024),
+            method(m, true, 2048),
         );
     }
 }
