@@ -467,15 +467,12 @@ void gather_sky(inout Path path, inout Trail trail) {
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky's parts are the last of NEE's lights.
-        // Picked by power, the parts are the one distribution.
         uint part;
         float density = environment_pdf(path.dir, part);
-        float pick = params.environment.x;
-        if (GUIDE_LIGHTS) {
-            uint light = params.light_count - environment_parts() + part;
-            pick = nee_mis_pick(pick_vertex_of(trail), light) / environment_share(part);
-        }
-        weight = power_heuristic(path.prev_bsdf_pdf, pick * density);
+        uint light = params.light_count - environment_parts() + part;
+        float pick = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), light)
+                                  : uintBitsToFloat(FETCH(light_texels, int(light)).z);
+        weight = power_heuristic(path.prev_bsdf_pdf, pick * density / environment_share(part));
     }
     path.radiance += path.throughput * le * weight;
     if (learn) {
@@ -631,7 +628,7 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
         // A part of the sky: a direction by its brightness, unbounded.
         uint part = entry.x & 1u;
         wi = environment_sample(vec4(rng_next2(path.rng), rng_next2(path.rng)), part, light_pdf);
-        light_pdf *= GUIDE_LIGHTS ? pick_pdf / environment_share(part) : params.environment.x;
+        light_pdf *= (GUIDE_LIGHTS ? pick_pdf : uintBitsToFloat(entry.z)) / environment_share(part);
         le = environment_eval(wi);
         dist = 3.0e38;
         faces = light_pdf > 0.0;
