@@ -414,6 +414,46 @@ fn a_mirrored_envmap_turns_the_sky_over() {
     assert!(env("<scale value=\"2\"/>").is_err());
 }
 
+/// Maps of one and two rows read as Mitsuba reads them: the radiance down
+/// a meridian of maps whose row j is j + 1, at nine heights from the +y pole
+/// to the -y pole, is Mitsuba 3.9.1's (`envmap`'s `eval`, `scalar_rgb`):
+/// one row is the same everywhere, two rows turn from the first to the
+/// second by the horizon, three lie at the poles and the horizon.
+#[test]
+fn envmaps_of_one_and_two_rows_read_as_mitsubas() {
+    let dir = common::scratch("mitsuba-thin-envmaps");
+    let mitsubas: [(usize, [f32; 9]); 3] = [
+        (1, [1.0; 9]),
+        (2, [1.0, 1.25, 1.5, 1.75, 2.0, 2.0, 2.0, 2.0, 2.0]),
+        (3, [1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]),
+    ];
+    for (rows, want) in mitsubas {
+        let mut map = Image::new(4, rows);
+        for (i, p) in map.pixels.iter_mut().enumerate() {
+            *p = [(i / 4 + 1) as f32; 3];
+        }
+        map.write_exr(&dir.join("sky.exr")).unwrap();
+        let xml = dir.join("s.xml");
+        std::fs::write(
+            &xml,
+            with_body(
+                "<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>",
+            ),
+        )
+        .unwrap();
+        let scene = Scene::load(&xml).unwrap();
+        let sky = scene.environment.as_ref().unwrap();
+        for (k, want) in want.iter().enumerate() {
+            let theta = std::f32::consts::PI * k as f32 / 8.0;
+            let got = sky.eval(Vec3::new(0.0, theta.cos(), -theta.sin()));
+            assert!(
+                (got.x - want).abs() < 1e-4,
+                "{rows} rows, theta {theta}: {got} against Mitsuba's {want}"
+            );
+        }
+    }
+}
+
 /// Files are looked for as Mitsuba's resolver looks: in each `<path>`
 /// directory (relative to the file that names it, the latest first), then
 /// the main scene's directory, which is also where an included file in a

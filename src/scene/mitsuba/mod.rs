@@ -389,10 +389,20 @@ impl Builder<'_, '_> {
                 let crate::scene::texture::Pattern::Bitmap { width, height, texels, .. } = pattern else {
                     unreachable!("a bitmap reads as one")
                 };
-                if height < 2 {
-                    return Err(el.error(format!("the envmap '{file}' needs at least two rows")));
-                }
-                let texels = texels.to_linear().into_iter().map(|t| t * scale).collect::<Vec<_>>();
+                let mut texels = texels.to_linear().into_iter().map(|t| t * scale).collect::<Vec<_>>();
+                // Mitsuba reads a map of one row as the same at every
+                // height, and one of two rows as its first row at the pole
+                // turning into its second at the horizon, the second alone
+                // below: with the last row repeated, rows at the poles and
+                // evenly between, as in larger maps, give that.
+                let height = match height {
+                    0 => return Err(el.error(format!("the envmap '{file}' is empty"))),
+                    1 | 2 => {
+                        texels.extend_from_within((height - 1) * width..);
+                        height + 1
+                    }
+                    h => h,
+                };
                 if texels.iter().any(|t| !t.is_finite() || t.min_element() < 0.0) {
                     return Err(el.error(format!("the envmap '{file}' has negative or non-finite texels")));
                 }
