@@ -1107,6 +1107,24 @@ fn vector_attrs(el: &Element, missing: f32) -> Result<Vec3, SceneError> {
     Ok(Vec3::from(out))
 }
 
+/// A turn by `angle` about `axis` as Mitsuba 3's `rotate` makes it: the
+/// axis-angle matrix with the axis as given (glam's `from_axis_angle`,
+/// which wants a unit axis, in the same order of operations).
+fn rotation(axis: Vec3, angle: f32) -> Mat4 {
+    let (sin, cos) = angle.sin_cos();
+    let (s, q, omc) = (axis * sin, axis * axis, 1.0 - cos);
+    let (xy, xz, yz) = (
+        axis.x * axis.y * omc,
+        axis.x * axis.z * omc,
+        axis.y * axis.z * omc,
+    );
+    Mat4::from_mat3(glam::Mat3::from_cols(
+        Vec3::new(q.x * omc + cos, xy + s.z, xz - s.y),
+        Vec3::new(xy - s.z, q.y * omc + cos, yz + s.x),
+        Vec3::new(xz + s.y, yz - s.x, q.z * omc + cos),
+    ))
+}
+
 /// A `<transform>`'s matrix: its steps applied in document order.
 pub fn transform(el: &Element) -> Result<Mat4, SceneError> {
     let mut m = Mat4::IDENTITY;
@@ -1124,7 +1142,17 @@ pub fn transform(el: &Element) -> Result<Mat4, SceneError> {
                 if axis.length() == 0.0 {
                     return Err(step.error("<rotate> needs a non-zero axis"));
                 }
-                Mat4::from_axis_angle(axis.normalize(), angle.to_radians())
+                // Mitsuba 3 turns about the axis as given, without
+                // normalizing it: one not of unit length stretches too.
+                if (axis.length() - 1.0).abs() > 1e-4 {
+                    log::warn!(
+                        "{}:{}: <rotate>'s axis has length {}; Mitsuba 3 does not normalize it, so the turn also stretches, and qtrace renders it so",
+                        step.file.display(),
+                        step.line,
+                        axis.length()
+                    );
+                }
+                rotation(axis, angle.to_radians())
             }
             "matrix" => {
                 let v = numbers(step, step.required("value")?)?;
