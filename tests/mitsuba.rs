@@ -106,6 +106,21 @@ fn load_text(text: &str) -> Result<Scene, String> {
     .map_err(|e| e.to_string())
 }
 
+/// `m.obj`'s triangle in a scene of `with_body` whose shape also holds
+/// `inside`: the one with a corner at the origin (the light's rectangle
+/// has its corners at (±1, ±1, 0)).
+fn m_obj_triangle(inside: &str) -> qtrace::shaders::Triangle {
+    let scene = load_text(&with_body(&format!(
+        "<shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/>{inside}</shape>"
+    )))
+    .unwrap();
+    *scene
+        .triangles
+        .iter()
+        .find(|t| Vec3::from(t.v0) == Vec3::ZERO)
+        .unwrap()
+}
+
 /// A scene with a camera and a light, and `body` after them (from line 5 on).
 fn with_body(body: &str) -> String {
     format!(
@@ -479,16 +494,9 @@ fn bsdfs_evaluate_as_mitsubas() {
 #[test]
 fn a_rotate_about_a_long_axis_stretches_as_mitsubas() {
     let edges = |rotate: &str| {
-        let scene = load_text(&with_body(&format!(
-            "<shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><transform name=\"to_world\">{rotate}</transform></shape>"
-        )))
-        .unwrap();
-        // The light's rectangle has its corners at (±1, ±1, 0).
-        let t = scene
-            .triangles
-            .iter()
-            .find(|t| Vec3::from(t.v0) == Vec3::ZERO)
-            .unwrap();
+        let t = m_obj_triangle(&format!(
+            "<transform name=\"to_world\">{rotate}</transform>"
+        ));
         (Vec3::from(t.e1), Vec3::from(t.e2))
     };
     let (e1, e2) = edges("<rotate x=\"1\" y=\"1\" angle=\"90\"/>");
@@ -619,16 +627,7 @@ fn the_first_of_several_sensors_is_rendered() {
 #[test]
 fn booleans_read_in_any_case() {
     let normal = |v: &str| {
-        let scene = load_text(&with_body(&format!(
-            "<shape type=\"obj\"><string name=\"filename\" value=\"m.obj\"/><boolean name=\"flip_normals\" value=\"{v}\"/></shape>"
-        )))
-        .unwrap();
-        // The light's rectangle has its corners at (±1, ±1, 0).
-        let t = scene
-            .triangles
-            .iter()
-            .find(|t| Vec3::from(t.v0) == Vec3::ZERO)
-            .unwrap();
+        let t = m_obj_triangle(&format!("<boolean name=\"flip_normals\" value=\"{v}\"/>"));
         Vec3::from(t.e1).cross(Vec3::from(t.e2)).z
     };
     assert!(normal("true") < 0.0 && normal("false") > 0.0);
