@@ -480,6 +480,18 @@ void gather_sky(inout Path path, inout Trail trail) {
     }
 }
 
+// Whether emitting triangle i of material `mat` sends light from point p
+// along unit direction d: on the side its shading normal faces, as
+// Mitsuba's area lights emit, so a smooth mesh's light ends where its
+// normals turn away (MATERIAL_EMITTER_SMOOTH, FEATURE_SMOOTH_LIGHTS; else
+// where the geometric cosine `cos_geometric` is positive).
+bool emits_along(uint i, Triangle tri, Material mat, vec3 p, vec3 d, float cos_geometric) {
+    if (SHADING_NORMALS && (MATERIAL_FEATURES & FEATURE_SMOOTH_LIGHTS) != 0u && (uint(mat.color.w) & MATERIAL_EMITTER_SMOOTH) != 0u) {
+        return dot(shading_normal(i, tri, p), d) > 0.0;
+    }
+    return cos_geometric > 0.0;
+}
+
 // The path's ray reached an emitter: its emission (on its front side only),
 // weighed against NEE's draws of it (nee_mis_pick), added to the path's
 // radiance; returns the emission's luminance and that weight, for the
@@ -487,12 +499,13 @@ void gather_sky(inout Path path, inout Trail trail) {
 vec2 emitter_light(inout Path path, inout Trail trail, Hit hit, Triangle tri, Material mat, float cos_out) {
     float weight = 1.0;
     vec3 le = vec3(0.0);
-    if (cos_out > 0.0) {
-        le = emitted(mat, hit.triangle, barycentric(tri, path.origin + hit.t * path.dir));
+    vec3 p = path.origin + hit.t * path.dir;
+    if (emits_along(hit.triangle, tri, mat, p, -path.dir, cos_out)) {
+        le = emitted(mat, hit.triangle, barycentric(tri, p));
         if (nee && path.prev_bsdf_pdf > 0.0) {
             float area_pdf = GUIDE_LIGHTS ? nee_mis_pick(pick_vertex_of(trail), light_of(hit.triangle)) / tri.area
                                           : tri.light_pdf;
-            float light_pdf = area_pdf * hit.t * hit.t / cos_out;
+            float light_pdf = area_pdf * hit.t * hit.t / abs(cos_out);
             weight = power_heuristic(path.prev_bsdf_pdf, light_pdf);
         }
         path.radiance += path.throughput * le * weight;
@@ -645,9 +658,10 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
         dist = sqrt(dist2);
         wi = to_light / dist;
         float cos_y = -dot(normalize(cross(lt.e1, lt.e2)), wi);
-        faces = cos_y > 0.0;
-        light_pdf = area_pdf * dist2 / cos_y;
-        le = emitted(load_material(lt.material), entry.x, u);
+        Material lm = load_material(lt.material);
+        faces = cos_y != 0.0 && emits_along(entry.x, lt, lm, target, -wi, cos_y);
+        light_pdf = area_pdf * dist2 / abs(cos_y);
+        le = emitted(lm, entry.x, u);
     }
     float cos_x = dot(s.ns, wi);
     if ((cos_x > 0.0 || (transmits && cos_x < 0.0)) && faces) {

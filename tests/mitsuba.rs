@@ -1672,6 +1672,28 @@ fn thin_principled_sheets_agree_with_mitsuba() {
 }
 
 #[test]
+fn lights_on_smooth_meshes_emit_where_their_normals_face() {
+    // A low-poly bulb whose silhouette triangles face the camera while
+    // their normals turn away, and a panel whose normals oppose its
+    // winding: Mitsuba's area lights emit on the side the interpolated
+    // normal faces.
+    let scene = common::repo("tests/fixtures/mitsuba/smooth-lights.xml");
+    for (m, nee) in [
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
+    ] {
+        check(
+            "smooth-lights",
+            &scene,
+            &[("res", "64")],
+            method(m, nee, 1024),
+        );
+    }
+}
+
+#[test]
 fn lights_whose_radiance_is_a_mesh_attribute_pick_triangles_by_their_own() {
     // NEE's probability of a triangle over its area is its own mean
     // radiance's luminance over the total: the same ratio on every triangle

@@ -243,6 +243,7 @@ fn probe_material(surface: Surface) -> Material {
         textures: [None; qtrace::scene::TEXTURE_SLOTS],
         normal_map: None,
         choice: None,
+        smooth_light: false,
     }
 }
 

@@ -68,6 +68,10 @@ pub struct Material {
     /// stands for one of two others, taken at each hit, and its own
     /// surface goes unused.
     pub choice: Option<Choice>,
+    /// An emitter some of whose triangles' corner normals differ from
+    /// their faces': it emits on the side its shading normal faces, as
+    /// Mitsuba's area lights do. Set when the scene is built.
+    pub smooth_light: bool,
 }
 
 /// A material that stands for one of two others (`Material::choice`).
@@ -162,6 +166,7 @@ impl Material {
             textures: [None; TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
+            smooth_light: false,
         }
     }
 
@@ -302,6 +307,9 @@ impl Material {
         }
         if self.emitter_reflects() {
             code |= shaders::MATERIAL_EMITTER_REFLECTS;
+        }
+        if self.smooth_light {
+            code |= shaders::MATERIAL_EMITTER_SMOOTH;
         }
         if let Some(map) = self.normal_map {
             code |= (map.texture + 1) << shaders::MATERIAL_NORMAL_MAP_SHIFT;
@@ -846,6 +854,10 @@ impl Scene {
                 shaders::FEATURE_TEXTURED_LIGHTS
             } else {
                 0
+            } | if m.smooth_light {
+                shaders::FEATURE_SMOOTH_LIGHTS
+            } else {
+                0
             };
             acc | (code & flags) | feature | textured | mapped | chooses | anisotropic | light
         }) | if self.attributes.is_empty() {
@@ -1107,7 +1119,7 @@ impl Scene {
             defaults,
             guide_tables,
             environment,
-            materials,
+            mut materials,
             textures,
             geometry,
             delta_lights,
@@ -1170,6 +1182,13 @@ impl Scene {
                     path: src.clone(),
                     message: format!("triangle {i} ({what}) has zero area"),
                 });
+            }
+        }
+        for (t, (n, &m)) in positions.iter().zip(normals.iter().zip(&material_of)) {
+            let material = &mut materials[m as usize];
+            if material.emission.max_element() > 0.0 && !material.smooth_light {
+                let face = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+                material.smooth_light = n.iter().any(|c| c.normalize().dot(face) < 1.0 - 1e-5);
             }
         }
         let has_emitter = material_of
@@ -2103,6 +2122,7 @@ fn load_obj(
             textures: [None; TEXTURE_SLOTS],
             normal_map: None,
             choice: None,
+            smooth_light: false,
         };
         let emits = material.emission.max_element() > 0.0;
         if emits && m.diffuse_map.is_some() {

@@ -926,6 +926,7 @@ impl Builder<'_, '_> {
                 },
                 normal_map: None,
                 choice: None,
+                smooth_light: false,
             });
             self.add(el, &label, mesh, attributes, m);
             return Ok(());
@@ -1211,6 +1212,7 @@ impl Builder<'_, '_> {
             textures: desc.textures,
             normal_map: desc.normal_map,
             choice,
+            smooth_light: false,
         });
         self.materials.len() as u32 - 1
     }
