@@ -487,6 +487,149 @@ fn bsdfs_evaluate_as_mitsubas() {
     }
 }
 
+/// The fixture's blocks: a header line `{prefix}<its XML>`, then lines of
+/// numbers.
+fn fixture_blocks(file: &str, prefix: &str) -> Vec<(String, Vec<Vec<f32>>)> {
+    let text = std::fs::read_to_string(common::repo(file)).unwrap();
+    let mut blocks: Vec<(String, Vec<Vec<f32>>)> = Vec::new();
+    for line in text.lines() {
+        match line.strip_prefix(prefix) {
+            Some(xml) => blocks.push((xml.to_string(), Vec::new())),
+            None => blocks.last_mut().unwrap().1.push(
+                line.split_whitespace()
+                    .map(|x| x.parse().unwrap())
+                    .collect(),
+            ),
+        }
+    }
+    blocks
+}
+
+/// Loads `body` as a scene under a constant sky (a scene needs a light).
+fn load_under_sky(dir: &Path, body: &str) -> Scene {
+    let xml = dir.join("s.xml");
+    std::fs::write(
+        &xml,
+        format!(r#"<scene version="3.0.0">{body}<emitter type="constant"/></scene>"#),
+    )
+    .unwrap();
+    Scene::load(&xml).unwrap_or_else(|e| panic!("{body}: {e}"))
+}
+
+/// Camera rays through points of the film against Mitsuba's
+/// `Sensor.sample_ray` (scripts/mitsuba_geometry_probes.py): every
+/// `fov_axis`, `focal_length`, principal point offsets, crop windows, a thin
+/// lens's centre and orthographic extents, on films of several shapes.
+#[test]
+fn cameras_cast_rays_as_mitsubas() {
+    let dir = common::scratch("mitsuba-camera-rays");
+    let blocks = fixture_blocks("tests/fixtures/mitsuba/camera-rays.txt", "sensor ");
+    assert_eq!(blocks.len(), 16);
+    for (xml, rays) in blocks {
+        // A scene needs a shape too.
+        let scene = load_under_sky(&dir, &format!("{xml}<shape type=\"rectangle\"/>"));
+        let (w, h) = (
+            scene.defaults.width.unwrap(),
+            scene.defaults.height.unwrap(),
+        );
+        for v in rays {
+            let (o, d) = scene.camera.ray(v[0], v[1], w, h);
+            let (mo, md) = (Vec3::new(v[2], v[3], v[4]), Vec3::new(v[5], v[6], v[7]));
+            // Mitsuba starts the ray at the near clip plane: the origins lie
+            // on one line.
+            let off = (o - mo).reject_from(md).length();
+            assert!(
+                (d - md).length() < 1e-5 && off < 1e-5,
+                "{xml}\nat ({}, {}): ray {o} {d} against Mitsuba's {mo} {md}",
+                v[0],
+                v[1]
+            );
+        }
+    }
+}
+
+/// Rays at Mitsuba's built-in shapes against its `Scene.ray_intersect`
+/// (scripts/mitsuba_geometry_probes.py): where they hit, the texture
+/// coordinates, normals and tangent (dp/du) there, for spheres, cylinders,
+/// disks, rectangles and cubes, moved, stretched and with flipped normals.
+/// qtrace tessellates the curved ones, whose hits and normals are then
+/// within the tessellation's error.
+#[test]
+fn built_in_shapes_are_parameterised_as_mitsubas() {
+    let dir = common::scratch("mitsuba-shape-hits");
+    let blocks = fixture_blocks("tests/fixtures/mitsuba/shape-hits.txt", "shape ");
+    assert_eq!(blocks.len(), 13);
+    // The camera sets how finely spheres are tessellated.
+    let sensor = r#"<sensor type="perspective"><transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm"><integer name="width" value="256"/><integer name="height" value="256"/></film></sensor>"#;
+    // A texture, so that the scene keeps its texture coordinates.
+    let bsdf = r#"<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf>"#;
+    for (xml, rays) in blocks {
+        let textured = match xml.strip_suffix("/>") {
+            Some(open) => format!("{open}>{bsdf}</shape>"),
+            None => xml.replace("</shape>", &format!("{bsdf}</shape>")),
+        };
+        let scene = load_under_sky(&dir, &format!("{sensor}{textured}"));
+        let curved = ["sphere", "cylinder", "disk"]
+            .iter()
+            .any(|k| xml.contains(k));
+        for v in rays {
+            let (o, d) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
+            let (t, k) = scene
+                .triangles
+                .iter()
+                .enumerate()
+                .filter_map(|(k, tri)| qtrace::scene::ray_triangle(o, d, tri).map(|t| (t, k)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .unwrap_or_else(|| panic!("{xml}: the ray {o} {d} misses"));
+            let tri = &scene.triangles[k];
+            let (v0, e1, e2) = (Vec3::from(tri.v0), Vec3::from(tri.e1), Vec3::from(tri.e2));
+            let r = o + t * d - v0;
+            let (a, b, c) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+            let det = a * c - b * b;
+            let b1 = (c * r.dot(e1) - b * r.dot(e2)) / det;
+            let b2 = (a * r.dot(e2) - b * r.dot(e1)) / det;
+            let mix = |x: [Vec3; 3]| (1.0 - b1 - b2) * x[0] + b1 * x[1] + b2 * x[2];
+            let uvs = scene.uvs[k];
+            let uv = (1.0 - b1 - b2) * uvs[0] + b1 * uvs[1] + b2 * uvs[2];
+            let geometric = e1.cross(e2).normalize();
+            let shading = if scene.normals.is_empty() {
+                geometric
+            } else {
+                let n = scene.normals[k];
+                mix([0, 1, 2].map(|i| qtrace::scene::unpack_normal(n[i]))).normalize()
+            };
+            // The tangent: dp/du of the triangle's own coordinates.
+            let (du1, du2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
+            let tangent = ((e1 * du2.y - e2 * du1.y) / (du1.x * du2.y - du1.y * du2.x)).normalize();
+            let mitsuba_uv = Vec2::new(v[7], v[8]);
+            let (mn, mg, mdp) = (
+                Vec3::new(v[9], v[10], v[11]),
+                Vec3::new(v[12], v[13], v[14]),
+                Vec3::new(v[15], v[16], v[17]),
+            );
+            // A sphere's u wraps around at its seam.
+            let du = (uv.x - mitsuba_uv.x).abs();
+            let uv_off = du.min(1.0 - du).max((uv.y - mitsuba_uv.y).abs());
+            let (near, facet, uv_near) = if curved {
+                (0.01, 0.05, 5e-3)
+            } else {
+                (1e-4, 1e-4, 1e-4)
+            };
+            let ok = (t - v[6]).abs() < near
+                && uv_off < uv_near
+                && (shading - mn).length() < near
+                && (geometric - mg).length() < facet
+                && (tangent - mdp.normalize().reject_from(shading).normalize()).length()
+                    < 2.0 * facet;
+            assert!(
+                ok,
+                "{xml}\nray {o} {d}: t {t}, uv {uv}, normals {shading} {geometric}, tangent {tangent}; Mitsuba's t {}, uv {mitsuba_uv}, normals {mn} {mg}, dp/du {mdp}",
+                v[6]
+            );
+        }
+    }
+}
+
 /// `<rotate>` turns about its axis as given, as Mitsuba 3 does: about an
 /// axis not of unit length it also stretches (Mitsuba 3.9.1 maps a mesh
 /// by `<rotate x="1" y="1" angle="90"/>` with the matrix rows (1, 1, 1),
