@@ -72,6 +72,8 @@ fn load_text(text: &str) -> Result<Scene, String> {
         match p.file_name().and_then(|n| n.to_str()) {
             Some("s.xml") => Ok(owned.clone().into_bytes()),
             Some("m.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec()),
+            // The same triangle, its normals against its winding.
+            Some("vn.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 -1\nf 1//1 2//1 3//1\n".to_vec()),
             // One triangle of zero area among two.
             Some("d.obj") => Ok(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n".to_vec()),
             // Quads with texture coordinates.
@@ -1811,6 +1813,33 @@ fn thin_principled_sheets_agree_with_mitsuba() {
             &[("res", "64")],
             method(m, true, 1024),
         );
+    }
+}
+
+/// Which lights read their normals to know their side: those on meshes
+/// whose normals differ from their faces', not Mitsuba's own shapes.
+#[test]
+fn lights_on_meshes_with_their_own_normals_take_their_side_from_them() {
+    let light = r#"<emitter type="area"><rgb name="radiance" value="1"/></emitter>"#;
+    for (shape, smooth) in [
+        (
+            r#"<shape type="obj"><string name="filename" value="vn.obj"/>"#,
+            true,
+        ),
+        (
+            r#"<shape type="obj"><string name="filename" value="m.obj"/>"#,
+            false,
+        ),
+        (r#"<shape type="sphere">"#, false),
+        (r#"<shape type="rectangle">"#, false),
+    ] {
+        let scene = load_text(&with_body(&format!("{shape}{light}</shape>"))).unwrap();
+        // (with_body's own light, a rectangle, comes first.)
+        let mut lights = scene
+            .materials
+            .iter()
+            .filter(|m| m.emission.max_element() > 0.0);
+        assert_eq!(lights.next_back().unwrap().smooth_light, smooth, "{shape}");
     }
 }
 

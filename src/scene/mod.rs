@@ -68,9 +68,12 @@ pub struct Material {
     /// stands for one of two others, taken at each hit, and its own
     /// surface goes unused.
     pub choice: Option<Choice>,
-    /// An emitter some of whose triangles' corner normals differ from
-    /// their faces': it emits on the side its shading normal faces, as
-    /// Mitsuba's area lights do. Set when the scene is built.
+    /// An emitter on a mesh read from a Mitsuba scene (OBJ, PLY,
+    /// serialized) some of whose corner normals differ from their faces':
+    /// it emits on the side its shading normal faces, as Mitsuba's area
+    /// lights do. (A TOML scene's emitters emit on their faces' side, and
+    /// Mitsuba's own shapes, which qtrace tessellates, on their true
+    /// surface's, which their faces follow.)
     pub smooth_light: bool,
 }
 
@@ -1119,7 +1122,7 @@ impl Scene {
             defaults,
             guide_tables,
             environment,
-            mut materials,
+            materials,
             textures,
             geometry,
             delta_lights,
@@ -1182,13 +1185,6 @@ impl Scene {
                     path: src.clone(),
                     message: format!("triangle {i} ({what}) has zero area"),
                 });
-            }
-        }
-        for (t, (n, &m)) in positions.iter().zip(normals.iter().zip(&material_of)) {
-            let material = &mut materials[m as usize];
-            if material.emission.max_element() > 0.0 && !material.smooth_light {
-                let face = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
-                material.smooth_light = n.iter().any(|c| c.normalize().dot(face) < 1.0 - 1e-5);
             }
         }
         let has_emitter = material_of
@@ -2221,6 +2217,26 @@ mod tests {
                 defines: &[],
             },
         )
+    }
+
+    /// A TOML scene's emitter emits on its faces' side, whatever its
+    /// normals say (Mitsuba's scenes: Material::smooth_light).
+    #[test]
+    fn a_toml_scenes_lights_take_their_side_from_their_faces() {
+        let read = |p: &Path| -> std::io::Result<Vec<u8>> {
+            Ok(match p.file_name().unwrap().to_str().unwrap() {
+                "s.toml" => "mesh = \"s.obj\"\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov_y = 40\n".into(),
+                "s.obj" => "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 -1\nusemtl m\nf 1//1 2//1 3//1\n".into(),
+                _ => "newmtl m\nKe 1 1 1\n".into(),
+            })
+        };
+        let loader = Loader {
+            read: &read,
+            max_triangles: 10,
+            defines: &[],
+        };
+        let scene = Scene::load_with(Path::new("s.toml"), &loader).unwrap();
+        assert!(scene.materials.iter().all(|m| !m.smooth_light));
     }
 
     /// map_Kd: the diffuse reflectance from an image, read through the

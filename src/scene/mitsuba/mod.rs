@@ -114,6 +114,17 @@ type Mesh = (
     Option<Vec<[Vec2; 3]>>,
 );
 
+/// Whether some of a mesh's corner normals differ from their faces' (a
+/// light on it emits where they face: `Material::smooth_light`).
+fn normals_differ((triangles, normals, _): &Mesh) -> bool {
+    normals.as_ref().is_some_and(|normals| {
+        triangles.iter().zip(normals).any(|(t, n)| {
+            let face = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+            n.iter().any(|c| c.normalize().dot(face) < 1.0 - 1e-5)
+        })
+    })
+}
+
 /// Mesh attributes by name, at a shape's triangles' corners.
 type Attributes = Vec<(String, Vec<[Vec3; 3]>)>;
 
@@ -926,7 +937,7 @@ impl Builder<'_, '_> {
                 },
                 normal_map: None,
                 choice: None,
-                smooth_light: false,
+                smooth_light: matches!(kind, "obj" | "ply" | "serialized") && normals_differ(&mesh),
             });
             self.add(el, &label, mesh, attributes, m);
             return Ok(());
