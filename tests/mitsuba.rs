@@ -1398,6 +1398,19 @@ fn check(name: &str, scene: &Path, defines: &[(&str, &str)], o: Overrides) {
     assert_agrees(&label, &out, &reference(name));
 }
 
+/// `check` at 64×64 and 1024 spp with every method with NEE, and plain
+/// path tracing without it.
+fn check_every_method(name: &str, scene: &Path) {
+    for (m, nee) in [
+        (Method::PT, true),
+        (Method::PT, false),
+        (Method::SARSA, true),
+        (Method::NEURAL, true),
+    ] {
+        check(name, scene, &[("res", "64")], method(m, nee, 1024));
+    }
+}
+
 fn method(m: Method, nee: bool, spp: u32) -> Overrides {
     Overrides {
         method: Some(m),
@@ -1466,19 +1479,7 @@ fn coverage_scenes_agree_with_mitsuba() {
     );
     // Rough glass and rough plastic, a light reached only through rough
     // glass: every method, and plain path tracing without NEE.
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check(
-            "coverage-d",
-            &dir.join("coverage-d.xml"),
-            &[("res", "64")],
-            method(m, nee, 1024),
-        );
-    }
+    check_every_method("coverage-d", &dir.join("coverage-d.xml"));
     // Point, spot and directional lights (NEE's alone), and a lookat
     // without an up, with a plain and a guided method.
     for m in [Method::PT, Method::SARSA, Method::NEURAL] {
@@ -1496,14 +1497,7 @@ fn textured_scene_agrees_with_mitsuba() {
     // Bitmaps and checkerboards in every slot qtrace reads, under a
     // constant sky and a panel: every method, and pt without NEE.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-e.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check("coverage-e", &scene, &[("res", "64")], method(m, nee, 1024));
-    }
+    check_every_method("coverage-e", &scene);
 }
 
 #[test]
@@ -1625,14 +1619,7 @@ fn environment_scene_agrees_with_mitsuba() {
     // An envmap with a small sun, turned and scaled, a constant sky added:
     // every method, and pt without NEE (which must find the sun by itself).
     let scene = common::repo("tests/fixtures/mitsuba/coverage-f.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check("coverage-f", &scene, &[("res", "64")], method(m, nee, 1024));
-    }
+    check_every_method("coverage-f", &scene);
 }
 
 #[test]
@@ -1730,14 +1717,7 @@ fn masks_and_blends_agree_with_mitsuba() {
     // a card with two faces, a checkerboard roughness and a normal map
     // around a blend.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-l.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check("coverage-l", &scene, &[("res", "64")], method(m, nee, 1024));
-    }
+    check_every_method("coverage-l", &scene);
 }
 
 #[test]
@@ -1850,19 +1830,7 @@ fn lights_on_smooth_meshes_emit_where_their_normals_face() {
     // winding: Mitsuba's area lights emit on the side the interpolated
     // normal faces.
     let scene = common::repo("tests/fixtures/mitsuba/smooth-lights.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check(
-            "smooth-lights",
-            &scene,
-            &[("res", "64")],
-            method(m, nee, 1024),
-        );
-    }
+    check_every_method("smooth-lights", &scene);
 }
 
 #[test]
@@ -2071,14 +2039,7 @@ fn lights_with_a_null_bsdf_agree_with_mitsuba() {
     // As exporters write Blender's lights: paths pass through them, seen
     // from the front with the sky behind, from behind, and in a mirror.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-q.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check("coverage-q", &scene, &[("res", "64")], method(m, nee, 1024));
-    }
+    check_every_method("coverage-q", &scene);
 }
 
 #[test]
@@ -2086,14 +2047,7 @@ fn lights_whose_bsdf_scatters_agree_with_mitsuba() {
     // Lights of diffuse and rough metal reflect the room's light (and NEE
     // runs at them); a lamp given no BSDF is black, as Mitsuba makes it.
     let scene = common::repo("tests/fixtures/mitsuba/coverage-r.xml");
-    for (m, nee) in [
-        (Method::PT, true),
-        (Method::PT, false),
-        (Method::SARSA, true),
-        (Method::NEURAL, true),
-    ] {
-        check("coverage-r", &scene, &[("res", "64")], method(m, nee, 1024));
-    }
+    check_every_method("coverage-r", &scene);
     // Hidden from the camera, as in Mitsuba, the camera's ray passes them
     // by, whatever their BSDF.
     check(
