@@ -439,17 +439,9 @@ fn a_mirrored_envmap_turns_the_sky_over() {
 /// transmittance, which both renderers integrate numerically.
 #[test]
 fn bsdfs_evaluate_as_mitsubas() {
-    let text =
-        std::fs::read_to_string(common::repo("tests/fixtures/mitsuba/bsdf-evals.txt")).unwrap();
     let dir = common::scratch("mitsuba-bsdf-evals");
     let xml = dir.join("s.xml");
-    let mut blocks = Vec::new();
-    for line in text.lines() {
-        match line.strip_prefix("bsdf ") {
-            Some(case) => blocks.push((case, Vec::new())),
-            None => blocks.last_mut().unwrap().1.push(line),
-        }
-    }
+    let blocks = fixture_blocks("tests/fixtures/mitsuba/bsdf-evals.txt", "bsdf ");
     assert_eq!(blocks.len(), 15);
     for (case, lines) in blocks {
         std::fs::write(
@@ -469,11 +461,7 @@ fn bsdfs_evaluate_as_mitsubas() {
         } else {
             1e-4
         };
-        for line in lines {
-            let v: Vec<f32> = line
-                .split_whitespace()
-                .map(|x| x.parse().unwrap())
-                .collect();
+        for v in lines {
             let (wo, wi, want) = (
                 Vec3::new(v[0], v[1], v[2]),
                 Vec3::new(v[3], v[4], v[5]),
