@@ -290,7 +290,9 @@ struct Triangle {
 // chosen at each hit before any shading: by the side the path arrives on
 // (color.z CHOICE_BY_SIDE: the first on the front), or at random, the
 // second with probability color.x, or where color.y is above 0 the
-// luminance of texture color.y - 1 there. Either may be a choice itself, to
+// luminance of texture color.y - 1 there (CHOICE_AT_RANDOM; CHOICE_MASK
+// for a mask, whose first is its clear part and second the masked
+// material, its opacity the weight). Either may be a choice itself, to
 // MAX_CHOICE_DEPTH levels. Where FEATURE_CHOICES says so.
 #define MATERIAL_CHOICE 5
 // Mitsuba's principled (src/bsdf/principled.rs): color.rgb its base
@@ -305,6 +307,7 @@ struct Triangle {
 #define MATERIAL_PRINCIPLED_THIN 7
 #define CHOICE_AT_RANDOM 0
 #define CHOICE_BY_SIDE 1
+#define CHOICE_MASK 2
 #define MAX_CHOICE_DEPTH 4
 // Added to the kind: the material is black on the side its triangle's
 // normal does not face (Mitsuba's BSDFs outside `twosided`).

@@ -109,7 +109,13 @@ struct Path {
     uint hits; // surfaces its rays reached (PathSample.lengths)
     uint rays;
     float prev_bsdf_pdf; // 0 marks the camera ray: no MIS for what it hits
-    bool sky_hidden; // HIDE_EMITTERS hides the sky from its ray
+    // Whether its radiance counts, as Mitsuba's path tracer decides: from
+    // the start under a visible sky, else once a bounce samples a lobe that
+    // is not null (a null BSDF, a mask's clear part, a thin sheet's
+    // transmission are null) or the path ends on an emitter at its last
+    // allowed vertex (without HIDE_EMITTERS). A path that only passes
+    // through surfaces into empty space (or a hidden sky) counts nothing.
+    bool valid;
     // The squared TD errors of the transitions the guide learned from it.
     uint td_count;
     float td_sq_sum;
@@ -311,7 +317,7 @@ void begin_path(uvec2 pixel, uint sample_index, out Path path, out Trail trail) 
     path.hits = 0u;
     path.rays = 0u;
     path.prev_bsdf_pdf = 0.0;
-    path.sky_hidden = HIDE_EMITTERS;
+    path.valid = ENVIRONMENT && !HIDE_EMITTERS;
     guide_begin_path();
     trail.prev_vertex = guide_none();
     if (mixture_two_sided()) {
@@ -463,7 +469,7 @@ float nee_mis_pick(GuideVertex from, uint light) {
 // The path's ray left the scene: the sky, weighed against NEE's draws of
 // it as an emitter is.
 void gather_sky(inout Path path, inout Trail trail) {
-    vec3 le = ENVIRONMENT && !(HIDE_EMITTERS && path.sky_hidden) ? environment_eval(path.dir) : vec3(0.0);
+    vec3 le = ENVIRONMENT && !(HIDE_EMITTERS && !path.valid) ? environment_eval(path.dir) : vec3(0.0);
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky's parts are the last of NEE's lights.
@@ -610,8 +616,10 @@ float normal_map_weight(Shading s, vec3 d) {
 // one, else by power), one point or direction on it, a shadow ray, and
 // the sample weighed by MIS against the bounce's density (the mixture `m`).
 // Adds it to the path's radiance and returns its luminance (what the
-// transition that reached s learns NEE brought there).
-float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixture m, bool transmits) {
+// transition that reached s learns NEE brought there). `coverage`: the
+// share of the surface that scatters (a mask's opacity; 1 elsewhere), which
+// scales the BSDF and its density as Mitsuba's mask does.
+float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixture m, bool transmits, float coverage) {
     float direct_lum = 0.0;
     float pick_pdf;
     uint group;
@@ -684,12 +692,12 @@ float next_event(inout Path path, Shading s, Bsdf bsdf, GuideVertex here, Mixtur
             vec3 wi_local = vec3(dot(wi, s.t), dot(wi, s.b), cos_x);
             float scatter_pdf = mixture_pdf(m, bsdf, s.wo, wi_local);
             // A plastic's coat takes some bounces as a mirror.
-            scatter_pdf *= 1.0 - bsdf_delta_share(bsdf, s.wo);
+            scatter_pdf *= (1.0 - bsdf_delta_share(bsdf, s.wo)) * coverage;
             // The light's density as MIS takes it (mis_pick).
             float per_pick = GUIDE_LIGHTS ? light_pdf / pick_pdf : 0.0;
             float mis_pdf = GUIDE_LIGHTS ? per_pick * mis_pick(pick_pdf, entry) : light_pdf;
             float weight = delta_light ? 1.0 : power_heuristic(mis_pdf, scatter_pdf);
-            vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * normal_map_weight(s, wi) * le;
+            vec3 f_le = bsdf_eval(bsdf, s.wo, wi_local) * (normal_map_weight(s, wi) * coverage) * le;
             vec3 direct = f_le * weight / light_pdf;
             path.radiance += path.throughput * direct;
             direct_lum = luminance(direct);
@@ -730,13 +738,9 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
         local = bsdf_sample_delta(bsdf, s.wo, rng_next(path.rng), weight);
         weight /= delta ? 1.0 : delta_share;
         follow_unguided(trail, here, local, weight);
-        if (HIDE_EMITTERS) {
-            path.sky_hidden = path.sky_hidden && bsdf_is(bsdf, MATERIAL_THIN) && local.z * s.wo.z < 0.0;
-        }
+        path.valid = path.valid || !bsdf_is(bsdf, MATERIAL_THIN) || local.z * s.wo.z >= 0.0;
     } else {
-        if (HIDE_EMITTERS) {
-            path.sky_hidden = false;
-        }
+        path.valid = true;
         uint sector = 0u;
         float p_sector = 0.0;
         float p_bsdf = 0.0;
@@ -849,11 +853,16 @@ Hit pass_emitters(inout Path path, Hit hit) {
 // The material choice `mat` stands for at point p of triangle i (Mitsuba's
 // mask, blendbsdf, twosided with two BSDFs; MATERIAL_CHOICE). Taking one
 // of the two at random by the weight, rather than Mitsuba's mixture of
-// their values, converges to the same image.
-Material chosen_material(Material mat, bool front, uint i, Triangle tri, vec3 p, inout uint rng) {
+// their values, converges to the same image. A mask (CHOICE_MASK) always
+// gives its inner material, for NEE to see the surface, multiplies
+// `coverage` by its opacity and sets `passes` where the path goes through
+// its clear part.
+Material chosen_material(Material mat, bool front, uint i, Triangle tri, vec3 p, inout uint rng, inout float coverage,
+                         inout bool passes) {
     for (uint level = 0u; level < MAX_CHOICE_DEPTH && uint(mat.color.w) == MATERIAL_CHOICE; ++level) {
         bool second;
-        if (uint(mat.color.z) == CHOICE_BY_SIDE) {
+        uint by = uint(mat.color.z);
+        if (by == CHOICE_BY_SIDE) {
             second = !front;
         } else {
             float w = mat.color.x;
@@ -863,6 +872,11 @@ Material chosen_material(Material mat, bool front, uint i, Triangle tri, vec3 p,
                 w = clamp(luminance(texture_at(t - 1u, i, b, surface_uv(i, b))), 0.0, 1.0);
             }
             second = rng_next(rng) < w;
+            if (by == CHOICE_MASK) {
+                coverage *= w;
+                passes = passes || !second;
+                second = true;
+            }
         }
         mat = load_material(uint(second ? mat.emission.y : mat.emission.x));
     }
@@ -892,9 +906,17 @@ bool scatter(inout Path path, inout Trail trail) {
                     (uint(mat.color.w) & MATERIAL_EMITTER_REFLECTS) != 0u;
     if (scatters) {
         light = emitter_light(path, trail, hit, tri, mat, cos_out);
+        if (path.depth >= params.max_depth && !HIDE_EMITTERS) {
+            path.valid = true;
+        }
     } else if (tri.light_pdf > 0.0) {
         gather_emitter(path, trail, hit, tri, mat, cos_out);
-        if ((uint(mat.color.w) & MATERIAL_EMITTER_PASSES) == 0u || path.depth >= params.max_depth) {
+        bool null_bsdf = (uint(mat.color.w) & MATERIAL_EMITTER_PASSES) != 0u;
+        // The path ends here: on an emitter that does not scatter, as a
+        // black BSDF's sample would end it (not a null lobe), or at its
+        // last allowed vertex (Path.valid).
+        if (!null_bsdf || path.depth >= params.max_depth) {
+            path.valid = path.valid || (path.depth < params.max_depth || !HIDE_EMITTERS);
             return false;
         }
         // A null BSDF: on through the emitter, a delta bounce counted in
@@ -926,8 +948,12 @@ bool scatter(inout Path path, inout Trail trail) {
         front = dot(sn, path.dir) < 0.0;
         s.ns = front ? sn : -sn;
     }
+    // Under a mask: the share of the surface that scatters, and whether
+    // the path goes through its clear part (after NEE at the surface).
+    float coverage = 1.0;
+    bool passes = false;
     if ((MATERIAL_FEATURES & FEATURE_CHOICES) != 0u) {
-        mat = chosen_material(mat, front, hit.triangle, tri, s.point, path.rng);
+        mat = chosen_material(mat, front, hit.triangle, tri, s.point, path.rng, coverage, passes);
     }
     s.unmapped = s.ns;
     s.map_alpha2 = -1.0;
@@ -1005,7 +1031,7 @@ bool scatter(inout Path path, inout Trail trail) {
     // needs it, at the first hit: the diffuse form serves every lobe there
     // (lavapipe would run a glossy lobe's estimate, a BSDF sample, at every
     // vertex).
-    bool glossy = GUIDE_LEARNS && !unguided && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
+    bool glossy = GUIDE_LEARNS && !unguided && !passes && !bsdf_is(bsdf, MATERIAL_DIFFUSE) && !bsdf_smooth_plastic(bsdf);
     float reflected = 0.0;
     if (!GUIDE_LEARNS) {
         reflected = path.depth == 0u ? bsdf_reflect(bsdf, s.wo, guide_irradiance(here)) : 0.0;
@@ -1024,16 +1050,27 @@ bool scatter(inout Path path, inout Trail trail) {
         return false;
     }
 
-    float direct_lum = nee && !delta ? next_event(path, s, bsdf, here, mixture, transmits) : 0.0;
+    float direct_lum = nee && !delta ? next_event(path, s, bsdf, here, mixture, transmits, coverage) : 0.0;
     if (learn) {
-        if (unguided && (trail.chaining || guide_covers(trail.prev_vertex))) {
+        if ((unguided || passes) && (trail.chaining || guide_covers(trail.prev_vertex))) {
             pass_through_delta(trail);
         } else {
             land(trail, light.x, light.y, reflected, direct_lum);
         }
     }
-    float mix;
-    if (!sample_bounce(path, trail, s, bsdf, here, mixture, delta, transmits, glossy, mix) || !survives_roulette(path, trail)) {
+    float mix = 0.0;
+    if (passes) {
+        // Straight on through the mask's clear part: a null lobe's bounce,
+        // counted in the depth, which no MIS weighs what it reaches by.
+        follow_unguided(trail, here, -s.wo, vec3(1.0));
+        path.prev_bsdf_pdf = 0.0;
+        path.origin = s.point - eps * s.ng;
+    } else if (!sample_bounce(path, trail, s, bsdf, here, mixture, delta, transmits, glossy, mix)) {
+        return false;
+    }
+    // The density MIS weighs what the bounce reaches by: the mask's.
+    path.prev_bsdf_pdf *= coverage;
+    if (!survives_roulette(path, trail)) {
         return false;
     }
     if (mix != 0.0) {
@@ -1124,6 +1161,9 @@ void main() {
                 samples[out_slot].td_count = path.td_count;
                 samples[out_slot].td_sq_sum = path.td_sq_sum;
                 lengths |= PATH_LEARNED;
+            }
+            if (!path.valid) {
+                path.radiance = vec3(0.0);
             }
             samples[out_slot].radiance = PIXEL_FILTER >= FILTER_CUBIC ? path.radiance * path.filter_weight : path.radiance;
             samples[out_slot].lengths = lengths;

@@ -1708,6 +1708,81 @@ fn masks_and_blends_agree_with_mitsuba() {
     check_every_method("coverage-l", &scene);
 }
 
+/// Mitsuba's path tracer keeps a sample's light only if its path scattered
+/// somewhere, began under a visible sky or ended on an emitter at its last
+/// allowed vertex: tiny scenes of `null` panes, thin sheets and masks before
+/// lights, lit squares, a sky or nothing, at every depth limit and with
+/// `hide_emitters` off and on, against Mitsuba's images
+/// (scripts/mitsuba_pass_through_probes.py). Without NEE only where there is
+/// no point light, which paths cannot hit, and no mask: there Mitsuba's
+/// image depends on its sampler (it counts the mask's NEE only where the
+/// path scatters later), which `pt --nee` shares.
+#[test]
+fn paths_that_only_pass_through_count_as_in_mitsuba() {
+    let dir = common::scratch("mitsuba-pass-through");
+    let blocks = fixture_blocks("tests/fixtures/mitsuba/pass-through.txt", "scene ");
+    assert_eq!(blocks.len(), 8);
+    let ctx = common::gpu();
+    let (mut checked, mut failed) = (0, Vec::new());
+    for (k, (xml, lines)) in blocks.iter().enumerate() {
+        let file = dir.join(format!("s{k}.xml"));
+        std::fs::write(&file, xml).unwrap();
+        for v in lines {
+            let (depth, hide, want, err) = (v[0] as i32, v[1] != 0.0, v[2] as f64, v[3] as f64);
+            let defines = [
+                ("max_depth".to_string(), depth.to_string()),
+                ("hide".to_string(), hide.to_string()),
+            ];
+            let scene = Scene::load_defined(&file, &defines).unwrap();
+            let mut methods = vec![(Method::PT, true)];
+            if depth == -1 {
+                methods.extend([(Method::SARSA, true), (Method::NEURAL, true)]);
+            }
+            if !xml.contains("\"point\"") && !xml.contains("\"mask\"") {
+                methods.push((Method::PT, false));
+            }
+            for (m, nee) in methods {
+                let out = common::render_with(&ctx, &scene, method(m, nee, 1024));
+                let n = out.stats.image_spp as f64;
+                let count = out.image.pixels.len() as f64;
+                let mean = out
+                    .image
+                    .pixels
+                    .iter()
+                    .map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0)
+                    .sum::<f64>()
+                    / count;
+                let se = (out
+                    .variance
+                    .pixels
+                    .iter()
+                    .map(|v| (v[0] + v[1] + v[2]) as f64 / 3.0)
+                    .sum::<f64>()
+                    / n)
+                    .sqrt()
+                    / count;
+                // (Mitsuba's noiseless images differ from qtrace's by its
+                // float rounding: a constant sky of 0.1 seen reads 0.099985.)
+                let allowed = 5.0 * (se * se + err * err).sqrt() + 5e-4 * want + 1e-6;
+                if (mean - want).abs() > allowed {
+                    failed.push(format!(
+                        "scene {k} ({}) at max_depth {depth}, hide_emitters {hide}: {} gives {mean:.6}, Mitsuba {want:.6} (allowed {allowed:.2e})",
+                        xml.split("</sensor>").nth(1).unwrap_or(xml),
+                        m.label(nee)
+                    ));
+                }
+                checked += 1;
+            }
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} of {checked} renders differ:\n{}",
+        failed.len(),
+        failed.join("\n")
+    );
+}
+
 #[test]
 fn bump_maps_agree_with_mitsuba() {
     // Height fields on diffuse, rough gold, a low torus and a blend, inside

@@ -283,10 +283,14 @@ impl Material {
     /// The material as the kernels read it (`Material` of shared.h).
     pub fn gpu(&self) -> shaders::Material {
         if let Some(c) = self.choice {
+            let at_random = match c.kind {
+                ChoiceKind::Mask { .. } => shaders::CHOICE_MASK,
+                _ => shaders::CHOICE_AT_RANDOM,
+            };
             let (by, weight, texture) = match c.weight() {
                 None => (shaders::CHOICE_BY_SIDE, 0.0, 0),
-                Some(Weight::Constant(w)) => (shaders::CHOICE_AT_RANDOM, w, 0),
-                Some(Weight::Texture(t)) => (shaders::CHOICE_AT_RANDOM, 0.0, t + 1),
+                Some(Weight::Constant(w)) => (at_random, w, 0),
+                Some(Weight::Texture(t)) => (at_random, 0.0, t + 1),
             };
             return shaders::Material {
                 color: [
