@@ -469,7 +469,7 @@ float nee_mis_pick(GuideVertex from, uint light) {
 // The path's ray left the scene: the sky, weighed against NEE's draws of
 // it as an emitter is.
 void gather_sky(inout Path path, inout Trail trail) {
-    vec3 le = ENVIRONMENT && !(HIDE_EMITTERS && !path.valid) ? environment_eval(path.dir) : vec3(0.0);
+    vec3 le = ENVIRONMENT && path.valid ? environment_eval(path.dir) : vec3(0.0);
     float weight = 1.0;
     if (ENVIRONMENT && nee && path.prev_bsdf_pdf > 0.0) {
         // The sky's parts are the last of NEE's lights.
@@ -904,19 +904,20 @@ bool scatter(inout Path path, inout Trail trail) {
     vec2 light = vec2(0.0, 1.0);
     bool scatters = (MATERIAL_FEATURES & FEATURE_EMITTERS_REFLECT) != 0u && tri.light_pdf > 0.0 &&
                     (uint(mat.color.w) & MATERIAL_EMITTER_REFLECTS) != 0u;
+    // A path that ends on an emitter at its last allowed vertex counts
+    // (Path.valid).
+    if (!HIDE_EMITTERS && tri.light_pdf > 0.0 && path.depth >= params.max_depth) {
+        path.valid = true;
+    }
     if (scatters) {
         light = emitter_light(path, trail, hit, tri, mat, cos_out);
-        if (path.depth >= params.max_depth && !HIDE_EMITTERS) {
-            path.valid = true;
-        }
     } else if (tri.light_pdf > 0.0) {
         gather_emitter(path, trail, hit, tri, mat, cos_out);
-        bool null_bsdf = (uint(mat.color.w) & MATERIAL_EMITTER_PASSES) != 0u;
-        // The path ends here: on an emitter that does not scatter, as a
-        // black BSDF's sample would end it (not a null lobe), or at its
-        // last allowed vertex (Path.valid).
-        if (!null_bsdf || path.depth >= params.max_depth) {
-            path.valid = path.valid || (path.depth < params.max_depth || !HIDE_EMITTERS);
+        if ((uint(mat.color.w) & MATERIAL_EMITTER_PASSES) == 0u || path.depth >= params.max_depth) {
+            // Before its last vertex only an emitter that does not scatter
+            // ends the path here, as a black BSDF's sample (not a null
+            // lobe) would.
+            path.valid = path.valid || path.depth < params.max_depth;
             return false;
         }
         // A null BSDF: on through the emitter, a delta bounce counted in

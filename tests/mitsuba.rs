@@ -1745,22 +1745,8 @@ fn paths_that_only_pass_through_count_as_in_mitsuba() {
                 let out = common::render_with(&ctx, &scene, method(m, nee, 1024));
                 let n = out.stats.image_spp as f64;
                 let count = out.image.pixels.len() as f64;
-                let mean = out
-                    .image
-                    .pixels
-                    .iter()
-                    .map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0)
-                    .sum::<f64>()
-                    / count;
-                let se = (out
-                    .variance
-                    .pixels
-                    .iter()
-                    .map(|v| (v[0] + v[1] + v[2]) as f64 / 3.0)
-                    .sum::<f64>()
-                    / n)
-                    .sqrt()
-                    / count;
+                let mean = out.image.mean();
+                let se = (out.variance.mean() * count / n).sqrt() / count;
                 // (Mitsuba's noiseless images differ from qtrace's by its
                 // float rounding: a constant sky of 0.1 seen reads 0.099985.)
                 let allowed = 5.0 * (se * se + err * err).sqrt() + 5e-4 * want + 1e-6;
