@@ -202,6 +202,8 @@
 
 // Bounces before Russian roulette may end a path.
 #define RR_START_DEPTH 3
+// ... for a path that does not count yet (trace.comp, survives_roulette).
+#define PENDING_RR_START_DEPTH 5
 // Most bounce steps one trace invocation takes: llvmpipe silently ends every
 // loop of an invocation once they have run 65 535 iterations in all.
 #define MAX_TRACE_STEPS 65000

@@ -806,9 +806,13 @@ bool sample_bounce(inout Path path, inout Trail trail, Shading s, Bsdf bsdf, Gui
     return true;
 }
 
-// Russian roulette from RR_START_DEPTH on; false ends the path.
+// Russian roulette from RR_START_DEPTH on; false ends the path. A path
+// that does not count yet (Path.valid) drops the light it gathered when it
+// ends, so where its roulette starts shapes the image: such a path takes
+// Mitsuba's, from its fifth vertex on, by the throughput alone.
 bool survives_roulette(inout Path path, Trail trail) {
-    if (path.depth + 1u < RR_START_DEPTH) {
+    bool pending = !path.valid;
+    if (path.depth + 1u < (pending ? PENDING_RR_START_DEPTH : RR_START_DEPTH)) {
         return true;
     }
     float q = min(max(path.throughput.r, max(path.throughput.g, path.throughput.b)), 0.95);
@@ -819,7 +823,7 @@ bool survives_roulette(inout Path path, Trail trail) {
     // against the estimate for the whole path (weight window at 1).
     // Never below the throughput rule, so a Q that underestimates ends
     // no more of a path's continuations than that rule would.
-    if (trail.guided_roulette && trail.path_estimate > 0.0) {
+    if (!pending && trail.guided_roulette && trail.path_estimate > 0.0) {
         float expected = luminance(path.throughput) * trail.prev_q;
         q = max(q, clamp(expected / trail.path_estimate, 0.1, 0.95));
     }
@@ -930,6 +934,9 @@ bool scatter(inout Path path, inout Trail trail) {
             trail.pick_vertex = guide_none();
         }
         trail.chaining = false;
+        if (!path.valid && !survives_roulette(path, trail)) {
+            return false;
+        }
         path.depth += 1u;
         return true;
     }

@@ -42,6 +42,13 @@ LIT = ('<shape type="rectangle"><bsdf type="diffuse"><rgb name="reflectance" val
        '<emitter type="point"><point name="position" x="0" y="0" z="3"/><rgb name="intensity" value="1"/></emitter>')
 POINT = '<emitter type="point"><point name="position" x="0" y="0" z="3"/><rgb name="intensity" value="1"/></emitter>'
 SKY = '<emitter type="constant"><rgb name="radiance" value="0.1"/></emitter>'
+# A light with a null BSDF seen through four null panes, before a grey square
+# (the first surface that scatters, some passes after the light's).
+STACK = (''.join(f'<shape type="rectangle"><transform name="to_world"><translate z="{z}"/></transform>{NULL}</shape>'
+                 for z in (1, 1.5, 2, 2.5))
+         + '<shape type="rectangle"><transform name="to_world"><translate z="0.5"/></transform>'
+           '<emitter type="area"><rgb name="radiance" value="1"/></emitter><bsdf type="null"/></shape>'
+           '<shape type="rectangle"><bsdf type="diffuse"/></shape>')
 
 SCENES = [
     light(NULL),                       # a light whose BSDF is null, against nothing
@@ -52,6 +59,7 @@ SCENES = [
     pane(MASK) + light() + POINT,      # ... before a light
     pane(MASK) + SKY,                  # a mask under a sky
     pane(NULL) + SKY,                  # a null pane under a sky
+    STACK,                             # a null light through null panes
 ]
 
 

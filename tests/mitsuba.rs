@@ -1721,7 +1721,7 @@ fn masks_and_blends_agree_with_mitsuba() {
 fn paths_that_only_pass_through_count_as_in_mitsuba() {
     let dir = common::scratch("mitsuba-pass-through");
     let blocks = fixture_blocks("tests/fixtures/mitsuba/pass-through.txt", "scene ");
-    assert_eq!(blocks.len(), 8);
+    assert_eq!(blocks.len(), 9);
     let ctx = common::gpu();
     let (mut checked, mut failed) = (0, Vec::new());
     for (k, (xml, lines)) in blocks.iter().enumerate() {
