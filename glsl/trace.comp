@@ -112,8 +112,8 @@ struct Path {
     // Whether its radiance counts, as Mitsuba's path tracer decides: from
     // the start under a visible sky, else once a bounce samples a lobe that
     // is not null (a null BSDF, a mask's clear part, a thin sheet's
-    // transmission are null) or the path ends on an emitter at its last
-    // allowed vertex (without HIDE_EMITTERS). A path that only passes
+    // transmission are null), the one drawn at its last allowed vertex
+    // (which it does not follow) included. A path that only passes
     // through surfaces into empty space (or a hidden sky) counts nothing.
     bool valid;
     // The squared TD errors of the transitions the guide learned from it.
@@ -908,20 +908,15 @@ bool scatter(inout Path path, inout Trail trail) {
     vec2 light = vec2(0.0, 1.0);
     bool scatters = (MATERIAL_FEATURES & FEATURE_EMITTERS_REFLECT) != 0u && tri.light_pdf > 0.0 &&
                     (uint(mat.color.w) & MATERIAL_EMITTER_REFLECTS) != 0u;
-    // A path that ends on an emitter at its last allowed vertex counts
-    // (Path.valid).
-    if (!HIDE_EMITTERS && tri.light_pdf > 0.0 && path.depth >= params.max_depth) {
-        path.valid = true;
-    }
     if (scatters) {
         light = emitter_light(path, trail, hit, tri, mat, cos_out);
     } else if (tri.light_pdf > 0.0) {
         gather_emitter(path, trail, hit, tri, mat, cos_out);
-        if ((uint(mat.color.w) & MATERIAL_EMITTER_PASSES) == 0u || path.depth >= params.max_depth) {
-            // Before its last vertex only an emitter that does not scatter
-            // ends the path here, as a black BSDF's sample (not a null
-            // lobe) would.
-            path.valid = path.valid || path.depth < params.max_depth;
+        bool null_bsdf = (uint(mat.color.w) & MATERIAL_EMITTER_PASSES) != 0u;
+        if (!null_bsdf || path.depth >= params.max_depth) {
+            // A black BSDF's sample ends the path here and counts it (its
+            // lobe is not null); a null BSDF's at the last vertex does not.
+            path.valid = path.valid || !null_bsdf;
             return false;
         }
         // A null BSDF: on through the emitter, a delta bounce counted in
@@ -1054,6 +1049,11 @@ bool scatter(inout Path path, inout Trail trail) {
             // (A glossy lobe here, where the path ends, learns 0 for what it
             // would reflect: only paths max_depth long reach it.)
             land(trail, light.x, light.y, reflected, 0.0);
+        }
+        // Mitsuba's vectorized path tracer draws a BSDF sample at the last
+        // vertex too, and the path counts if its lobe is not null.
+        if (!path.valid && !passes) {
+            path.valid = !bsdf_is(bsdf, MATERIAL_THIN) || rng_next(path.rng) < thin_reflectance(s.wo.z, bsdf.eta);
         }
         return false;
     }

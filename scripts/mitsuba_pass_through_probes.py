@@ -4,20 +4,25 @@
   python3 scripts/mitsuba_pass_through_probes.py tests/fixtures/mitsuba/pass-through.txt
 
 Mitsuba's `path` keeps a sample's light only if its path scattered somewhere
-(or began under a visible sky, or ended on an emitter at its last allowed
-vertex). Each scene in SCENES shows that rule: a `null` pane, a thin sheet or
-a mask before lights, lit squares, a sky or nothing, on a 4x4 film. For each,
-at max_depth 1, 2, 3 and -1 and with hide_emitters off and on, the file gets
-a line `max_depth hide mean stderr`: the image's mean and its standard error
-from 4 passes of 16,384 samples per pixel (`scalar_rgb`, seeds 0-3). The
-scene's own line, `scene <its XML>`, reads $max_depth and $hide.
-Needs `pip install mitsuba numpy`.
+(or began under a visible sky); at the last allowed vertex its vectorized
+variants still draw a BSDF sample, which counts if its lobe is not null (its
+`scalar_rgb` counts there only an emitter, without hide_emitters). Each scene
+in SCENES shows that rule: `null` panes, a thin sheet or a mask before
+lights, lit squares, a sky or nothing, on a 4x4 film. For each, at max_depth
+1, 2, 3 and -1 and with hide_emitters off and on, the file gets a line
+`max_depth hide mean stderr`: the image's mean and its standard error from 4
+passes of 16,384 samples per pixel (`llvm_ad_rgb`, seeds 0-3). The scene's
+own line, `scene <its XML>`, reads $max_depth and $hide.
+Needs `pip install mitsuba numpy` and an LLVM library (Debian: libllvm19).
 """
 
+import os
 import sys
 
-import mitsuba as mi
-import numpy as np
+if "DRJIT_LIBLLVM_PATH" not in os.environ:
+    os.environ["DRJIT_LIBLLVM_PATH"] = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+import mitsuba as mi  # noqa: E402
+import numpy as np  # noqa: E402
 
 HEAD = ('<scene version="3.0.0"><default name="max_depth" value="-1"/><default name="hide" value="false"/>'
         '<integrator type="path"><integer name="max_depth" value="$max_depth"/>'
@@ -66,7 +71,7 @@ SCENES = [
 def main():
     if len(sys.argv) != 2:
         sys.exit(__doc__)
-    mi.set_variant('scalar_rgb')
+    mi.set_variant('llvm_ad_rgb')
     lines = []
     for body in SCENES:
         xml = HEAD + body + '</scene>'
