@@ -59,8 +59,7 @@ def main():
                                                     "release", "qtrace"))
     ap.add_argument("--spp", type=int, default=256)
     args = ap.parse_args()
-    if args.variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in os.environ:
-        os.environ["DRJIT_LIBLLVM_PATH"] = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+    os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
     import mitsuba as mi
     import numpy as np
     mi.set_variant(args.variant)

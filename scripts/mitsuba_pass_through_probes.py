@@ -19,8 +19,7 @@ Needs `pip install mitsuba numpy` and an LLVM library (Debian: libllvm19).
 import os
 import sys
 
-if "DRJIT_LIBLLVM_PATH" not in os.environ:
-    os.environ["DRJIT_LIBLLVM_PATH"] = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
 import mitsuba as mi  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -52,7 +51,7 @@ SKY = '<emitter type="constant"><rgb name="radiance" value="0.1"/></emitter>'
 STACK = (''.join(f'<shape type="rectangle"><transform name="to_world"><translate z="{z}"/></transform>{NULL}</shape>'
                  for z in (1, 1.5, 2, 2.5))
          + '<shape type="rectangle"><transform name="to_world"><translate z="0.5"/></transform>'
-           '<emitter type="area"><rgb name="radiance" value="1"/></emitter><bsdf type="null"/></shape>'
+           f'<emitter type="area"><rgb name="radiance" value="1"/></emitter>{NULL}</shape>'
            '<shape type="rectangle"><bsdf type="diffuse"/></shape>')
 
 SCENES = [

@@ -241,12 +241,13 @@ def main():
                 if abs(z[k]) > abs(worst):
                     worst = z[k]
         text = open(xml).read()
-        notes = ",".join(n for n in ["mask", "null", "thindielectric", "hide_emitters\" value=\"true",
-                                     "envmap", "constant"] if n in text).replace("hide_emitters\" value=\"true", "hide")
+        hide = 'hide_emitters" value="true' in text
+        notes = ",".join([n for n in ["mask", "null", "thindielectric"] if n in text] + ["hide"] * hide
+                         + [n for n in ["envmap", "constant"] if n in text])
         # Mitsuba 3.9.1 shades a sphere, disk or cylinder that the camera
         # sees behind a hidden area emitter at the wrong point
         # (scripts/mitsuba_hidden_shapes.py): its image is not the reference.
-        if "hide_emitters\" value=\"true" in text and 'type="area"' in text and any(
+        if hide and 'type="area"' in text and any(
                 f'<shape type="{k}"' in text for k in ("sphere", "disk", "cylinder")):
             notes += ",mitsuba-hidden-curved?"
         print(f"{s:5} {m.mean():9.5f} {q.mean():9.5f} {100 * diff:7.2f} {worst:8.1f}  {notes}", flush=True)
